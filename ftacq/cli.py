@@ -1,0 +1,82 @@
+"""The ``ftacq`` command line: one sub-command module per job under :mod:`ftacq.commands`.
+
+Each module in ``COMMAND_MODULES`` exposes ``register(subparsers)``, which adds its sub-parser and sets
+``func`` (``args -> int`` exit code). Modules import heavy dependencies inside their ``func`` so that
+``ftacq --help`` stays fast. Library code raises :class:`ftacq.errors.FtacqError`; this is the only place
+that turns an error into a message and an exit status:
+
+- 0 success, 1 a device or procedure failure, 2 bad input (file, URL, configuration), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from ftacq import __version__
+from ftacq.errors import AbortedError, FtacqError, InputError
+
+COMMAND_MODULES = (
+    "ftacq.commands.identify",
+    "ftacq.commands.compensate",
+    "ftacq.commands.sensor",
+    "ftacq.commands.robot",
+    "ftacq.commands.calibrate",
+    "ftacq.commands.config",
+    "ftacq.commands.monitor",
+)
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the top-level parser with every available sub-command registered."""
+    parser = argparse.ArgumentParser(
+        prog="ftacq",
+        description="Calibrate a wrist-mounted ATI F/T sensor on a UR arm and stream compensated wrenches.",
+    )
+    parser.add_argument("--version", action="version", version=f"ftacq {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for module_name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as error:
+            if error.name == module_name:
+                continue  # not built yet
+            raise
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(args.verbose, 2),
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("ftacq: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except AbortedError as error:
+        print(f"ftacq: {error}", file=sys.stderr)
+        return EXIT_INTERRUPTED if "interrupt" in str(error).lower() else EXIT_FAILURE
+    except InputError as error:
+        print(f"ftacq: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except FtacqError as error:
+        print(f"ftacq: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""Universal Robots kinematics from UR's published DH parameters.
+
+Standard (distal) DH: ``T_i = Rz(q_i + θ_i) Tz(d_i) Tx(a_i) Rx(α_i)``; the product of the six is
+``base_T_flange`` (the tool flange, TCP offset zero), which is what a UR controller reports as
+``actual_TCP_pose`` when its TCP offset is zero. A Pinocchio model of the same chain is built by
+:func:`pinocchio_model` for IK and collision checking in the planner.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftacq.so3 import rotvec_from_rotation
+
+_HALF_PI = np.pi / 2
+
+
+@dataclass(frozen=True)
+class URModel:
+    """A UR arm: DH parameters (m, rad) and joint limits (rad).
+
+    Attributes:
+        name: e.g. ``"UR5e"``. d, a, alpha: the six DH d_i, a_i (m) and α_i (rad).
+        joint_min_rad, joint_max_rad: position limits (elbow restricted to ±π as in UR's URDFs).
+        max_joint_speed_rad_s: the arm's rated joint speeds.
+        link_radius_m: approximate radius of each link for collision checks.
+        payload_kg: rated payload.
+    """
+
+    name: str
+    d: tuple[float, ...]
+    a: tuple[float, ...]
+    alpha: tuple[float, ...]
+    joint_min_rad: tuple[float, ...]
+    joint_max_rad: tuple[float, ...]
+    max_joint_speed_rad_s: tuple[float, ...]
+    link_radius_m: float
+    payload_kg: float
+
+
+def _model(name, d, a, speed, radius, payload) -> URModel:
+    two_pi = 2 * np.pi
+    return URModel(
+        name=name,
+        d=tuple(d),
+        a=tuple(a),
+        alpha=(_HALF_PI, 0.0, 0.0, _HALF_PI, -_HALF_PI, 0.0),
+        joint_min_rad=(-two_pi, -two_pi, -np.pi, -two_pi, -two_pi, -two_pi),
+        joint_max_rad=(two_pi, two_pi, np.pi, two_pi, two_pi, two_pi),
+        max_joint_speed_rad_s=tuple(speed),
+        link_radius_m=radius,
+        payload_kg=payload,
+    )
+
+
+_PI = np.pi
+UR_MODELS: dict[str, URModel] = {
+    # UR's published DH tables ("DH parameters for calculations of kinematics and dynamics").
+    "UR3": _model("UR3", (0.1519, 0, 0, 0.11235, 0.08535, 0.0819), (0, -0.24365, -0.21325, 0, 0, 0),
+                  (_PI, _PI, _PI, 2 * _PI, 2 * _PI, 2 * _PI), 0.045, 3.0),
+    "UR5": _model("UR5", (0.089159, 0, 0, 0.10915, 0.09465, 0.0823), (0, -0.425, -0.39225, 0, 0, 0),
+                  (_PI, _PI, _PI, _PI, _PI, _PI), 0.06, 5.0),
+    "UR10": _model("UR10", (0.1273, 0, 0, 0.163941, 0.1157, 0.0922), (0, -0.612, -0.5723, 0, 0, 0),
+                   (2 * _PI / 3, 2 * _PI / 3, _PI, _PI, _PI, _PI), 0.075, 10.0),
+    "UR3e": _model("UR3e", (0.15185, 0, 0, 0.13105, 0.08535, 0.0921), (0, -0.24355, -0.2132, 0, 0, 0),
+                   (_PI, _PI, _PI, 2 * _PI, 2 * _PI, 2 * _PI), 0.045, 3.0),
+    "UR5e": _model("UR5e", (0.1625, 0, 0, 0.1333, 0.0997, 0.0996), (0, -0.425, -0.3922, 0, 0, 0),
+                   (_PI, _PI, _PI, _PI, _PI, _PI), 0.06, 5.0),
+    "UR10e": _model("UR10e", (0.1807, 0, 0, 0.17415, 0.11985, 0.11655), (0, -0.6127, -0.57155, 0, 0, 0),
+                    (2 * _PI / 3, 2 * _PI / 3, _PI, _PI, _PI, _PI), 0.075, 12.5),
+    "UR16e": _model("UR16e", (0.1807, 0, 0, 0.17415, 0.11985, 0.11655), (0, -0.4784, -0.36, 0, 0, 0),
+                    (2 * _PI / 3, 2 * _PI / 3, _PI, _PI, _PI, _PI), 0.075, 16.0),
+    "UR20": _model("UR20", (0.2363, 0, 0, 0.2010, 0.1593, 0.1543), (0, -0.8620, -0.7287, 0, 0, 0),
+                   (2 * _PI / 3, 2 * _PI / 3, _PI, 2 * _PI / 3, 2 * _PI / 3, 2 * _PI / 3), 0.1, 20.0),
+    "UR30": _model("UR30", (0.2363, 0, 0, 0.2010, 0.1593, 0.1543), (0, -0.6370, -0.5037, 0, 0, 0),
+                   (2 * _PI / 3, 2 * _PI / 3, _PI, 2 * _PI / 3, 2 * _PI / 3, 2 * _PI / 3), 0.1, 30.0),
+}
+
+
+def ur_model(name: str) -> URModel:
+    """Return the model called ``name`` (case-insensitive, e.g. ``"ur5e"``). Raises ValueError listing the known ones."""
+    for key, model in UR_MODELS.items():
+        if key.lower() == name.lower():
+            return model
+    raise ValueError(f"unknown UR model {name!r}; known: {', '.join(UR_MODELS)}")
+
+
+def dh_transforms(model: URModel, q_rad: np.ndarray) -> np.ndarray:
+    """Return the cumulative transforms base_T_link_i (6, 4, 4) for joint angles ``q_rad`` (6,)."""
+    q_rad = np.asarray(q_rad, dtype=float)
+    out = np.empty((6, 4, 4))
+    current = np.eye(4)
+    for i in range(6):
+        ct, st = np.cos(q_rad[i]), np.sin(q_rad[i])
+        ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
+        step = np.array([
+            [ct, -st * ca, st * sa, model.a[i] * ct],
+            [st, ct * ca, -ct * sa, model.a[i] * st],
+            [0.0, sa, ca, model.d[i]],
+            [0.0, 0.0, 0.0, 1.0],
+        ])
+        current = current @ step
+        out[i] = current
+    return out
+
+
+def forward_kinematics(model: URModel, q_rad: np.ndarray) -> np.ndarray:
+    """Return base_T_flange (4, 4) for joint angles ``q_rad`` (6,) in rad."""
+    return dh_transforms(model, q_rad)[-1]
+
+
+def flange_pose(model: URModel, q_rad: np.ndarray) -> np.ndarray:
+    """Return the flange pose [x, y, z (m), rx, ry, rz (rad)] as a UR controller reports it (TCP offset zero)."""
+    base_T_flange = forward_kinematics(model, q_rad)
+    return np.concatenate([base_T_flange[:3, 3], rotvec_from_rotation(base_T_flange[:3, :3])])

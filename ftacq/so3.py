@@ -1,0 +1,91 @@
+"""Rotations: UR rotation vectors <-> rotation matrices, batched in numpy.
+
+A UR controller reports a pose as ``[x, y, z, rx, ry, rz]`` (m, rad): the rotation vector (axis × angle)
+of ``base_R_flange``. These helpers are vectorised over a leading axis; single rotations may also use
+Pinocchio's ``pin.exp3`` / ``pin.log3``, which agree with them (tested).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_SMALL_ANGLE_RAD = 1e-8
+
+
+def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Return the rotation matrices (…, 3, 3) of rotation vectors (…, 3) in radians (Rodrigues)."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    theta = np.linalg.norm(rotvec, axis=-1)[..., None, None]
+    k = np.zeros(rotvec.shape[:-1] + (3, 3))
+    x, y, z = rotvec[..., 0], rotvec[..., 1], rotvec[..., 2]
+    k[..., 0, 1], k[..., 0, 2] = -z, y
+    k[..., 1, 0], k[..., 1, 2] = z, -x
+    k[..., 2, 0], k[..., 2, 1] = -y, x
+    small = theta < _SMALL_ANGLE_RAD
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
+    """Return rotation vectors (…, 3), angle in [0, π], of rotation matrices (…, 3, 3)."""
+    rotation = np.asarray(rotation, dtype=float)
+    single = rotation.ndim == 2
+    r = rotation.reshape(-1, 3, 3)
+    out = np.empty((r.shape[0], 3))
+    for i, m in enumerate(r):
+        cos_theta = np.clip((np.trace(m) - 1.0) / 2.0, -1.0, 1.0)
+        theta = np.arccos(cos_theta)
+        axis_sin = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]) / 2.0
+        if theta < 1e-6:
+            out[i] = axis_sin
+        elif theta < np.pi - 1e-4:
+            out[i] = axis_sin * theta / np.sin(theta)
+        else:  # near π: axis from the symmetric part, sign from the skew part
+            b = (m + np.eye(3)) / 2.0
+            j = int(np.argmax(np.diag(b)))
+            axis = b[:, j] / np.sqrt(max(b[j, j], 1e-300))
+            if axis @ axis_sin < 0:
+                axis = -axis
+            out[i] = axis * theta
+    return out[0] if single else out.reshape(rotation.shape[:-2] + (3,))
+
+
+def angle_between_deg(rotation_a: np.ndarray, rotation_b: np.ndarray) -> np.ndarray:
+    """Return the geodesic angle in degrees between rotation matrices (…, 3, 3)."""
+    rel = np.swapaxes(np.asarray(rotation_a), -1, -2) @ np.asarray(rotation_b)
+    cos_theta = np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(cos_theta))
+
+
+def rotation_zyx_deg(yaw_z_deg: float, pitch_y_deg: float, roll_x_deg: float) -> np.ndarray:
+    """Return Rz(yaw) @ Ry(pitch) @ Rx(roll): the Z-Y-X Euler convention of the paper's Table I."""
+    cz, sz = np.cos(np.radians(yaw_z_deg)), np.sin(np.radians(yaw_z_deg))
+    cy, sy = np.cos(np.radians(pitch_y_deg)), np.sin(np.radians(pitch_y_deg))
+    cx, sx = np.cos(np.radians(roll_x_deg)), np.sin(np.radians(roll_x_deg))
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    return rz @ ry @ rx
+
+
+def cube_rotations() -> np.ndarray:
+    """Return the 24 proper rotations of the cube as ``flange_R_base`` (24, 3, 3), in the paper's order.
+
+    Blocks of four (i = 1-4, 5-8, …, 21-24): the first column is +x, −x, +y, −y, +z, −z; inside a block the
+    second column runs (+a, −a, +b, −b) over the two remaining axes in x<y<z order; the third column is the
+    cross product (method.md, "The 24 special orientations"; eqs 14-23).
+    """
+    axes = np.eye(3)
+    out = []
+    for first_axis in range(3):
+        for first_sign in (1.0, -1.0):
+            c1 = first_sign * axes[first_axis]
+            others = [a for a in range(3) if a != first_axis]
+            for second_axis in others:
+                for second_sign in (1.0, -1.0):
+                    c2 = second_sign * axes[second_axis]
+                    out.append(np.column_stack([c1, c2, np.cross(c1, c2)]))
+    # order inside a block: (+a, -a, +b, -b)
+    return np.array(out)
