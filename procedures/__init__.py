@@ -1,0 +1,1 @@
+"""Procedures: pose sets and planning, the calibration procedure, the live monitor."""

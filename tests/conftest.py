@@ -1,0 +1,1 @@
+"""Shared pytest configuration. Fixtures for one device live beside that device's tests or in tests/fakes/."""
