@@ -8,7 +8,7 @@ cd "$(dirname "$0")"
 pick_python() {
   for py in "${FTACQ_PYTHON:-}" python3.12 python3.11 python3.10 python3; do
     [ -n "$py" ] || continue
-    if command -v "$py" >/dev/null 2>&1 && "$py" -c 'import sys; sys.exit(not ((3,10) <= sys.version_info[:2] <= (3,12)))'; then
+    if command -v "$py" >/dev/null 2>&1 && "$py" 2>/dev/null -c 'import sys; sys.exit(not ((3,10) <= sys.version_info[:2] <= (3,12)))'; then
       echo "$py"; return 0
     fi
   done
