@@ -43,9 +43,9 @@ def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
         elif theta < np.pi - 1e-4:
             out[i] = axis_sin * theta / np.sin(theta)
         else:  # near π: axis from the symmetric part, sign from the skew part
-            b = (m + np.eye(3)) / 2.0
-            j = int(np.argmax(np.diag(b)))
-            axis = b[:, j] / np.sqrt(max(b[j, j], 1e-300))
+            outer = ((m + m.T) / 2.0 - cos_theta * np.eye(3)) / (1.0 - cos_theta)  # axis axisᵀ
+            j = int(np.argmax(np.diag(outer)))
+            axis = outer[:, j] / np.sqrt(max(outer[j, j], 1e-300))
             if axis @ axis_sin < 0:
                 axis = -axis
             out[i] = axis * theta
