@@ -115,3 +115,91 @@ def flange_pose(model: URModel, q_rad: np.ndarray) -> np.ndarray:
     """Return the flange pose [x, y, z (m), rx, ry, rz (rad)] as a UR controller reports it (TCP offset zero)."""
     base_T_flange = forward_kinematics(model, q_rad)
     return np.concatenate([base_T_flange[:3, 3], rotvec_from_rotation(base_T_flange[:3, :3])])
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Pinocchio model of the same chain
+# ----------------------------------------------------------------------------------------------------------------
+
+FLANGE_FRAME = "flange"
+"""Name of the flange frame (DH frame 6, TCP offset zero) in the models built by :func:`pinocchio_model`."""
+
+_LINK_MASS_PER_PAYLOAD = 4.0  # rough arm mass / rated payload; inertias only matter for dynamics, unused here
+
+
+def dh_frame_name(i: int) -> str:
+    """Return the Pinocchio frame name of DH frame ``i`` (1..6), the frame at the end of link ``i``."""
+    return f"dh_{i}"
+
+
+def dh_step(model: URModel, i: int) -> np.ndarray:
+    """Return the fixed part ``Tz(d_i) Tx(a_i) Rx(α_i)`` (4, 4) of DH step ``i`` (0-based) after ``Rz(q_i)``."""
+    ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
+    return np.array([
+        [1.0, 0.0, 0.0, model.a[i]],
+        [0.0, ca, -sa, 0.0],
+        [0.0, sa, ca, model.d[i]],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
+
+
+def pinocchio_model(model: URModel):
+    """Build a ``pin.Model`` of ``model``: six revolute-z joints whose flange FK equals :func:`forward_kinematics`.
+
+    Joint ``i`` sits at DH frame ``i-1`` and turns about its z axis (``Rz(q_i)``); the placement of joint ``i+1``
+    in joint ``i`` is the fixed DH step ``Tz(d_i) Tx(a_i) Rx(α_i)``. Operational frames ``dh_1`` … ``dh_6`` are the
+    DH frames (``dh_6`` = :data:`FLANGE_FRAME`, also added under that name). Position and velocity limits come from
+    the model; the inertias are rough placeholders (the planner uses kinematics only).
+    """
+    import pinocchio as pin
+
+    pin_model = pin.Model()
+    pin_model.name = model.name
+    link_mass_kg = _LINK_MASS_PER_PAYLOAD * model.payload_kg / 6.0
+    parent_joint = 0
+    placement = pin.SE3.Identity()
+    for i in range(6):
+        joint_id = pin_model.addJoint(
+            parent_joint, pin.JointModelRZ(), placement, f"joint_{i + 1}",
+            np.array([1000.0]), np.array([model.max_joint_speed_rad_s[i]]),
+            np.array([model.joint_min_rad[i]]), np.array([model.joint_max_rad[i]]),
+        )
+        step = dh_step(model, i)
+        step_se3 = pin.SE3(step[:3, :3].copy(), step[:3, 3].copy())
+        com = step[:3, 3] / 2.0
+        pin_model.appendBodyToJoint(
+            joint_id, pin.Inertia(link_mass_kg, com, np.eye(3) * link_mass_kg * 0.01), pin.SE3.Identity())
+        pin_model.addFrame(pin.Frame(dh_frame_name(i + 1), joint_id, 0, step_se3, pin.FrameType.OP_FRAME))
+        parent_joint, placement = joint_id, step_se3
+    pin_model.addFrame(pin.Frame(FLANGE_FRAME, parent_joint, 0, placement, pin.FrameType.OP_FRAME))
+    return pin_model
+
+
+def pinocchio_model_from_urdf(path: str):
+    """Load a ``pin.Model`` from a URDF file at ``path`` (e.g. the ``ur_description`` package's generated URDF).
+
+    Raises :class:`ftacq.errors.InputError` naming the file if it cannot be read or parsed. Note that UR's URDFs
+    put ``base_link`` rotated by π about z relative to the controller's ``base`` frame, and name the flange
+    ``tool0``/``flange``; the planner itself uses :func:`pinocchio_model` (UR's DH table), so a URDF is a
+    cross-check, not a requirement.
+    """
+    import pinocchio as pin
+
+    from ftacq.errors import InputError
+
+    try:
+        return pin.buildModelFromUrdf(str(path))
+    except (OSError, ValueError, RuntimeError) as exc:  # pinocchio raises ValueError/RuntimeError on bad XML
+        raise InputError(f"{path}: cannot load URDF: {exc}") from exc
+
+
+def pinocchio_dh_frames(pin_model, pin_data, q_rad: np.ndarray) -> np.ndarray:
+    """Return the DH frames base_T_dh_i (6, 4, 4) from Pinocchio FK (``forwardKinematics`` + ``updateFramePlacements``)."""
+    import pinocchio as pin
+
+    pin.forwardKinematics(pin_model, pin_data, np.asarray(q_rad, dtype=float))
+    pin.updateFramePlacements(pin_model, pin_data)
+    out = np.empty((6, 4, 4))
+    for i in range(6):
+        out[i] = pin_data.oMf[pin_model.getFrameId(dh_frame_name(i + 1))].homogeneous
+    return out
