@@ -1,0 +1,402 @@
+"""The Rerun dashboard and the live monitor, read back with Rerun's own reader (rerun.chunk.RrdReader).
+
+Unit tests feed the monitor from :class:`ScriptedSensor` (pre-computed batches of the simulated cell's physics,
+no transport); the integration tests at the bottom run the real Net F/T driver against the loopback fake.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import threading
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rr = pytest.importorskip("rerun")
+
+from drivers.sensor import SensorHealth, WrenchBatch  # noqa: E402
+from ftacq import dashboard as dash  # noqa: E402
+from ftacq.errors import DeviceTimeoutError  # noqa: E402
+from ftacq.kinematics import flange_pose, forward_kinematics, ur_model  # noqa: E402
+from procedures import events  # noqa: E402
+from procedures.monitor import RECORD_COLUMNS, LiveMonitor, flange_R_base_from_pose  # noqa: E402
+from tests.fakes.world import CellTruth, SensorPhysics, SettablePose  # noqa: E402
+
+MODEL = ur_model("UR5e")
+Q_HOME_RAD = np.array([0.3, -1.2, 1.4, -1.6, -1.5, 0.4])
+RATE_HZ = 7000.0
+BATCH_SAMPLES = 70
+VALUE_TOLERANCE = 1e-9
+
+
+def new_recording(path: Path):
+    recording = rr.RecordingStream(dash.APP_ID, recording_id=uuid.uuid4())
+    recording.save(path)
+    return recording
+
+
+class ScriptedSensor:
+    """A ForceTorqueSensor that hands out pre-computed batches (no transport), then times out.
+
+    ``delivered`` keeps every batch it returned, so a test can compare with what reached the recording.
+    """
+
+    def __init__(self, batches: list[WrenchBatch]) -> None:
+        self._batches = list(batches)
+        self.delivered: list[WrenchBatch] = []
+        self.exhausted = threading.Event()
+        self._health = SensorHealth(rate_hz=RATE_HZ)
+
+    def read(self, timeout_s: float | None = 1.0) -> WrenchBatch:
+        if not self._batches:
+            self.exhausted.set()
+            raise DeviceTimeoutError("scripted sensor: no more batches")
+        batch = self._batches.pop(0)
+        self.delivered.append(batch)
+        self._health.received += len(batch)
+        return batch
+
+    def health(self) -> SensorHealth:
+        return self._health.snapshot()
+
+
+class FixedRobotState:
+    """The latest robot state of an arm standing still at ``q_rad``."""
+
+    def __init__(self, q_rad: np.ndarray) -> None:
+        self.q_rad = np.asarray(q_rad, dtype=float)
+        self.pose = flange_pose(MODEL, self.q_rad)
+
+    def joint_positions(self) -> np.ndarray:
+        return self.q_rad.copy()
+
+    def flange_pose(self) -> np.ndarray:
+        return self.pose.copy()
+
+
+def physics_batches(pose: np.ndarray, count: int, seed: int = 1, contact_after: int | None = None) -> list[WrenchBatch]:
+    """Return ``count`` batches of the simulated cell's sensor at ``pose``; a 5 N contact after batch ``contact_after``."""
+    truth = CellTruth()
+    physics = SensorPhysics(truth, SettablePose(pose), seed=seed)
+    batches = []
+    for k in range(count):
+        if contact_after is not None and k == contact_after:
+            physics.contact_wrench = np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+        wrench = physics.sample(BATCH_SAMPLES)
+        start = k * BATCH_SAMPLES
+        batches.append(WrenchBatch(
+            time_s=1000.0 + (start + np.arange(BATCH_SAMPLES)) / RATE_HZ,
+            wrench=wrench,
+            counts=np.round(wrench * 1e6).astype(np.int64),
+            status=np.zeros(BATCH_SAMPLES, dtype=np.uint32),
+            sequence=start + np.arange(BATCH_SAMPLES, dtype=np.int64),
+            saturated=np.zeros(BATCH_SAMPLES, dtype=bool),
+        ))
+    return batches
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Dashboard
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_wrench_batches_round_trip_through_an_rrd_file(tmp_path):
+    path = tmp_path / "wrench.rrd"
+    recording = new_recording(path)
+    dashboard = dash.Dashboard(recording, strict=True)
+    rng = np.random.default_rng(3)
+    times = 50.0 + np.arange(3 * BATCH_SAMPLES) / RATE_HZ
+    raw = rng.normal(size=(times.size, 6)) * [10, 20, 30, 0.1, 0.2, 0.3]
+    compensated = raw - [1, 2, 3, 0.01, 0.02, 0.03]
+    for k in range(3):
+        rows = slice(k * BATCH_SAMPLES, (k + 1) * BATCH_SAMPLES)
+        dashboard.log_wrench_batch(times[rows], raw[rows], compensated[rows])
+    dash.close_recording(recording)
+
+    for entity, expected in ((dash.RAW_FORCE, raw[:, :3]), (dash.RAW_TORQUE, raw[:, 3:]),
+                             (dash.COMPENSATED_FORCE, compensated[:, :3]),
+                             (dash.COMPENSATED_TORQUE, compensated[:, 3:])):
+        time_s, values = dash.read_scalars(path, entity)
+        assert values.shape == expected.shape, entity
+        np.testing.assert_allclose(time_s, times, atol=1e-9)
+        np.testing.assert_allclose(values, expected, atol=VALUE_TOLERANCE)
+    assert dash.CONTACT_FORCE in dash.entity_paths(path)
+
+
+def test_recording_carries_the_blueprint_and_fixed_axis_styles(tmp_path):
+    from rerun.chunk import RrdReader
+
+    path = tmp_path / "layout.rrd"
+    recording = new_recording(path)
+    dash.Dashboard(recording, strict=True)
+    dash.close_recording(recording)
+
+    reader = RrdReader(path)
+    assert len(reader.blueprints()) == 1
+    styles = {}
+    for chunk in reader.stream().to_chunks():
+        batch = chunk.to_record_batch()
+        if chunk.is_static and "SeriesLines:names" in batch.schema.names:
+            styles[chunk.entity_path.lstrip("/")] = batch.column("SeriesLines:names").to_pylist()[0]
+    assert styles[dash.RAW_FORCE] == list(dash.FORCE_AXES)
+    assert styles[dash.COMPENSATED_TORQUE] == list(dash.TORQUE_AXES)
+
+
+def test_strict_dashboard_raises_on_misuse(tmp_path):
+    recording = new_recording(tmp_path / "strict.rrd")
+    dashboard = dash.Dashboard(recording, strict=True)
+    with pytest.raises(ValueError):  # a time column and value columns of different lengths
+        dashboard.log_wrench_batch(np.arange(3.0), np.zeros((4, 6)), None)
+    dash.close_recording(recording)
+
+
+def test_arm_polyline_ends_at_the_flange():
+    skeleton = dash.arm_polyline(MODEL, Q_HOME_RAD)
+    assert skeleton.shape == (13, 3)
+    np.testing.assert_allclose(skeleton[0], 0.0)
+    np.testing.assert_allclose(skeleton[-1], forward_kinematics(MODEL, Q_HOME_RAD)[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(skeleton[1], [0.0, 0.0, MODEL.d[0]], atol=1e-12)  # shoulder height
+
+
+def test_listener_draws_plan_measurements_and_residuals(tmp_path):
+    path = tmp_path / "procedure.rrd"
+    recording = new_recording(path)
+    dashboard = dash.Dashboard(recording, strict=True)
+    clock = iter(np.arange(100.0, 200.0, 0.5))
+    listener = dash.DashboardListener(dashboard, clock_s=lambda: float(next(clock)))
+    rng = np.random.default_rng(5)
+    qs = Q_HOME_RAD + 0.3 * rng.normal(size=(6, 6))
+    poses = np.array([flange_pose(MODEL, q) for q in qs])
+    labels = ("A01", "A02", "E01", "E02", "V01", "V02")
+    sets = ("A", "A", "E", "E", "V", "V")
+    truth = CellTruth()
+    listener(events.PlanReady(poses, qs, labels, sets, estimated_duration_s=60.0, joint_travel_rad=4.0))
+    means = rng.normal(size=(4, 6))
+    for index in range(4):
+        listener(events.StateChanged("moving", index))
+        listener(events.PoseMeasured(index, labels[index], sets[index], poses[index], qs[index], means[index],
+                                     np.full(6, 0.01), count=700, saturated=0, lost=0))
+    residuals = rng.normal(size=(4, 6)) * 0.01
+    listener(events.Identified(truth.calibration(), labels[:4], residuals))
+    listener(events.Validated(labels[4:], rng.normal(size=(2, 6)) * 0.01))
+    listener(events.StateChanged("done"))
+    dash.close_recording(recording)
+
+    paths = dash.entity_paths(path)
+    for expected in (f"{dash.PLAN}/A", f"{dash.PLAN}/E", f"{dash.PLAN}/V", dash.CURRENT_POSE,
+                     dash.RESIDUAL_FORCE_NORM, dash.VALIDATION_FORCE_NORM, dash.CALIBRATION_LOG, dash.SENSOR):
+        assert expected in paths, expected
+    _, measured_force = dash.read_scalars(path, dash.MEASURED_FORCE)
+    np.testing.assert_allclose(measured_force, means[:, :3], atol=VALUE_TOLERANCE)
+    _, residual_torque = dash.read_scalars(path, dash.RESIDUAL_TORQUE)
+    np.testing.assert_allclose(residual_torque, residuals[:, 3:], atol=VALUE_TOLERANCE)
+
+
+def test_listener_swallows_errors_unless_strict(tmp_path):
+    recording = new_recording(tmp_path / "errors.rrd")
+    bad_event = events.Identified(CellTruth().calibration(), ("A01",), residuals=np.zeros(5))  # not (N, 6)
+    dash.DashboardListener(dash.Dashboard(recording, strict=False))(bad_event)  # logged, not raised
+    with pytest.raises(ValueError):
+        dash.DashboardListener(dash.Dashboard(recording, strict=True))(bad_event)
+    dash.close_recording(recording)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Sink selection
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def sink_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    dash.add_sink_args(parser)
+    return parser.parse_args(argv)
+
+
+def test_headless_default_saves_an_rrd_and_says_how_to_view_it(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(dash.sys, "platform", "linux")
+    choice = dash._choose_sink(sink_args([]), dash.APP_ID)
+    assert choice.kind == "save"
+    assert choice.target.endswith(".rrd") and Path(choice.target).parent == Path("runs")
+    assert f"rerun {choice.target}" in choice.message
+
+
+def test_sink_flags_pick_the_sink_and_exclude_each_other(tmp_path):
+    assert dash._choose_sink(sink_args(["--save", str(tmp_path / "x.rrd")]), dash.APP_ID).kind == "save"
+    connect = dash._choose_sink(sink_args(["--connect"]), dash.APP_ID)
+    assert (connect.kind, connect.target) == ("connect", "rerun+http://127.0.0.1:9876/proxy")
+    serve = dash._choose_sink(sink_args(["--serve", "--web-port", "9123"]), dash.APP_ID)
+    assert serve.kind == "serve" and "http://127.0.0.1:9123/" in serve.message
+    with pytest.raises(SystemExit):
+        sink_args(["--serve", "--save", "x.rrd"])
+
+
+def test_open_recording_with_save_writes_the_file(tmp_path):
+    path = tmp_path / "sub" / "run.rrd"
+    lines = []
+    recording = dash.open_recording(sink_args(["--save", str(path)]), announce=lines.append)
+    dash.Dashboard(recording, strict=True).log_text("hello")
+    dash.close_recording(recording)
+    assert path.is_file() and dash.MONITOR_LOG in dash.entity_paths(path)
+    assert lines == [f"rerun: saving to {path}; view it with: rerun {path}"]
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Live monitor (scripted sensor)
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def run_until_exhausted(monitor: LiveMonitor, sensor: ScriptedSensor):
+    stop = threading.Event()
+    watcher = threading.Thread(target=lambda: (sensor.exhausted.wait(30.0), stop.set()), name="test-watcher")
+    watcher.start()
+    try:
+        return monitor.run(stop=stop)
+    finally:
+        stop.set()
+        sensor.exhausted.set()
+        watcher.join()
+
+
+def test_monitor_logs_every_sample_and_compensates_like_the_core(tmp_path):
+    robot = FixedRobotState(Q_HOME_RAD)
+    sensor = ScriptedSensor(physics_batches(robot.pose, 20, contact_after=10))
+    calibration = CellTruth().calibration()
+    path = tmp_path / "monitor.rrd"
+    recording = new_recording(path)
+    monitor = LiveMonitor(sensor, calibration=calibration, robot=robot, model=MODEL,
+                          dashboard=dash.Dashboard(recording, strict=True), record_path=tmp_path / "run.csv",
+                          strict=True, batch_period_s=0.0)
+    summary = run_until_exhausted(monitor, sensor)
+    dash.close_recording(recording)
+
+    delivered = WrenchBatch.concatenate(sensor.delivered)
+    assert summary.samples == len(delivered) == 20 * BATCH_SAMPLES
+    assert summary.viewer_dropped_samples == 0 and summary.dashboard_error is None
+    paths = dash.entity_paths(path)
+    for entity in dash.WRENCH_PATHS + (dash.ROBOT_LINKS, dash.FLANGE, dash.HEALTH_RATE, dash.JOINT_ANGLES):
+        assert entity in paths, entity
+    time_s, raw_force = dash.read_scalars(path, dash.RAW_FORCE)
+    np.testing.assert_allclose(time_s, delivered.time_s, atol=1e-9)
+    np.testing.assert_allclose(raw_force, delivered.wrench[:, :3], atol=VALUE_TOLERANCE)
+    expected = calibration.compensate(delivered.wrench, flange_R_base_from_pose(robot.pose))
+    _, force = dash.read_scalars(path, dash.COMPENSATED_FORCE)
+    _, torque = dash.read_scalars(path, dash.COMPENSATED_TORQUE)
+    np.testing.assert_allclose(np.hstack([force, torque]), expected, atol=VALUE_TOLERANCE)
+    # gravity is gone: before contact the compensated force is noise, after it the 5 N push
+    before, after = force[: 10 * BATCH_SAMPLES], force[10 * BATCH_SAMPLES:]
+    assert np.abs(before.mean(axis=0)).max() < 0.05
+    np.testing.assert_allclose(after.mean(axis=0), [0.0, 0.0, 5.0], atol=0.05)
+
+    record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
+    assert record.dtype.names == RECORD_COLUMNS and record.size == summary.samples
+    np.testing.assert_allclose(record["contact_fz_n"], expected[:, 2], atol=1e-5)
+
+
+class StalledDashboard:
+    """A viewer that hangs on the first wrench batch until released (a dead network connection)."""
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.calls = 0
+
+    def log_wrench_batch(self, *args) -> None:
+        self.calls += 1
+        self.release.wait(30.0)
+
+    def log_robot(self, *args) -> None:
+        pass
+
+    def log_health(self, *args, **kwargs) -> None:
+        pass
+
+
+def test_a_stalled_viewer_drops_batches_for_the_viewer_only(tmp_path):
+    robot = FixedRobotState(Q_HOME_RAD)
+    sensor = ScriptedSensor(physics_batches(robot.pose, 30))
+    viewer = StalledDashboard()
+    monitor = LiveMonitor(sensor, calibration=CellTruth().calibration(), robot=robot, model=MODEL,
+                          dashboard=viewer, record_path=tmp_path / "run.csv", queue_batches=4, batch_period_s=0.0)
+    stop = threading.Event()
+
+    def release_when_done() -> None:
+        sensor.exhausted.wait(30.0)
+        stop.set()
+        viewer.release.set()
+
+    helper = threading.Thread(target=release_when_done, name="test-release")
+    helper.start()
+    try:
+        summary = monitor.run(stop=stop)
+    finally:
+        sensor.exhausted.set()
+        helper.join()
+    assert summary.samples == 30 * BATCH_SAMPLES
+    assert summary.viewer_dropped_batches >= 30 - 4 - 2  # the queue held 4, the stalled call 1, one sentinel slot
+    assert summary.viewer_dropped_samples == summary.viewer_dropped_batches * BATCH_SAMPLES
+    record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
+    assert record.size == summary.samples  # the record never drops
+
+
+class BrokenDashboard(StalledDashboard):
+    def log_wrench_batch(self, *args) -> None:
+        raise RuntimeError("viewer exploded")
+
+
+@pytest.mark.parametrize("strict", [False, True])
+def test_a_failing_viewer_never_stops_acquisition(strict):
+    robot = FixedRobotState(Q_HOME_RAD)
+    sensor = ScriptedSensor(physics_batches(robot.pose, 10))
+    monitor = LiveMonitor(sensor, robot=robot, model=MODEL, dashboard=BrokenDashboard(), strict=strict,
+                          batch_period_s=0.0)
+    if strict:
+        with pytest.raises(RuntimeError, match="viewer exploded"):
+            run_until_exhausted(monitor, sensor)
+        assert len(WrenchBatch.concatenate(sensor.delivered)) == 10 * BATCH_SAMPLES
+    else:
+        summary = run_until_exhausted(monitor, sensor)
+        assert summary.samples == 10 * BATCH_SAMPLES
+        assert summary.dashboard_error == "RuntimeError: viewer exploded"
+        assert summary.viewer_dropped_samples == summary.samples
+
+
+def closed_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_acquisition_continues_when_no_viewer_listens():
+    recording = rr.RecordingStream(dash.APP_ID, recording_id=uuid.uuid4())
+    recording.connect_grpc(f"rerun+http://127.0.0.1:{closed_port()}/proxy")
+    robot = FixedRobotState(Q_HOME_RAD)
+    sensor = ScriptedSensor(physics_batches(robot.pose, 10))
+    monitor = LiveMonitor(sensor, calibration=CellTruth().calibration(), robot=robot, model=MODEL,
+                          dashboard=dash.Dashboard(recording), batch_period_s=0.0)
+    summary = run_until_exhausted(monitor, sensor)
+    dash.close_recording(recording, timeout_s=0.5)
+    assert summary.samples == 10 * BATCH_SAMPLES and summary.dashboard_error is None
+
+
+def test_ctrl_c_stops_cleanly_and_keeps_the_record(tmp_path):
+    robot = FixedRobotState(Q_HOME_RAD)
+    batches = physics_batches(robot.pose, 10)
+
+    class InterruptingSensor(ScriptedSensor):
+        def read(self, timeout_s=1.0):
+            if len(self.delivered) == 5:
+                raise KeyboardInterrupt
+            return super().read(timeout_s)
+
+    sensor = InterruptingSensor(batches)
+    monitor = LiveMonitor(sensor, calibration=CellTruth().calibration(), robot=robot,
+                          record_path=tmp_path / "run.csv", batch_period_s=0.0)
+    summary = monitor.run()
+    assert summary.interrupted and summary.samples == 5 * BATCH_SAMPLES
+    record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
+    assert record.size == 5 * BATCH_SAMPLES
+    assert not list(tmp_path.glob(".run.csv.*"))  # no temporary file left behind
