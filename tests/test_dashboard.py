@@ -364,17 +364,27 @@ def test_a_failing_viewer_never_stops_acquisition(strict):
         assert summary.viewer_dropped_samples == summary.samples
 
 
-def closed_port() -> int:
+def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
 
 
-def test_acquisition_continues_when_no_viewer_listens():
+def test_acquisition_continues_when_the_viewer_goes_away():
+    viewer = rr.RecordingStream("viewer", recording_id=uuid.uuid4())  # stands in for a viewer's gRPC server
+    server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=free_port())
+    viewer.set_sinks(server)
     recording = rr.RecordingStream(dash.APP_ID, recording_id=uuid.uuid4())
-    recording.connect_grpc(f"rerun+http://127.0.0.1:{closed_port()}/proxy")
+    recording.connect_grpc(server.uri)
     robot = FixedRobotState(Q_HOME_RAD)
-    sensor = ScriptedSensor(physics_batches(robot.pose, 10))
+
+    class ViewerKillingSensor(ScriptedSensor):
+        def read(self, timeout_s=1.0):
+            if len(self.delivered) == 5:
+                viewer.disconnect()  # the viewer window is closed mid-run
+            return super().read(timeout_s)
+
+    sensor = ViewerKillingSensor(physics_batches(robot.pose, 10))
     monitor = LiveMonitor(sensor, calibration=CellTruth().calibration(), robot=robot, model=MODEL,
                           dashboard=dash.Dashboard(recording), batch_period_s=0.0)
     summary = run_until_exhausted(monitor, sensor)

@@ -1,0 +1,124 @@
+"""``ftacq monitor``: stream raw and gravity-compensated wrenches, the arm and sensor health to Rerun.
+
+    ftacq monitor --config CELL.toml --calibration CALIBRATION.json [viewer flags] [--seconds S] [--record FILE.csv]
+    ftacq monitor --sim [viewer flags] [--seconds S]
+
+The monitor only reads the robot (its state, at the reader's own rate); it never moves it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+from pathlib import Path
+from typing import Any
+
+from ftacq.errors import InputError
+
+DEFAULT_SIM_MODEL = "UR5e"
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``monitor`` sub-command."""
+    from ftacq.dashboard import add_sink_args
+
+    parser = subparsers.add_parser(
+        "monitor",
+        help="stream raw and compensated wrenches to the live Rerun dashboard",
+        description="Stream the sensor at full rate, compensate gravity with the robot's latest orientation and "
+                    "show raw and compensated wrenches, the arm in 3-D and sensor health in Rerun. Reads the "
+                    "robot, never moves it. Stop with Ctrl-C or --seconds.",
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--config", type=Path, metavar="CELL.toml",
+                        help="cell configuration (robot.host, robot.model, sensor.url)")
+    source.add_argument("--sim", action="store_true",
+                        help="run against the simulated cell (UR controller + Net F/T on loopback)")
+    parser.add_argument("--calibration", type=Path, metavar="CALIBRATION.json",
+                        help="calibration from `ftacq calibrate`/`ftacq identify` (needed for compensation with "
+                             "--config; --sim defaults to the simulated cell's ground truth)")
+    parser.add_argument("--seconds", type=float, metavar="S",
+                        help="stop after S seconds (default: run until Ctrl-C)")
+    parser.add_argument("--record", type=Path, metavar="FILE.csv",
+                        help="also write every sample (raw, flange pose, compensated) to this CSV")
+    add_sink_args(parser)
+    parser.set_defaults(func=run)
+
+
+def _setting(config: Any, section: str, key: str) -> Any:
+    """Return ``config.section.key`` for a dataclass-like or mapping configuration."""
+    part = config[section] if isinstance(config, dict) else getattr(config, section)
+    return part[key] if isinstance(part, dict) else getattr(part, key)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the monitor; return 0 when it stopped as asked (--seconds or Ctrl-C)."""
+    from drivers.sensor import open_sensor
+    from ftacq import __version__
+    from ftacq.dashboard import Dashboard, close_recording, open_recording
+    from ftacq.kinematics import ur_model
+    from procedures.monitor import LiveMonitor
+
+    if args.seconds is not None and not args.seconds > 0:
+        raise InputError(f"--seconds {args.seconds}: must be a positive number of seconds")
+    with contextlib.ExitStack() as stack:
+        calibration = None
+        if args.calibration is not None:
+            from ftacq.calfile import load_calibration
+
+            calibration = load_calibration(args.calibration)
+        if args.sim:
+            from tests.fakes.cell import SimulatedCell
+
+            cell = stack.enter_context(SimulatedCell(sensor="netft"))
+            robot_host, sensor_url = cell.robot_host, cell.sensor_url
+            model_name = getattr(cell, "model_name", DEFAULT_SIM_MODEL)
+            if calibration is None:
+                calibration = cell.truth.calibration()
+            source = "simulated cell"
+        else:
+            from ftacq.config import load_config
+
+            config = load_config(args.config)
+            robot_host = _setting(config, "robot", "host")
+            model_name = _setting(config, "robot", "model")
+            sensor_url = _setting(config, "sensor", "url")
+            source = str(args.config)
+        model = ur_model(model_name)
+
+        sensor = open_sensor(sensor_url)
+        stack.callback(sensor.close)
+        sensor.start()
+        from drivers.ur import URStateReader
+
+        robot = URStateReader(robot_host)
+        stack.callback(robot.close)
+        robot.start()
+
+        recording = open_recording(args)
+        stack.callback(close_recording, recording)
+        dashboard = Dashboard(recording)
+        dashboard.set_calibration(calibration)
+        dashboard.log_text(f"ftacq {__version__} monitor: {source}, sensor {sensor_url}, robot {robot_host} "
+                           f"({model.name}), " + ("compensating" if calibration is not None else
+                                                  "no calibration: raw only"))
+        if calibration is None:
+            print("ftacq monitor: no --calibration given: showing raw wrenches only", file=sys.stderr)
+        header = [f"ftacq {__version__} monitor recording", f"source: {source}", f"sensor: {sensor_url}",
+                  f"robot: {robot_host} ({model.name})",
+                  f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
+                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
+        monitor = LiveMonitor(sensor, calibration=calibration, robot=robot, dashboard=dashboard, model=model,
+                              record_path=args.record, record_header=header)
+        summary = monitor.run(duration_s=args.seconds)
+        dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
+                           f"{summary.viewer_dropped_samples} dropped for the viewer")
+    rate_hz = summary.samples / summary.duration_s if summary.duration_s > 0 else 0.0
+    print(f"ftacq monitor: {summary.samples} samples in {summary.duration_s:.1f} s ({rate_hz:.0f} Hz), "
+          f"{summary.lost} lost, {summary.timeouts} read timeouts, "
+          f"{summary.viewer_dropped_samples} dropped for the viewer"
+          + (f", dashboard failed: {summary.dashboard_error}" if summary.dashboard_error else "")
+          + (f"; recorded {summary.record_path}" if summary.record_path else "")
+          + ("; stopped by Ctrl-C" if summary.interrupted else ""))
+    return 0
