@@ -1,0 +1,312 @@
+"""Analytic inverse kinematics of Universal Robots arms, verified with Pinocchio.
+
+UR arms have no spherical wrist, but their DH geometry (α = π/2, 0, 0, π/2, −π/2, 0; a1 = a4 = a5 = a6 = 0;
+joints 2-4 parallel) has a closed form with eight branches (Hawkins 2013, "Analytic inverse kinematics for
+the Universal Robots UR-5/UR-10 arms"; the same derivation as ``ur_kinematics``). In the notation of
+:mod:`ftacq.kinematics` (standard DH, ``T_i = Rz(q_i) Tz(d_i) Tx(a_i) Rx(α_i)``), with ``z_k`` the z axis of DH
+frame ``k``:
+
+1. Shoulder (q1). Joints 2-4 turn about ``z_1 = (sin q1, −cos q1, 0)``; the only offset along it between joint 2
+   and the wrist-2 centre ``p_5 = p_6 − d6 z_6`` is ``d4``, so ``p_5 · z_1 = d4``, i.e.
+   ``r sin(q1 − ψ) = d4`` with ``(r, ψ)`` the polar coordinates of ``p_5`` in the base xy plane:
+   ``q1 = ψ + asin(d4/r)`` (shoulder branch +1) or ``ψ + π − asin(d4/r)`` (branch −1). Needs ``r > d4``.
+2. Wrist 2 (q5). ``z_6 · z_1 = cos q5``: ``q5 = ±acos(z_6 · z_1)`` (wrist branch = sign of sin q5).
+   ``sin q5 = 0`` is the wrist singularity (z_6 parallel to joints 2-4: q4 and q6 are not separable).
+3. Wrist 3 (q6). In flange coordinates, ``w = flange_R_base z_1 = (s5 c6, −s5 s6, c5)``: ``q6 = atan2(−w_y/s5, w_x/s5)``.
+4. Planar 3R (q2, q3, q4). ``T14 = A1⁻¹ T06 A6⁻¹ A5⁻¹ = A2 A3 A4``; its origin is ``(x, y, d4)`` with
+   ``x + i y = (a2 + a3 e^{i q3}) e^{i q2}``: ``cos q3 = (x² + y² − a2² − a3²) / (2 a2 a3)`` (elbow branch =
+   sign of sin q3; ``sin q3 = 0`` is the stretched/folded elbow singularity),
+   ``q2 = atan2(y, x) − atan2(a3 s3, a2 + a3 c3)``, ``q4 = atan2(T14[1,0], T14[0,0]) − q2 − q3``.
+
+Each branch is then mapped joint by joint to the 2π-equivalent value nearest a reference configuration
+within the joint limits, refined by a few Gauss-Newton steps on Pinocchio's FK (``pin.log6`` error, local
+Jacobian) and verified to :data:`IK_TOLERANCE`. :func:`solve_ik` keeps the branch of the previous
+configuration: a change of shoulder, elbow or wrist branch between consecutive poses means passing a
+singularity (a wrist flip, for instance), which the planner refuses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from ftacq.kinematics import FLANGE_FRAME, URModel, dh_transforms, forward_kinematics, pinocchio_model
+from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
+
+TWO_PI = 2.0 * np.pi
+
+IK_TOLERANCE = 1e-10
+"""Maximum ‖log6(target⁻¹ · FK(q))‖ (m / rad) accepted for an IK solution."""
+IK_REFINE_ITERATIONS = 5
+"""Gauss-Newton iterations on Pinocchio's FK (the closed form is already at ~1e-15 away from singularities)."""
+WRIST_SINGULAR_SIN_Q5 = 0.1
+"""|sin q5| below this (q5 within ≈5.7° of 0 or π) is too close to the wrist singularity."""
+ELBOW_SINGULAR_SIN_Q3 = 0.05
+"""|sin q3| below this (elbow within ≈2.9° of stretched or folded) is too close to the elbow singularity."""
+SHOULDER_SINGULAR_MARGIN = 0.02
+"""(r − d4)/r below this: the wrist centre is nearly on the shoulder's offset cylinder (shoulder singularity)."""
+
+
+@dataclass(frozen=True)
+class Branch:
+    """One of the eight IK branches: each field is +1 or −1.
+
+    shoulder: sign of cos(q1 − ψ) (which side of the wrist centre the shoulder offset lies).
+    elbow: sign of sin q3. wrist: sign of sin q5.
+    """
+
+    shoulder: int
+    elbow: int
+    wrist: int
+
+    def __str__(self) -> str:
+        sign = {1: "+", -1: "-"}
+        return f"shoulder {sign[self.shoulder]}, elbow {sign[self.elbow]}, wrist {sign[self.wrist]}"
+
+    @staticmethod
+    def all() -> tuple["Branch", ...]:
+        """Return the eight branches."""
+        return tuple(Branch(s, e, w) for s in (1, -1) for e in (1, -1) for w in (1, -1))
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """The outcome of :func:`solve_ik`: ``q_rad`` (6,) and its ``branch``, or ``reason`` why there is none."""
+
+    q_rad: np.ndarray | None
+    branch: Branch | None
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """Return True when a solution was found."""
+        return self.q_rad is not None
+
+
+def _sign(x: float) -> int:
+    return 1 if x >= 0.0 else -1
+
+
+def _as_transform(pose_or_transform: np.ndarray) -> np.ndarray:
+    """Accept a flange pose [x, y, z, rx, ry, rz] or a 4×4 base_T_flange; return the 4×4."""
+    arr = np.asarray(pose_or_transform, dtype=float)
+    if arr.shape == (4, 4):
+        return arr
+    if arr.shape != (6,):
+        raise ValueError(f"expected a pose (6,) or a transform (4, 4), got shape {arr.shape}")
+    out = np.eye(4)
+    out[:3, :3] = rotation_from_rotvec(arr[3:])
+    out[:3, 3] = arr[:3]
+    return out
+
+
+def _dh_matrix(model: URModel, i: int, q: float) -> np.ndarray:
+    ct, st = np.cos(q), np.sin(q)
+    ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
+    return np.array([
+        [ct, -st * ca, st * sa, model.a[i] * ct],
+        [st, ct * ca, -ct * sa, model.a[i] * st],
+        [0.0, sa, ca, model.d[i]],
+        [0.0, 0.0, 0.0, 1.0],
+    ])
+
+
+def branch_of(model: URModel, q_rad: np.ndarray) -> Branch:
+    """Return the IK branch a joint configuration ``q_rad`` (6,) lies in."""
+    q = np.asarray(q_rad, dtype=float)
+    frames = dh_transforms(model, q)
+    p5 = frames[5, :3, 3] - model.d[5] * frames[5, :3, 2]
+    psi = np.arctan2(p5[1], p5[0])
+    return Branch(_sign(np.cos(q[0] - psi)), _sign(np.sin(q[2])), _sign(np.sin(q[4])))
+
+
+def singularity_reason(model: URModel, q_rad: np.ndarray) -> str:
+    """Return why ``q_rad`` is too close to a wrist, elbow or shoulder singularity, or "" if it is not."""
+    q = np.asarray(q_rad, dtype=float)
+    if abs(np.sin(q[4])) < WRIST_SINGULAR_SIN_Q5:
+        return f"wrist singularity (q5 = {np.degrees(q[4]):.1f} deg, |sin q5| < {WRIST_SINGULAR_SIN_Q5})"
+    if abs(np.sin(q[2])) < ELBOW_SINGULAR_SIN_Q3:
+        return f"elbow singularity (q3 = {np.degrees(q[2]):.1f} deg, arm stretched or folded)"
+    frames = dh_transforms(model, q)
+    p5 = frames[5, :3, 3] - model.d[5] * frames[5, :3, 2]
+    r = float(np.hypot(p5[0], p5[1]))
+    if r <= 0.0 or (r - abs(model.d[3])) / r < SHOULDER_SINGULAR_MARGIN:
+        return "shoulder singularity (wrist centre near the shoulder axis)"
+    return ""
+
+
+def analytic_ik(model: URModel, pose_or_transform: np.ndarray) -> list[tuple[Branch, np.ndarray | None, str]]:
+    """Return the eight closed-form IK branches of a flange pose as ``(branch, q (6,) in (−π, π], reason)``.
+
+    ``q`` is None with a ``reason`` ("out of reach …") for a branch that does not exist for this pose. No joint
+    limits, singularity margins or refinement are applied here (see :func:`solve_ik`).
+    """
+    t06 = _as_transform(pose_or_transform)
+    d4, d6 = model.d[3], model.d[5]
+    a2, a3 = model.a[1], model.a[2]
+    p6, z6 = t06[:3, 3], t06[:3, 2]
+    p5 = p6 - d6 * z6
+    r = float(np.hypot(p5[0], p5[1]))
+    out: list[tuple[Branch, np.ndarray | None, str]] = []
+    if r <= abs(d4):
+        reason = f"out of reach: wrist centre {r:.3f} m from the base axis, inside the shoulder offset {abs(d4):.3f} m"
+        return [(b, None, reason) for b in Branch.all()]
+    psi = np.arctan2(p5[1], p5[0])
+    shoulder_angle = np.arcsin(d4 / r)
+    for shoulder in (1, -1):
+        q1 = psi + shoulder_angle if shoulder == 1 else psi + np.pi - shoulder_angle
+        s1, c1 = np.sin(q1), np.cos(q1)
+        z1 = np.array([s1, -c1, 0.0])
+        cos_q5 = float(np.clip(z6 @ z1, -1.0, 1.0))
+        for wrist in (1, -1):
+            q5 = wrist * np.arccos(cos_q5)
+            s5 = np.sin(q5)
+            w = t06[:3, :3].T @ z1
+            if abs(s5) < 1e-12:  # exactly singular: q6 is free; take 0 (the caller rejects the singularity)
+                q6 = 0.0
+            else:
+                q6 = np.arctan2(-w[1] / s5, w[0] / s5)
+            t14 = (np.linalg.inv(_dh_matrix(model, 0, q1)) @ t06 @ np.linalg.inv(_dh_matrix(model, 5, q6))
+                   @ np.linalg.inv(_dh_matrix(model, 4, q5)))
+            x, y = t14[0, 3], t14[1, 3]
+            cos_q3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
+            for elbow in (1, -1):
+                branch = Branch(shoulder, elbow, wrist)
+                if abs(cos_q3) > 1.0 + 1e-12:
+                    dist = float(np.hypot(x, y))
+                    out.append((branch, None, f"out of reach: shoulder-to-wrist distance {dist:.3f} m outside "
+                                              f"[{abs(abs(a2) - abs(a3)):.3f}, {abs(a2) + abs(a3):.3f}] m"))
+                    continue
+                q3 = elbow * np.arccos(np.clip(cos_q3, -1.0, 1.0))
+                q2 = np.arctan2(y, x) - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
+                q4 = np.arctan2(t14[1, 0], t14[0, 0]) - q2 - q3
+                q = np.array([q1, q2, q3, q4, q5, q6])
+                out.append((branch, np.angle(np.exp(1j * q)), ""))  # wrap to (−π, π]
+    return out
+
+
+def wrap_near(q_rad: np.ndarray, reference_rad: np.ndarray, lower_rad: np.ndarray,
+              upper_rad: np.ndarray) -> np.ndarray | None:
+    """Map each joint to the 2π-equivalent value nearest ``reference_rad`` inside [lower, upper].
+
+    Returns None if some joint has no equivalent inside its limits.
+    """
+    q = np.asarray(q_rad, dtype=float)
+    ref = np.asarray(reference_rad, dtype=float)
+    lower, upper = np.asarray(lower_rad, dtype=float), np.asarray(upper_rad, dtype=float)
+    k = np.round((ref - q) / TWO_PI)
+    out = q + TWO_PI * k
+    for _ in range(2):  # step back inside the limits if the nearest equivalent is outside
+        out = np.where(out > upper + 1e-12, out - TWO_PI, out)
+        out = np.where(out < lower - 1e-12, out + TWO_PI, out)
+    if np.any(out > upper + 1e-12) or np.any(out < lower - 1e-12):
+        return None
+    return np.clip(out, lower, upper)
+
+
+@lru_cache(maxsize=16)
+def _pin(model: URModel):
+    pin_model = pinocchio_model(model)
+    return pin_model, pin_model.getFrameId(FLANGE_FRAME)
+
+
+def refine_ik(model: URModel, pose_or_transform: np.ndarray, q_rad: np.ndarray) -> tuple[np.ndarray, float]:
+    """Polish ``q_rad`` with Gauss-Newton on Pinocchio's FK; return (q, final ‖log6 error‖).
+
+    The error is ``log6(target⁻¹ · FK(q))`` in the flange frame; the step solves ``J_local δq = −error``.
+    """
+    import pinocchio as pin
+
+    pin_model, frame_id = _pin(model)
+    data = pin_model.createData()
+    target_t = _as_transform(pose_or_transform)
+    target = pin.SE3(target_t[:3, :3].copy(), target_t[:3, 3].copy())
+    q = np.array(q_rad, dtype=float)
+    error = np.inf
+    for iteration in range(IK_REFINE_ITERATIONS + 1):
+        pin.forwardKinematics(pin_model, data, q)
+        pin.updateFramePlacement(pin_model, data, frame_id)
+        err = pin.log6(target.actInv(data.oMf[frame_id])).vector
+        error = float(np.linalg.norm(err))
+        if error < IK_TOLERANCE * 1e-2 or iteration == IK_REFINE_ITERATIONS:
+            break
+        jac = pin.computeFrameJacobian(pin_model, data, q, frame_id, pin.ReferenceFrame.LOCAL)
+        q = q - np.linalg.lstsq(jac, err, rcond=None)[0]
+    return q, error
+
+
+def joint_distance(q_a: np.ndarray, q_b: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """Return the weighted joint-space distance Σ w_j |q_a,j − q_b,j| (rad)."""
+    delta = np.abs(np.asarray(q_a, dtype=float) - np.asarray(q_b, dtype=float))
+    return float(delta.sum() if weights is None else delta @ np.asarray(weights, dtype=float))
+
+
+def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
+                      q_reference_rad: np.ndarray) -> dict[Branch, IKResult]:
+    """Solve every branch of a flange pose; each joint the 2π-equivalent nearest ``q_reference_rad`` in limits.
+
+    Returns a dict branch → :class:`IKResult` (a solution refined on Pinocchio's FK and verified to
+    :data:`IK_TOLERANCE`, or why that branch has none: out of reach, joint limit, near a singularity).
+    """
+    q_ref = np.asarray(q_reference_rad, dtype=float)
+    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    out: dict[Branch, IKResult] = {}
+    for branch, q, reason in analytic_ik(model, pose_or_transform):
+        if q is None:
+            out[branch] = IKResult(None, None, reason)
+            continue
+        wrapped = wrap_near(q, q_ref, lower, upper)
+        if wrapped is None:
+            out[branch] = IKResult(None, None, "joint limit: no equivalent of (" + ", ".join(
+                f"{np.degrees(v):.0f}" for v in q) + ") deg within the limits")
+            continue
+        singular = singularity_reason(model, wrapped)
+        if singular:
+            out[branch] = IKResult(None, None, singular)
+            continue
+        refined, error = refine_ik(model, pose_or_transform, wrapped)
+        if error > IK_TOLERANCE:
+            out[branch] = IKResult(None, None, f"IK did not converge (error {error:.1e})")
+        elif np.any(refined < lower - 1e-9) or np.any(refined > upper + 1e-9):
+            out[branch] = IKResult(None, None, "joint limit after refinement")
+        else:
+            out[branch] = IKResult(refined, branch, "")
+    return out
+
+
+def solve_ik(model: URModel, pose_or_transform: np.ndarray, q_previous_rad: np.ndarray,
+             branch: Branch | None = None) -> IKResult:
+    """Solve the IK of a flange pose near the previous configuration, without passing a singularity.
+
+    Args:
+        model: the arm. pose_or_transform: target flange pose [x, y, z (m), rx, ry, rz (rad)] or base_T_flange.
+        q_previous_rad: the configuration the robot comes from (6,), rad.
+        branch: the branch to stay in; default the branch of ``q_previous_rad`` (a change of shoulder, elbow or
+            wrist branch between consecutive poses means passing a singularity: a wrist flip, for instance).
+
+    Returns:
+        :class:`IKResult` with the solution in ``branch``, each joint the 2π-equivalent nearest the previous
+        value within the joint limits, refined on Pinocchio's FK and verified to :data:`IK_TOLERANCE`; or the
+        reason there is none (out of reach, joint limit, near a singularity, needs a branch change).
+    """
+    wanted = branch if branch is not None else branch_of(model, q_previous_rad)
+    results = solve_ik_branches(model, pose_or_transform, q_previous_rad)
+    result = results[wanted]
+    if result.ok:
+        return result
+    others = [b for b, r in results.items() if r.ok]
+    reason = result.reason
+    if others:
+        reason += (f"; reachable only by changing branch from ({wanted}) to ({others[0]}): "
+                   "a flip through a singularity")
+    return IKResult(None, None, reason)
+
+
+def pose_error(model: URModel, q_rad: np.ndarray, pose_or_transform: np.ndarray) -> tuple[float, float]:
+    """Return (position error m, rotation error rad) of FK(q) against a target pose (DH FK, numpy)."""
+    target = _as_transform(pose_or_transform)
+    actual = forward_kinematics(model, q_rad)
+    angle = float(np.linalg.norm(rotvec_from_rotation(target[:3, :3].T @ actual[:3, :3])))
+    return float(np.linalg.norm(actual[:3, 3] - target[:3, 3])), angle
