@@ -37,6 +37,8 @@ READ_TIMEOUT_S = 1.0
 """Longest wait for the sensor's next samples before counting a timeout and trying again."""
 DASHBOARD_QUEUE_BATCHES = 500
 """Batches the dashboard may lag behind (≈ 5 s at BATCH_PERIOD_S) before batches are dropped for the viewer."""
+DASHBOARD_PERIOD_S = 0.05
+"""The dashboard thread sends at most this often, coalescing the batches queued meanwhile (fewer, larger sends)."""
 ROBOT_LOG_RATE_HZ = 30.0
 HEALTH_LOG_RATE_HZ = 2.0
 THREAD_JOIN_TIMEOUT_S = 10.0
@@ -99,7 +101,7 @@ class _DashboardWorker:
     """Owns the "ftacq-dashboard" thread: drains the bounded queue into the dashboard."""
 
     def __init__(self, dashboard, sensor: ForceTorqueSensor, model, queue_batches: int,
-                 robot_log_rate_hz: float, health_log_rate_hz: float) -> None:
+                 robot_log_rate_hz: float, health_log_rate_hz: float, period_s: float = DASHBOARD_PERIOD_S) -> None:
         self.dashboard = dashboard
         self.sensor = sensor
         self.model = model
@@ -109,6 +111,7 @@ class _DashboardWorker:
         self.error: BaseException | None = None
         self._robot_period_s = 1.0 / robot_log_rate_hz
         self._health_period_s = 1.0 / health_log_rate_hz
+        self._period_s = period_s
         # Daemon: a sink stuck in a dead network connection must not keep the process alive after Ctrl-C;
         # close() still joins it (with a deadline) and re-raises its error.
         self._thread = threading.Thread(target=self._run, name="ftacq-dashboard", daemon=True)
@@ -144,9 +147,10 @@ class _DashboardWorker:
         stopping = False
         while not stopping:
             items = [self.queue.get()]
-            while True:  # coalesce whatever queued up while the last send ran
+            send_at_s = time.monotonic() + self._period_s
+            while items[-1] is not _STOP:  # coalesce the batches of one period into one send
                 try:
-                    items.append(self.queue.get_nowait())
+                    items.append(self.queue.get(timeout=max(0.0, send_at_s - time.monotonic())))
                 except queue.Empty:
                     break
             if any(item is _STOP for item in items):
@@ -277,6 +281,7 @@ class LiveMonitor:
     batch_period_s: float = BATCH_PERIOD_S
     read_timeout_s: float = READ_TIMEOUT_S
     queue_batches: int = DASHBOARD_QUEUE_BATCHES
+    dashboard_period_s: float = DASHBOARD_PERIOD_S
     robot_log_rate_hz: float = ROBOT_LOG_RATE_HZ
     health_log_rate_hz: float = HEALTH_LOG_RATE_HZ
     record_header: list[str] = field(default_factory=list)
@@ -291,7 +296,7 @@ class LiveMonitor:
         worker = None
         if self.dashboard is not None:
             worker = _DashboardWorker(self.dashboard, self.sensor, self.model, self.queue_batches,
-                                      self.robot_log_rate_hz, self.health_log_rate_hz)
+                                      self.robot_log_rate_hz, self.health_log_rate_hz, self.dashboard_period_s)
             worker.start()
         recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
         if recorder is not None:

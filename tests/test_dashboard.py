@@ -302,10 +302,10 @@ class StalledDashboard:
 
     def __init__(self) -> None:
         self.release = threading.Event()
-        self.calls = 0
+        self.stalled = threading.Event()
 
     def log_wrench_batch(self, *args) -> None:
-        self.calls += 1
+        self.stalled.set()
         self.release.wait(30.0)
 
     def log_robot(self, *args) -> None:
@@ -317,10 +317,18 @@ class StalledDashboard:
 
 def test_a_stalled_viewer_drops_batches_for_the_viewer_only(tmp_path):
     robot = FixedRobotState(Q_HOME_RAD)
-    sensor = ScriptedSensor(physics_batches(robot.pose, 30))
     viewer = StalledDashboard()
+
+    class SensorAfterStall(ScriptedSensor):
+        def read(self, timeout_s=1.0):
+            if len(self.delivered) == 1:  # the first batch is in the viewer's hands: wait until it hangs
+                assert viewer.stalled.wait(10.0)
+            return super().read(timeout_s)
+
+    sensor = SensorAfterStall(physics_batches(robot.pose, 30))
     monitor = LiveMonitor(sensor, calibration=CellTruth().calibration(), robot=robot, model=MODEL,
-                          dashboard=viewer, record_path=tmp_path / "run.csv", queue_batches=4, batch_period_s=0.0)
+                          dashboard=viewer, record_path=tmp_path / "run.csv", queue_batches=4, batch_period_s=0.0,
+                          dashboard_period_s=0.0)
     stop = threading.Event()
 
     def release_when_done() -> None:
@@ -336,7 +344,7 @@ def test_a_stalled_viewer_drops_batches_for_the_viewer_only(tmp_path):
         sensor.exhausted.set()
         helper.join()
     assert summary.samples == 30 * BATCH_SAMPLES
-    assert summary.viewer_dropped_batches >= 30 - 4 - 2  # the queue held 4, the stalled call 1, one sentinel slot
+    assert summary.viewer_dropped_batches == 30 - 1 - 4  # 1 in the stalled call, 4 in the queue
     assert summary.viewer_dropped_samples == summary.viewer_dropped_batches * BATCH_SAMPLES
     record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
     assert record.size == summary.samples  # the record never drops
