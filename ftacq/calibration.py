@@ -15,7 +15,7 @@ would remove part of a contact torque):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -61,6 +61,23 @@ class Calibration:
             ("center_of_mass", (3,)),
         ):
             object.__setattr__(self, name, _frozen_array(getattr(self, name), shape, name))
+        # Precomputed compensation operators (not fields: derived from the fields above).
+        # Predicted wrench = K @ (flange_R_base @ gravity_base) + bias with K = [S; [c]× S] (6×3), so for a
+        # batch of rotations  pred = R.reshape(N, 9) @ L + bias  with  L[(j, k), :] = K[:, j] · gravity_base[k].
+        c = self.center_of_mass
+        skew = np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])
+        gain = np.vstack([self.sensor_rotation, skew @ self.sensor_rotation])  # (6, 3)
+        lifted = np.einsum("aj,k->jka", gain, self.gravity_base).reshape(9, 6)
+        bias = np.concatenate([self.force_bias, self.torque_bias])
+        for array in (gain, lifted, bias):
+            array.setflags(write=False)
+        object.__setattr__(self, "_gain", gain)
+        object.__setattr__(self, "_lifted", lifted)
+        object.__setattr__(self, "_bias", bias)
+        # plain-float copies for the single-sample path (no numpy call overhead)
+        object.__setattr__(self, "_gain_rows", tuple(tuple(float(v) for v in row) for row in gain))
+        object.__setattr__(self, "_gravity_tuple", tuple(float(v) for v in self.gravity_base))
+        object.__setattr__(self, "_bias_tuple", tuple(float(v) for v in bias))
 
     @property
     def mass_kg(self) -> float:
@@ -93,10 +110,45 @@ class Calibration:
         torque = np.cross(self.center_of_mass, gravity_sensor) + self.torque_bias
         return np.concatenate([force, torque], axis=-1)
 
-    def compensate(self, wrench: np.ndarray, flange_R_base: np.ndarray) -> np.ndarray:
+    def compensate(self, wrench: np.ndarray, flange_R_base: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Return the contact wrench (…, 6) [N, N·m]: reading minus predicted gravity wrench and biases.
 
         ``wrench`` is (6,) or (N, 6) in the sensor frame; ``flange_R_base`` is (3, 3) (one orientation for
-        the whole batch) or (N, 3, 3) (one per sample).
+        the whole batch) or (N, 3, 3) (one per sample). ``out`` (N, 6) float64 may be given to avoid an
+        allocation (it may be ``wrench`` itself). Vectorised: one (N, 9) @ (9, 6) product per batch.
         """
-        return np.asarray(wrench, dtype=float) - self.predict(flange_R_base)
+        wrench = np.asarray(wrench, dtype=float)
+        rotations = np.asarray(flange_R_base, dtype=float)
+        if rotations.shape == (3, 3):
+            predicted = self._gain @ (rotations @ self.gravity_base) + self._bias
+            return np.subtract(wrench, predicted, out=out)
+        if rotations.shape[-2:] != (3, 3):
+            raise ValueError(f"flange_R_base: expected (3, 3) or (N, 3, 3), got {rotations.shape}")
+        lead = rotations.shape[:-2]
+        flat = rotations.reshape(-1, 9)
+        predicted = flat @ self._lifted
+        predicted += self._bias
+        predicted = predicted.reshape(lead + (6,))
+        if out is None:
+            return np.subtract(wrench, predicted, out=predicted) if wrench.shape == predicted.shape else wrench - predicted
+        return np.subtract(wrench, predicted, out=out)
+
+    def compensate_sample(self, wrench: "Sequence[float]", flange_R_base: "Sequence[Sequence[float]]") -> list[float]:
+        """Return the contact wrench of ONE sample as a list of 6 floats [N, N·m] (fast path, plain Python).
+
+        Same result as :meth:`compensate` for a (6,) reading and a (3, 3) rotation, without numpy's per-call
+        overhead (a few µs). ``flange_R_base`` may be a nested list or a (3, 3) array.
+        """
+        if isinstance(flange_R_base, np.ndarray):
+            flange_R_base = flange_R_base.tolist()
+        if isinstance(wrench, np.ndarray):
+            wrench = wrench.tolist()
+        gx, gy, gz = self._gravity_tuple
+        r0, r1, r2 = flange_R_base
+        u0 = r0[0] * gx + r0[1] * gy + r0[2] * gz
+        u1 = r1[0] * gx + r1[1] * gy + r1[2] * gz
+        u2 = r2[0] * gx + r2[1] * gy + r2[2] * gz
+        return [
+            w - (k[0] * u0 + k[1] * u1 + k[2] * u2) - b
+            for w, k, b in zip(wrench, self._gain_rows, self._bias_tuple)
+        ]

@@ -1,0 +1,170 @@
+"""The calibration file: versioned JSON, SI units, written atomically.
+
+Required keys (format ``ftacq-calibration``, ``version`` 1):
+
+- ``sensor_rotation`` 3×3 row-major: ``sensor_R_flange``, maps flange-frame vectors into the sensor frame;
+- ``force_bias`` [3] N, ``torque_bias`` [3] N·m (sensor frame);
+- ``gravity_base`` [3] N: the tool's weight as a force in the robot base frame;
+- ``mass_kg``; ``center_of_mass_m`` [3] (sensor frame); ``base_tilt_deg`` [α, β] (corrected eqs 46-48).
+
+Optional keys written from the identification: ``uncertainty`` (1σ per key above, plus
+``sensor_rotation_rad`` as a small rotation about the sensor axes), ``mount`` and ``base_tilt_relative_deg``,
+``method``, ``residuals`` (per pose labels and [fx..tz] residual), ``outliers``, ``warnings``,
+``diagnostics``, ``input``, ``software_version``, ``created_utc``. Unknown keys are kept in
+``Calibration.metadata`` on load.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ftacq import STANDARD_GRAVITY_M_S2, __version__
+from ftacq.calibration import Calibration
+from ftacq.errors import InputError
+from ftacq.fileio import atomic_write
+
+FORMAT_NAME = "ftacq-calibration"
+FORMAT_VERSION = 1
+ROTATION_ORTHONORMAL_TOLERANCE = 1e-6
+"""Max |RᵀR − I| element and |det R − 1| accepted for ``sensor_rotation`` on load."""
+MASS_CONSISTENCY_TOLERANCE = 1e-6
+"""Max relative difference accepted between ``mass_kg`` and ‖gravity_base‖ / g on load."""
+
+REQUIRED_KEYS = {
+    "sensor_rotation": (3, 3),
+    "force_bias": (3,),
+    "torque_bias": (3,),
+    "gravity_base": (3,),
+    "mass_kg": (),
+    "center_of_mass_m": (3,),
+    "base_tilt_deg": (2,),
+}
+_FIELD_OF_KEY = {"center_of_mass_m": "center_of_mass"}
+_MODEL_KEYS = set(REQUIRED_KEYS) | {"format", "version", "uncertainty"}
+
+
+def _jsonable(value: Any) -> Any:
+    """Return ``value`` with numpy arrays and scalars turned into lists and floats (NaN → None)."""
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        value = float(value)
+        return value if math.isfinite(value) else None
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
+    """Return the JSON document (a dict) of a calibration; metadata keys follow the model keys."""
+    metadata = dict(calibration.metadata)
+    document: dict[str, Any] = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "sensor_rotation": calibration.sensor_rotation,
+        "force_bias": calibration.force_bias,
+        "torque_bias": calibration.torque_bias,
+        "gravity_base": calibration.gravity_base,
+        "mass_kg": calibration.mass_kg,
+        "center_of_mass_m": calibration.center_of_mass,
+        "base_tilt_deg": list(calibration.base_tilt_deg),
+        "uncertainty": dict(calibration.uncertainty),
+    }
+    metadata.setdefault("software_version", f"ftacq {__version__}")
+    metadata.setdefault("created_utc", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    for key, value in metadata.items():
+        if key not in document:
+            document[key] = value
+    return _jsonable(document)
+
+
+def save_calibration(path: str | os.PathLike, calibration: Calibration) -> None:
+    """Write the calibration as versioned JSON, atomically (never a half-written file)."""
+    document = calibration_to_dict(calibration)
+    text = json.dumps(document, indent=2, allow_nan=False)
+    with atomic_write(path) as handle:
+        handle.write(text + "\n")
+
+
+def _array(path: Path, document: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:
+    value = document[key]
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: key {key!r}: value {value!r} is not a number array of shape {shape}") from None
+    if array.shape != shape:
+        raise InputError(f"{path}: key {key!r}: expected shape {list(shape)}, got {list(array.shape)}")
+    if not np.all(np.isfinite(array)):
+        raise InputError(f"{path}: key {key!r}: contains a non-finite value")
+    return array
+
+
+def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration>") -> Calibration:
+    """Check a parsed calibration document and return the Calibration (InputError naming the key on failure)."""
+    path = Path(path)
+    if not isinstance(document, dict):
+        raise InputError(f"{path}: expected a JSON object at the top level, got {type(document).__name__}")
+    if document.get("format") != FORMAT_NAME:
+        raise InputError(f"{path}: key 'format': expected {FORMAT_NAME!r}, got {document.get('format')!r}")
+    version = document.get("version")
+    if version != FORMAT_VERSION:
+        raise InputError(
+            f"{path}: key 'version': this ftacq reads calibration version {FORMAT_VERSION}, the file has {version!r}"
+        )
+    for key in REQUIRED_KEYS:
+        if key not in document:
+            raise InputError(f"{path}: missing required key {key!r}")
+    values = {key: _array(path, document, key, shape) for key, shape in REQUIRED_KEYS.items()}
+    rotation = values["sensor_rotation"]
+    orthonormal_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
+    if orthonormal_error > ROTATION_ORTHONORMAL_TOLERANCE or abs(np.linalg.det(rotation) - 1.0) > ROTATION_ORTHONORMAL_TOLERANCE:
+        raise InputError(
+            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {orthonormal_error:.2e}, "
+            f"det = {np.linalg.det(rotation):.6f})"
+        )
+    mass_from_gravity = np.linalg.norm(values["gravity_base"]) / STANDARD_GRAVITY_M_S2
+    mass = float(values["mass_kg"])
+    if abs(mass - mass_from_gravity) > MASS_CONSISTENCY_TOLERANCE * max(mass_from_gravity, 1e-9):
+        raise InputError(
+            f"{path}: key 'mass_kg': {mass!r} disagrees with ‖gravity_base‖/g = {mass_from_gravity!r} kg"
+        )
+    uncertainty = document.get("uncertainty", {})
+    if not isinstance(uncertainty, dict):
+        raise InputError(f"{path}: key 'uncertainty': expected an object, got {type(uncertainty).__name__}")
+    metadata = {key: value for key, value in document.items() if key not in _MODEL_KEYS}
+    return Calibration(
+        sensor_rotation=rotation,
+        force_bias=values["force_bias"],
+        torque_bias=values["torque_bias"],
+        gravity_base=values["gravity_base"],
+        center_of_mass=values["center_of_mass_m"],
+        uncertainty=uncertainty,
+        metadata=metadata,
+    )
+
+
+def load_calibration(path: str | os.PathLike) -> Calibration:
+    """Read a calibration JSON file. Raises InputError (file, key, why) if unreadable or invalid."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(f"{path}: cannot read: {error}") from error
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise InputError(f"{path}: not valid JSON: {error.msg} at line {error.lineno}, column {error.colno}") from error
+    return calibration_from_dict(document, path)

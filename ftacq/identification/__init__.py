@@ -1,0 +1,394 @@
+"""Identify a calibration from a pose record: closed form (paper), then joint robust refinement (ftacq).
+
+Steps (Yu, Shi & Lou 2021, Algorithm 1, with method.md's corrections):
+
+1. Refuse degenerate pose sets (diagnostics.check_pose_set).
+2. Find the special orientations (within ``special_tolerance_deg`` of a cube rotation). With all 24,
+   gravity_base comes from SROM on them (eqs 14-23, the paper's best case 8); otherwise LROM on all
+   poses (eqs 24-34, det > 0 sign rule). ``method`` forces either.
+3. Sensor rotation and force bias by Wahba / Umeyama on all poses (eqs 35-42); centre of mass and torque
+   bias by least squares (eqs 43-45). This closed form is repeated with robust pose weights when a pose
+   looks disturbed.
+4. Refinement (unless ``refine=False``): Levenberg-Marquardt over all 15 parameters, rotation on SO(3),
+   each channel weighted by its noise (measured std/√count plus scatter estimated from the residuals),
+   inside an iteratively re-weighted loop that down-weights and names disturbed poses.
+5. 1σ of every parameter from (JᵀWJ)⁻¹ at the optimum; mass and base tilt (corrected eqs 46-48) with
+   their 1σ, the tilt relative to a named mount; conditioning warnings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ftacq import STANDARD_GRAVITY_M_S2, __version__
+from ftacq.calibration import Calibration
+from ftacq.errors import IdentificationError
+from ftacq.identification import diagnostics, robust
+from ftacq.identification.lrom import lrom
+from ftacq.identification.refine import (
+    PARAMETER_SLICES,
+    ModelParameters,
+    jacobian,
+    levenberg_marquardt,
+    predict,
+)
+from ftacq.identification.srom import DEFAULT_SPECIAL_TOLERANCE_DEG, match_special, missing_special, srom_gravity_base
+from ftacq.identification.tilt import MOUNT_TILT_DEG, nearest_mount, relative_tilt_deg, tilt_deg, tilt_jacobian_deg
+from ftacq.identification.torque import torque_least_squares
+from ftacq.identification.wahba import wahba
+from ftacq.posefile import PoseRecord
+
+METHODS = ("auto", "srom", "lrom")
+MOUNTS = tuple(MOUNT_TILT_DEG)
+CLOSED_FORM_ROBUST_PASSES = 3
+"""Closed-form re-solves with robust weights when a pose looks disturbed."""
+MAX_ROBUST_ITERATIONS = 40
+INNER_ITERATIONS = 4
+"""Levenberg-Marquardt iterations per re-weighting (the model is nearly linear near the optimum)."""
+"""Outer iterations of the re-weighted refinement (weights and noise scales updated each time)."""
+ROBUST_WEIGHT_TOLERANCE = 1e-4
+"""The re-weighted loop stops when no pose weight changes more than this (and the parameters are still)."""
+NOISE_SCALE_TOLERANCE = 1e-3
+"""... and no noise scale σ changes by more than this fraction ..."""
+PARAMETER_CHANGE_SIGMAS = 1e-4
+"""... and no parameter moves more than this fraction of its 1σ."""
+
+__all__ = ["IdentificationResult", "identify", "METHODS", "MOUNTS"]
+
+
+@dataclass(frozen=True)
+class IdentificationResult:
+    """Everything an identification produced (arrays per pose are in the record's row order).
+
+    Attributes:
+        calibration: the final calibration, ``uncertainty`` and ``metadata`` filled.
+        closed_form: the paper's closed-form estimate (SROM/LROM + Wahba + torque LS) before refinement.
+        residuals: (N, 6) measured − predicted wrench of the final calibration [N, N·m].
+        closed_form_residuals: (N, 6) the same for the closed form.
+        weights: (N,) robust weight of each pose in [0, 1] (1 = fully trusted).
+        noise: (N, 6) the 1σ noise per pose and channel the fit used [N, N·m].
+        pose_statistic: (N,) d² = Σ (residual/σ)² (≈ χ²₆ for a clean pose).
+        outliers: labels of the poses named as disturbed.
+        warnings: conditioning and data warnings, one sentence each.
+        method_used: "srom" or "lrom" (how gravity_base was first estimated), "+refine" when refined.
+        labels, sets: the record's pose labels and set names.
+        special_index: (N,) paper number − 1 of the matched special orientation, or −1.
+        converged: refinement convergence flag (True when not refined).
+        iterations: LM iterations in total.
+        diagnostics: figures for the report (condition number, eigen gap, Wahba singular values, …).
+    """
+
+    calibration: Calibration
+    closed_form: Calibration
+    residuals: np.ndarray
+    closed_form_residuals: np.ndarray
+    weights: np.ndarray
+    noise: np.ndarray
+    pose_statistic: np.ndarray
+    outliers: tuple[str, ...]
+    warnings: tuple[str, ...]
+    method_used: str
+    labels: tuple[str, ...]
+    sets: tuple[str, ...]
+    special_index: np.ndarray
+    converged: bool = True
+    iterations: int = 0
+    mount: str | None = None
+    diagnostics: dict = field(default_factory=dict)
+
+
+def _closed_form(
+    rotations: np.ndarray,
+    wrench: np.ndarray,
+    use_srom: bool,
+    special_index: np.ndarray,
+    force_weight: np.ndarray | None,
+    torque_weight: np.ndarray | None,
+) -> tuple[ModelParameters, dict]:
+    """Return the closed-form parameters (steps 2-3) and figures for the report."""
+    forces, torques = wrench[:, :3], wrench[:, 3:]
+    info: dict = {}
+    if use_srom:
+        gravity_base = srom_gravity_base(rotations, forces, special_index, force_weight)
+    else:
+        result = lrom(rotations, forces, force_weight)
+        gravity_base = result.gravity_base
+        eig = result.eigenvalues
+        info["lrom_eigen_gap"] = float(eig[1] / max(abs(eig[0]), 1e-300))
+    fit = wahba(rotations, forces, gravity_base, force_weight)
+    info["wahba_singular_values"] = fit.singular_values.tolist()
+    info["wahba_unique"] = bool(fit.unique)
+    gravity_sensor = (rotations @ gravity_base) @ fit.sensor_rotation.T
+    center_of_mass, torque_bias = torque_least_squares(gravity_sensor, torques, torque_weight)
+    params = ModelParameters(fit.sensor_rotation, gravity_base, fit.force_bias, center_of_mass, torque_bias)
+    return params, info
+
+
+def _closed_form_weights(pose_weight: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pose weights for the force steps and per-channel weights for the torque step."""
+    force = pose_weight / np.mean(sigma[:, :3] ** 2, axis=1)
+    torque = pose_weight[:, None] / sigma[:, 3:] ** 2
+    return force / force.max(), torque / torque.max()
+
+
+def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.ndarray:
+    """Return the 15-vector from ``before`` to ``after`` (rotation as a small sensor-frame rotation vector, rad)."""
+    relative = after.sensor_rotation @ before.sensor_rotation.T
+    rotation = 0.5 * np.array(
+        [relative[2, 1] - relative[1, 2], relative[0, 2] - relative[2, 0], relative[1, 0] - relative[0, 1]]
+    )
+    return np.concatenate(
+        [
+            rotation,
+            after.gravity_base - before.gravity_base,
+            after.force_bias - before.force_bias,
+            after.center_of_mass - before.center_of_mass,
+            after.torque_bias - before.torque_bias,
+        ]
+    )
+
+
+def _covariance(params: ModelParameters, rotations: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return (JᵀWJ, its inverse) at ``params`` with ``weight`` (N, 6) = w/σ²."""
+    jac = jacobian(params, rotations).reshape(-1, 15)
+    information = (jac * weight.reshape(-1)[:, None]).T @ jac
+    try:
+        covariance = np.linalg.inv(information)
+    except np.linalg.LinAlgError:
+        covariance = np.linalg.pinv(information)
+    return information, covariance
+
+
+def _uncertainty(params: ModelParameters, covariance: np.ndarray, mount: str | None) -> dict:
+    """Return the 1σ of every parameter, keyed as in the calibration file."""
+    sigma = {name: np.sqrt(np.maximum(np.diag(covariance)[s], 0.0)) for name, s in PARAMETER_SLICES.items()}
+    g_cov = covariance[PARAMETER_SLICES["gravity_base"], PARAMETER_SLICES["gravity_base"]]
+    g = params.gravity_base
+    gradient_mass = g / max(np.linalg.norm(g), 1e-300) / STANDARD_GRAVITY_M_S2
+    tilt_jac = tilt_jacobian_deg(g)
+    tilt_cov = tilt_jac @ g_cov @ tilt_jac.T
+    out = {
+        "sensor_rotation_rad": sigma["sensor_rotation_rad"].tolist(),
+        "force_bias": sigma["force_bias"].tolist(),
+        "torque_bias": sigma["torque_bias"].tolist(),
+        "gravity_base": sigma["gravity_base"].tolist(),
+        "mass_kg": float(np.sqrt(max(gradient_mass @ g_cov @ gradient_mass, 0.0))),
+        "center_of_mass_m": sigma["center_of_mass_m"].tolist(),
+        "base_tilt_deg": np.sqrt(np.maximum(np.diag(tilt_cov), 0.0)).tolist(),
+    }
+    if mount is not None:
+        out["base_tilt_relative_deg"] = list(out["base_tilt_deg"])
+    return out
+
+
+def identify(
+    record: PoseRecord,
+    *,
+    mount: str | None = None,
+    method: str = "auto",
+    refine: bool = True,
+    special_tolerance_deg: float = DEFAULT_SPECIAL_TOLERANCE_DEG,
+) -> IdentificationResult:
+    """Identify the calibration from a pose record (see the module docstring for the steps).
+
+    Args:
+        record: still poses with their mean wrenches (contact-free, except for poses to be named outliers).
+        mount: "floor", "wall" or "ceiling" to also report the tilt relative to that nominal mount.
+        method: "auto" (SROM when all 24 special orientations are present, else LROM), "srom" or "lrom".
+        refine: run the joint robust refinement (True) or stop at the closed form (False).
+        special_tolerance_deg: how close (geodesic angle) a pose must be to a cube rotation to count as special.
+
+    Raises:
+        IdentificationError: too few poses, a degenerate pose set, SROM forced without the 24 special
+            orientations, or a tool whose weight is lost in the noise.
+    """
+    if method not in METHODS:
+        raise IdentificationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if mount is not None and mount not in MOUNTS:
+        raise IdentificationError(f"unknown mount {mount!r}; choose one of {', '.join(MOUNTS)}")
+    rotations = record.flange_R_base
+    wrench = record.wrench
+    n = len(record)
+    warnings: list[str] = []
+    pose_set_info = diagnostics.check_pose_set(rotations)
+
+    special_index, special_angle = match_special(rotations, special_tolerance_deg)
+    missing = missing_special(special_index)
+    if method == "srom" and missing:
+        raise IdentificationError(
+            f"--method srom needs all 24 special orientations within {special_tolerance_deg}° of a cube rotation; "
+            f"missing paper number(s) {', '.join(map(str, missing))}"
+        )
+    use_srom = method == "srom" or (method == "auto" and not missing)
+    if method == "auto" and 0 < 24 - len(missing) < 24:
+        warnings.append(
+            f"{24 - len(missing)} of the 24 special orientations present (missing {', '.join(map(str, missing))}): "
+            "gravity_base started from LROM"
+        )
+
+    standard_error = record.standard_error
+    if record.std is not None and record.count is None:
+        warnings.append("std_* columns without a count column: noise estimated from the residuals instead")
+    dof_ratio = max((6.0 * n - 15.0) / (6.0 * n), 1e-3)
+    floor = robust.noise_floor(wrench)
+
+    # --- closed form, repeated with robust weights if a pose looks disturbed (steps 2-3) ---
+    params, closed_info = _closed_form(rotations, wrench, use_srom, special_index, None, None)
+    pose_weight = np.ones(n)
+    for _ in range(CLOSED_FORM_ROBUST_PASSES):
+        residual = wrench - predict(params, rotations)
+        sigma, _ = robust.channel_noise(residual, standard_error, np.ones(n), dof_ratio, floor, "median")
+        new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
+        if np.all(new_weight >= 1.0) and np.all(pose_weight >= 1.0):
+            break
+        pose_weight = new_weight
+        force_w, torque_w = _closed_form_weights(pose_weight, sigma)
+        params, closed_info = _closed_form(rotations, wrench, use_srom, special_index, force_w, torque_w)
+    closed_params = params
+    closed_residual = wrench - predict(closed_params, rotations)
+
+    # --- robust joint refinement (step 4) ---
+    residual = closed_residual
+    sigma, tau = robust.channel_noise(residual, standard_error, np.ones(n), dof_ratio, floor, "median")
+    pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
+    if standard_error is not None:
+        # start from the measured noise alone: the closed form's residuals overstate the noise of the
+        # channels it fits sub-optimally; extra scatter τ is re-estimated after each refit
+        sigma = np.sqrt(np.maximum(standard_error, floor) ** 2)
+    converged, iterations = True, 0
+    if refine:
+        converged = False
+        covariance = None
+        for _ in range(MAX_ROBUST_ITERATIONS):
+            weight = pose_weight[:, None] / sigma**2
+            result = levenberg_marquardt(params, rotations, wrench, weight, max_iterations=INNER_ITERATIONS)
+            iterations += result.iterations
+            step_ok = covariance is None or bool(
+                np.all(
+                    np.abs(_parameter_change(params, result.params))
+                    <= PARAMETER_CHANGE_SIGMAS * np.sqrt(np.maximum(np.diag(covariance), 1e-300))
+                )
+            )
+            params = result.params
+            residual = wrench - predict(params, rotations)
+            previous_sigma = sigma
+            inlier = robust.pose_statistic(residual, sigma) <= robust.outlier_threshold(n)
+            n_in = max(int(inlier.sum()), 3)
+            sigma, tau = robust.channel_noise(
+                residual, standard_error, inlier.astype(float), max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3), floor, "mean"
+            )
+            sigma_change = float(np.max(np.abs(sigma / previous_sigma - 1.0)))
+            new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
+            weight_change = float(np.max(np.abs(new_weight - pose_weight)))
+            pose_weight = new_weight
+            _, covariance = _covariance(params, rotations, pose_weight[:, None] / sigma**2)
+            if weight_change <= ROBUST_WEIGHT_TOLERANCE and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok and result.converged:
+                converged = True
+                break
+
+    # --- uncertainty, diagnostics, warnings (step 5) ---
+    residual = wrench - predict(params, rotations)
+    d2 = robust.pose_statistic(residual, sigma)
+    information, covariance = _covariance(params, rotations, pose_weight[:, None] / sigma**2)
+    conditioning = diagnostics.fisher_conditioning(information)
+    uncertainty = _uncertainty(params, covariance, mount)
+    mass_kg = float(np.linalg.norm(params.gravity_base) / STANDARD_GRAVITY_M_S2)
+    diagnostics.check_weight_detectable(mass_kg, uncertainty["mass_kg"])
+    warnings += diagnostics.parameter_warnings(uncertainty, mass_kg, conditioning)
+    if not closed_info.get("wahba_unique", True):
+        warnings.append("Wahba step: the rotation is not unique (repeated smallest singular value with a reflection)")
+    if not converged:
+        warnings.append("refinement did not converge within the iteration limit; the result may be inaccurate")
+    outlier_mask = d2 > robust.outlier_threshold(n)
+    outliers = tuple(label for label, flag in zip(record.labels, outlier_mask) if flag)
+    for index in np.flatnonzero(outlier_mask):
+        force_error = float(np.linalg.norm(residual[index, :3]))
+        torque_error = float(np.linalg.norm(residual[index, 3:]))
+        warnings.append(
+            f"pose {record.labels[index]} looks disturbed (contact or motion while sampling): residual "
+            f"{force_error:.3g} N, {torque_error:.3g} N·m; down-weighted to {pose_weight[index]:.2g}"
+        )
+    if n - len(outliers) < diagnostics.MIN_POSES:
+        raise IdentificationError(
+            f"too few undisturbed poses: {n - len(outliers)} of {n} after naming outliers {', '.join(outliers)}"
+        )
+
+    tilt = tilt_deg(params.gravity_base)
+    nearest, nearest_angle = nearest_mount(params.gravity_base)
+    metadata: dict = {
+        "method": ("srom" if use_srom else "lrom") + ("+refine" if refine else ""),
+        "method_detail": (
+            ("SROM on the 24 special orientations (eqs 14-23)" if use_srom else "LROM on all poses (eqs 24-34, det>0 sign)")
+            + ", Wahba/Umeyama (eqs 35-42), torque least squares (eqs 43-45)"
+            + (", joint weighted refinement on SO(3) with robust re-weighting" if refine else "")
+        ),
+        "software_version": f"ftacq {__version__}",
+        "nearest_mount": nearest,
+        "tilt_from_nearest_mount_deg": nearest_angle,
+    }
+    if mount is not None:
+        alpha_rel, beta_rel, total = relative_tilt_deg(params.gravity_base, mount)
+        metadata["mount"] = mount
+        metadata["base_tilt_relative_deg"] = [alpha_rel, beta_rel]
+        metadata["tilt_from_mount_deg"] = total
+        if total > diagnostics.NOMINAL_TILT_WARN_DEG:
+            warnings.append(
+                f"the base is tilted {total:.1f}° from a nominal {mount} mount (nearest nominal mount: {nearest}); "
+                "is --mount right?"
+            )
+    noise_text = "measured std/√count" if standard_error is not None else "estimated from the residuals"
+    metadata["noise"] = {
+        "source": noise_text,
+        "extra_scatter": tau.tolist(),
+        "rms_residual": np.sqrt(np.mean(residual[pose_weight > 0.5] ** 2, axis=0)).tolist()
+        if np.any(pose_weight > 0.5)
+        else [],
+    }
+    metadata["residuals"] = {
+        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "labels": list(record.labels),
+        "values": residual.tolist(),
+        "weights": pose_weight.tolist(),
+    }
+    metadata["outliers"] = list(outliers)
+    metadata["warnings"] = list(warnings)
+    metadata["diagnostics"] = {
+        "poses": n,
+        "special_orientations_present": 24 - len(missing),
+        "condition_number": conditioning["condition_number"],
+        "weakest_parameters": conditioning["weakest_parameters"],
+        "converged": converged,
+        "iterations": iterations,
+        **pose_set_info,
+        **closed_info,
+    }
+    metadata["closed_form"] = {
+        "sensor_rotation": closed_params.sensor_rotation.tolist(),
+        "force_bias": closed_params.force_bias.tolist(),
+        "torque_bias": closed_params.torque_bias.tolist(),
+        "gravity_base": closed_params.gravity_base.tolist(),
+        "center_of_mass_m": closed_params.center_of_mass.tolist(),
+    }
+    calibration = params.to_calibration(uncertainty=uncertainty, metadata=metadata)
+    closed_form = closed_params.to_calibration(metadata={"method": "srom" if use_srom else "lrom"})
+    return IdentificationResult(
+        calibration=calibration,
+        closed_form=closed_form,
+        residuals=residual,
+        closed_form_residuals=closed_residual,
+        weights=pose_weight,
+        noise=sigma,
+        pose_statistic=d2,
+        outliers=outliers,
+        warnings=tuple(warnings),
+        method_used=metadata["method"],
+        labels=record.labels,
+        sets=record.sets,
+        special_index=special_index,
+        converged=converged,
+        iterations=iterations,
+        mount=mount,
+        diagnostics={**metadata["diagnostics"], "tilt_deg": list(tilt), "special_angle_deg": special_angle},
+    )

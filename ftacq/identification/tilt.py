@@ -1,0 +1,63 @@
+"""Tool mass and base tilt from gravity_base (corrected eqs 46-48), and the tilt relative to a nominal mount.
+
+gravity_base = −m g [cos α sin β, −sin α, cos α cos β] (eq. 47); m g = ‖gravity_base‖ (the paper squares
+it), β = atan2(−f_x, −f_z), α = atan2(f_y, √(f_x² + f_z²)), branch cos α ≥ 0, β in (−180°, 180°].
+Nominal mounts (as tests/fakes/world.CellTruth.with_mount): floor (α, β) = (0, 0), wall (0, 90°),
+ceiling (0, 180°). Relative to a nominal mount R_Y(β_n): α_rel = α, β_rel = β − β_n wrapped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MOUNT_TILT_DEG = {"floor": (0.0, 0.0), "wall": (0.0, 90.0), "ceiling": (0.0, 180.0)}
+"""Nominal (α, β) in degrees of each mount name."""
+
+
+def wrap_deg(angle: float | np.ndarray) -> float | np.ndarray:
+    """Wrap an angle in degrees into (−180, 180]."""
+    wrapped = -((-np.asarray(angle, dtype=float) + 180.0) % 360.0 - 180.0)
+    return float(wrapped) if np.ndim(wrapped) == 0 else wrapped
+
+
+def tilt_deg(gravity_base: np.ndarray) -> tuple[float, float]:
+    """Return (α, β) in degrees of a gravity_base vector (corrected eq. 48)."""
+    fx, fy, fz = np.asarray(gravity_base, dtype=float)
+    beta = wrap_deg(np.degrees(np.arctan2(-fx, -fz)))
+    alpha = float(np.degrees(np.arctan2(fy, np.hypot(fx, fz))))
+    return alpha, beta
+
+
+def tilt_jacobian_deg(gravity_base: np.ndarray) -> np.ndarray:
+    """Return ∂(α, β)/∂gravity_base (2, 3) in degrees per newton (analytic)."""
+    fx, fy, fz = np.asarray(gravity_base, dtype=float)
+    rho2 = fx * fx + fz * fz
+    rho = np.sqrt(rho2)
+    n2 = rho2 + fy * fy
+    # β = atan2(y, x) with y = −fx, x = −fz: dβ = (x dy − y dx)/ρ² = (fz dfx − fx dfz)/ρ²
+    d_beta = np.array([fz, 0.0, -fx]) / max(rho2, 1e-300)
+    # α = atan2(fy, ρ): dα = (ρ dfy − fy dρ)/n², dρ = (fx dfx + fz dfz)/ρ
+    d_alpha = np.array([-fy * fx / max(rho, 1e-300), rho, -fy * fz / max(rho, 1e-300)]) / max(n2, 1e-300)
+    return np.degrees(np.vstack([d_alpha, d_beta]))
+
+
+def relative_tilt_deg(gravity_base: np.ndarray, mount: str) -> tuple[float, float, float]:
+    """Return (α_rel, β_rel, total angle) in degrees of the base's tilt from a nominal mount.
+
+    The total angle is the angle between the measured and the nominal gravity direction in the base frame.
+    """
+    alpha, beta = tilt_deg(gravity_base)
+    alpha_n, beta_n = MOUNT_TILT_DEG[mount]
+    nominal = -np.array(
+        [np.cos(np.radians(alpha_n)) * np.sin(np.radians(beta_n)), -np.sin(np.radians(alpha_n)),
+         np.cos(np.radians(alpha_n)) * np.cos(np.radians(beta_n))]
+    )
+    direction = np.asarray(gravity_base, dtype=float) / np.linalg.norm(gravity_base)
+    total = float(np.degrees(np.arccos(np.clip(direction @ nominal, -1.0, 1.0))))
+    return alpha - alpha_n, wrap_deg(beta - beta_n), total
+
+
+def nearest_mount(gravity_base: np.ndarray) -> tuple[str, float]:
+    """Return the nominal mount whose gravity direction is nearest, and the angle to it (deg)."""
+    best = min(MOUNT_TILT_DEG, key=lambda name: relative_tilt_deg(gravity_base, name)[2])
+    return best, relative_tilt_deg(gravity_base, best)[2]
