@@ -193,12 +193,15 @@ class _DashboardWorker:
 
 
 RECORD_COLUMNS = (
-    "time_s", "fx_n", "fy_n", "fz_n", "tx_nm", "ty_nm", "tz_nm", "sequence", "status", "saturated",
-    "x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad",
-    "contact_fx_n", "contact_fy_n", "contact_fz_n", "contact_tx_nm", "contact_ty_nm", "contact_tz_nm",
+    "time_s", "x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz",
+    "contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz",
+    "sequence", "status", "sample_saturated",
 )
-"""Columns of the ``--record`` CSV: raw sensor-frame wrench, the flange pose used for compensation (NaN without
-a robot) and the compensated contact wrench (NaN without a calibration)."""
+"""Columns of the ``--record`` CSV, one row per sample: host receive time (s, monotonic clock); the flange pose
+used for compensation (m, rad; base frame, rotation vector; empty without a robot); the raw sensor-frame wrench
+(N, N·m); the compensated contact wrench (empty without a calibration); the device's sequence number, status
+word and saturation flag. The pose and wrench columns are named as in a pose record (:mod:`ftacq.posefile`), so
+``ftacq compensate`` reads a monitor record as it is."""
 
 
 class _Recorder:
@@ -245,11 +248,11 @@ class _Recorder:
         n = len(batch)
         pose = np.full((n, 6), np.nan) if item.flange_pose is None else np.broadcast_to(item.flange_pose, (n, 6))
         contact = np.full((n, 6), np.nan) if item.compensated is None else item.compensated
-        numbers = np.column_stack([batch.time_s, batch.wrench, batch.sequence, batch.status,
-                                   batch.saturated.astype(np.int64), pose, contact])
-        lines = [",".join(row) for row in np.char.mod(
-            ["%.9f"] + ["%.6g"] * 6 + ["%d", "%d", "%d"] + ["%.9g"] * 6 + ["%.6g"] * 6, numbers)]
-        return "\n".join(lines) + "\n"
+        numbers = np.column_stack([batch.time_s, pose, batch.wrench, contact, batch.sequence, batch.status,
+                                   batch.saturated.astype(np.int64)])
+        cells = np.char.mod(["%.9f"] + ["%.9g"] * 6 + ["%.9g"] * 12 + ["%d"] * 3, numbers)
+        cells[cells == "nan"] = ""  # not known: no robot, or no calibration
+        return "\n".join(",".join(row) for row in cells) + "\n"
 
 
 def flange_R_base_from_pose(flange_pose: np.ndarray) -> np.ndarray:

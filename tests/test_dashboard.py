@@ -294,7 +294,7 @@ def test_monitor_logs_every_sample_and_compensates_like_the_core(tmp_path):
 
     record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
     assert record.dtype.names == RECORD_COLUMNS and record.size == summary.samples
-    np.testing.assert_allclose(record["contact_fz_n"], expected[:, 2], atol=1e-5)
+    np.testing.assert_allclose(record["contact_fz"], expected[:, 2], atol=1e-6)
 
 
 class StalledDashboard:
