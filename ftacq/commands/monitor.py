@@ -12,7 +12,6 @@ import argparse
 import contextlib
 import sys
 from pathlib import Path
-from typing import Any
 
 from ftacq.errors import InputError
 
@@ -46,12 +45,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def _setting(config: Any, section: str, key: str) -> Any:
-    """Return ``config.section.key`` for a dataclass-like or mapping configuration."""
-    part = config[section] if isinstance(config, dict) else getattr(config, section)
-    return part[key] if isinstance(part, dict) else getattr(part, key)
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the monitor; return 0 when it stopped as asked (--seconds or Ctrl-C)."""
     from drivers.sensor import open_sensor
@@ -81,9 +74,7 @@ def run(args: argparse.Namespace) -> int:
             from ftacq.config import load_config
 
             config = load_config(args.config)
-            robot_host = _setting(config, "robot", "host")
-            model_name = _setting(config, "robot", "model")
-            sensor_url = _setting(config, "sensor", "url")
+            robot_host, model_name, sensor_url = config.robot.host, config.robot.model, config.sensor.url
             source = str(args.config)
         model = ur_model(model_name)
 
