@@ -1,0 +1,89 @@
+"""``ftacq identify POSES.csv -o CALIBRATION.json``: identify a calibration from a pose record."""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``identify`` sub-command."""
+    parser = subparsers.add_parser(
+        "identify",
+        help="identify sensor rotation, biases, tool mass / centre of mass and base tilt from a pose record",
+        description=(
+            "Read a pose record CSV (flange poses + mean sensor wrenches), identify the calibration "
+            "(Yu, Shi & Lou 2021 closed form, then a robust joint refinement), print a report and write the "
+            "calibration JSON. Nothing is written if the input is bad."
+        ),
+    )
+    parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
+    parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
+    parser.add_argument(
+        "--mount",
+        choices=("floor", "wall", "ceiling"),
+        help="nominal robot mount: also report the base tilt relative to it",
+    )
+    parser.add_argument(
+        "--method",
+        choices=("auto", "srom", "lrom"),
+        default="auto",
+        help="first estimate of the weight in the base frame: SROM (needs the 24 special orientations), "
+        "LROM (any orientations) or auto (SROM when all 24 are present; default)",
+    )
+    parser.add_argument("--no-refine", action="store_true", help="stop at the paper's closed form (no joint refinement)")
+    parser.add_argument(
+        "--special-tolerance-deg",
+        type=float,
+        default=3.0,
+        metavar="DEG",
+        help="a pose within this angle (degrees) of a cube rotation counts as special (default 3)",
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Identify, print the report, write the calibration; return the exit status."""
+    from ftacq.calfile import save_calibration
+    from ftacq.calibration import Calibration
+    from ftacq.errors import IdentificationError, InputError
+    from ftacq.identification import identify
+    from ftacq.posefile import read_pose_csv
+    from ftacq.report import format_identification_report
+
+    path = Path(args.poses)
+    record = read_pose_csv(path)
+    try:
+        result = identify(
+            record,
+            mount=args.mount,
+            method=args.method,
+            refine=not args.no_refine,
+            special_tolerance_deg=args.special_tolerance_deg,
+        )
+    except IdentificationError as error:
+        raise InputError(f"{path}: cannot identify a calibration: {error}") from error
+    metadata = dict(result.calibration.metadata)
+    metadata["input"] = {
+        "file": str(path),
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "poses": len(record),
+        "sets": {name: record.sets.count(name) for name in sorted(set(record.sets))},
+        "has_std": record.std is not None,
+        "has_count": record.count is not None,
+    }
+    calibration = Calibration(
+        sensor_rotation=result.calibration.sensor_rotation,
+        force_bias=result.calibration.force_bias,
+        torque_bias=result.calibration.torque_bias,
+        gravity_base=result.calibration.gravity_base,
+        center_of_mass=result.calibration.center_of_mass,
+        uncertainty=result.calibration.uncertainty,
+        metadata=metadata,
+    )
+    sys.stdout.write(format_identification_report(result))
+    save_calibration(args.output, calibration)
+    print(f"wrote {args.output}")
+    return 0

@@ -1,0 +1,112 @@
+"""The technician's text report of an identification: parameters with 1σ and units, residuals, warnings."""
+
+from __future__ import annotations
+
+import numpy as np
+
+MAX_RESIDUAL_ROWS = 100
+"""Longer records list only the poses with the largest residuals (outliers always included)."""
+
+
+def _vector(values, sigmas, scale: float = 1.0, digits: int = 4) -> str:
+    return "[" + ", ".join(f"{v * scale:+.{digits}f} ± {s * scale:.{digits}f}" for v, s in zip(values, sigmas)) + "]"
+
+
+def _zyx_deg(rotation: np.ndarray) -> tuple[float, float, float]:
+    """Return (yaw Z, pitch Y, roll X) in degrees of R = Rz Ry Rx (the paper's Table I convention)."""
+    pitch = np.degrees(np.arcsin(np.clip(-rotation[2, 0], -1.0, 1.0)))
+    yaw = np.degrees(np.arctan2(rotation[1, 0], rotation[0, 0]))
+    roll = np.degrees(np.arctan2(rotation[2, 1], rotation[2, 2]))
+    return float(yaw), float(pitch), float(roll)
+
+
+def format_identification_report(result) -> str:
+    """Return a plain-text report of an :class:`ftacq.identification.IdentificationResult`."""
+    cal = result.calibration
+    unc = cal.uncertainty
+    meta = cal.metadata
+    diag = result.diagnostics
+    n = len(result.labels)
+    lines: list[str] = []
+    add = lines.append
+    add(f"ftacq identification — {n} poses, method {result.method_used}")
+    add(f"  {meta.get('method_detail', '')}")
+    add(
+        f"  special orientations found: {diag.get('special_orientations_present', 0)} of 24; "
+        f"outliers: {len(result.outliers)}; refinement {'converged' if result.converged else 'NOT converged'}"
+        f" ({result.iterations} iterations)"
+    )
+    add("")
+    add("Calibration (value ± 1σ)")
+    rotation = cal.sensor_rotation
+    rot_sigma_deg = np.degrees(np.asarray(unc.get("sensor_rotation_rad", [0.0] * 3)))
+    add("  sensor_rotation (sensor_R_flange):")
+    for row in rotation:
+        add("      [" + ", ".join(f"{v:+.6f}" for v in row) + "]")
+    yaw, pitch, roll = _zyx_deg(rotation)
+    add(
+        f"    as Z-Y-X angles: {yaw:+.3f}°, {pitch:+.3f}°, {roll:+.3f}°; "
+        f"1σ about sensor x, y, z: {rot_sigma_deg[0]:.3f}°, {rot_sigma_deg[1]:.3f}°, {rot_sigma_deg[2]:.3f}°"
+    )
+    add(f"  force_bias        N    {_vector(cal.force_bias, unc.get('force_bias', [0] * 3))}")
+    add(f"  torque_bias       N·m  {_vector(cal.torque_bias, unc.get('torque_bias', [0] * 3), digits=5)}")
+    add(f"  gravity_base      N    {_vector(cal.gravity_base, unc.get('gravity_base', [0] * 3))}")
+    add(f"  mass              kg   {cal.mass_kg:.5f} ± {unc.get('mass_kg', 0.0):.5f}")
+    add(
+        f"  center_of_mass    mm   {_vector(cal.center_of_mass, unc.get('center_of_mass_m', [0] * 3), 1000.0, 3)}"
+    )
+    alpha, beta = cal.base_tilt_deg
+    tilt_sigma = unc.get("base_tilt_deg", [0.0, 0.0])
+    add(f"  base_tilt (α, β)  deg  {alpha:+.4f} ± {tilt_sigma[0]:.4f}, {beta:+.4f} ± {tilt_sigma[1]:.4f}")
+    if "mount" in meta:
+        rel = meta["base_tilt_relative_deg"]
+        add(
+            f"  tilt relative to a nominal {meta['mount']} mount: α {rel[0]:+.4f}°, β {rel[1]:+.4f}° "
+            f"(gravity {meta['tilt_from_mount_deg']:.4f}° off nominal)"
+        )
+    else:
+        add(f"  nearest nominal mount: {meta.get('nearest_mount')} ({meta.get('tilt_from_nearest_mount_deg', 0.0):.3f}° off)")
+    noise = meta.get("noise", {})
+    if noise:
+        rms = noise.get("rms_residual", [])
+        if rms:
+            add(
+                "  residual RMS (inliers): F "
+                + ", ".join(f"{v:.4f}" for v in rms[:3])
+                + " N; T "
+                + ", ".join(f"{v:.5f}" for v in rms[3:])
+                + f" N·m; noise {noise.get('source', '')}"
+            )
+    add(f"  conditioning: scaled condition number {diag.get('condition_number', float('nan')):.3g}")
+    add("")
+    add("Per-pose residuals (measured − predicted; |F| N, |T| N·m; weight 1 = fully trusted)")
+    residual = np.asarray(result.residuals)
+    force_norm = np.linalg.norm(residual[:, :3], axis=1)
+    torque_norm = np.linalg.norm(residual[:, 3:], axis=1)
+    order = np.arange(n)
+    outlier_set = set(result.outliers)
+    if n > MAX_RESIDUAL_ROWS:
+        worst = np.argsort(-np.asarray(result.pose_statistic))[:MAX_RESIDUAL_ROWS]
+        order = np.sort(worst)
+        add(f"  (the {MAX_RESIDUAL_ROWS} poses with the largest residuals of {n})")
+    add(f"  {'label':<10} {'set':<4} {'fx':>9} {'fy':>9} {'fz':>9} {'tx':>9} {'ty':>9} {'tz':>9} {'|F|':>8} {'|T|':>8} {'weight':>6}")
+    for i in order:
+        label = result.labels[i]
+        flag = "  OUTLIER" if label in outlier_set else ""
+        add(
+            f"  {label:<10} {result.sets[i]:<4} "
+            + " ".join(f"{v:+9.4f}" for v in residual[i, :3])
+            + " "
+            + " ".join(f"{v:+9.5f}" for v in residual[i, 3:])
+            + f" {force_norm[i]:8.4f} {torque_norm[i]:8.5f} {result.weights[i]:6.3f}{flag}"
+        )
+    add("")
+    add("Outliers: " + (", ".join(result.outliers) if result.outliers else "none"))
+    if result.warnings:
+        add("Warnings:")
+        for warning in result.warnings:
+            add(f"  - {warning}")
+    else:
+        add("Warnings: none")
+    return "\n".join(lines) + "\n"
+
