@@ -1,0 +1,785 @@
+"""ATI NETCANOEM ("F/T CAN Bus and Serial Bus Network Interface for OEM") over python-can (specs/ati.md §4.1).
+
+The board answers requests only: the host sends ``ID = (base << 4) | opcode`` and the board replies on the IDs of
+the reply opcodes, big-endian. It computes no wrench and no bias: the host reads the raw strain gages, subtracts
+its own gage bias, multiplies by the calibration matrix and divides by counts per unit::
+
+    wrench_device = M · (sg − gage_bias) / Cp      (Cp = CpF for Fx–Fz, CpT for Tx–Tz)
+
+then this driver converts once to N and N·m from the board's unit codes (torque is often N-mm).
+
+Any python-can bus works (socketcan, pcan, slcan through pyserial, virtual): pass one in, or name it by URL
+``can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000&rate_hz=R&calibration=0&timeout_s=T]`` and the driver opens
+it with ``can.Bus(..., ignore_config=True)`` (no env vars or ``~/can.conf``). Request and reply share IDs, so the
+driver ignores its own frames (``is_rx`` False) and checks each reply's opcode and length.
+
+Threads: ``start()`` reads the board's identity and calibration in the caller's thread, then one named poll
+thread requests gages at ``rate_hz`` and is the bus's only reader. The poll loop never raises: timeouts,
+partial replies, late replies, foreign and malformed frames are counted in :class:`SensorHealth`.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import struct
+import threading
+import time
+import warnings
+from dataclasses import dataclass
+from urllib.parse import parse_qsl, unquote, urlsplit
+
+import numpy as np
+
+from drivers.sensor import (
+    STATUS_SATURATION,
+    STATUS_SUMMARY,
+    SensorHealth,
+    SensorInfo,
+    WrenchAverage,
+    WrenchBatch,
+)
+from ftacq.errors import DeviceConnectionError, DeviceError, DeviceTimeoutError, InputError, SensorFaultError
+
+logger = logging.getLogger(__name__)
+
+# ------------------------------------------------------------------------ protocol (specs/ati.md §4.1)
+OP_GAGES = 0x0
+"""Request gages; replies op 0x0 (u16 status, i16 sg0, sg2, sg4) then op 0x1 (i16 sg1, sg3, sg5)."""
+OP_GAGES_SECOND = 0x1
+OP_MATRIX = 0x2
+"""Request one matrix row (1 byte, 0 Fx … 5 Tz); replies ops 0x2, 0x3, 0x4 with two f32 each."""
+OP_SERIAL = 0x5
+OP_SELECT_CALIBRATION = 0x6
+OP_COUNTS_PER_UNIT = 0x7
+OP_UNIT_CODES = 0x8
+OP_DIAGNOSTIC_ADC = 0x9
+OP_RESET = 0xC
+OP_FIRMWARE = 0xF
+
+REPLY_LENGTHS = {
+    OP_GAGES: 8,
+    OP_GAGES_SECOND: 6,
+    OP_MATRIX: 8,
+    OP_MATRIX + 1: 8,
+    OP_MATRIX + 2: 8,
+    OP_SERIAL: 8,
+    OP_SELECT_CALIBRATION: 1,
+    OP_COUNTS_PER_UNIT: 8,
+    OP_UNIT_CODES: 2,
+    OP_DIAGNOSTIC_ADC: 2,
+    OP_FIRMWARE: 4,
+}
+"""Data length of every reply opcode; a frame on our IDs with another length is malformed."""
+
+GAGE_MAX = 32767
+GAGE_MIN = -32768
+FIRMWARE_WITH_COUNTS = (3, 7)
+"""Opcodes 0x7 (counts per unit) and 0x8 (unit codes) exist from firmware 3.7."""
+LEGACY_COUNTS_PER_UNIT = 1_000_000.0
+"""Counts per unit of boards older than firmware 3.7 (and of every MINI45 calibration)."""
+
+STATUS_BIT_NAMES = {
+    0: "watchdog reset",
+    1: "DAC/ADC check too high",
+    2: "DAC/ADC check too low",
+    3: "artificial ground out of range",
+    4: "supply too high",
+    5: "supply too low",
+    6: "bad active calibration",
+    7: "EEPROM failure",
+    8: "configuration invalid (defaults used)",
+    11: "sensor temperature too high",
+    12: "sensor temperature too low",
+    14: "CAN bus error",
+    15: "any error",
+}
+"""NETCANOEM u16 status bits (specs/ati.md §4.1)."""
+STATUS_CRITICAL_MASK = sum(1 << b for b in (1, 2, 3, 4, 5, 6, 7, 11, 12))
+"""Bits the manual calls critical: the board keeps sending data, so the host must act on them."""
+STATUS_ERROR_MASK = STATUS_CRITICAL_MASK | (1 << 15)
+"""A sample whose status has any of these bits is flagged (``WrenchBatch.saturated``) and never averaged."""
+STATUS_WATCHDOG_RESET = 1 << 0
+HOST_STATUS_GAGE_SATURATED = STATUS_SUMMARY | STATUS_SATURATION
+"""Set by this driver in bits 31 and 17 of ``WrenchBatch.status`` when a gage reads +32767 or −32768 (the
+board's own u16 status is in bits 0–15); the same bits as the Net F/T saturation status."""
+
+FORCE_UNITS = {1: ("lbf", 4.4482216152605), 2: ("N", 1.0), 3: ("klbf", 4448.2216152605), 4: ("kN", 1000.0),
+               5: ("kgf", 9.80665), 6: ("gf", 0.00980665)}
+"""Force unit code → (name, newtons per unit) (specs/ati.md §2)."""
+TORQUE_UNITS = {1: ("lbf-in", 0.112984829027617), 2: ("lbf-ft", 1.3558179483314), 3: ("N-m", 1.0),
+                4: ("N-mm", 0.001), 5: ("kgf-cm", 0.0980665), 6: ("kN-m", 1000.0)}
+"""Torque unit code → (name, N·m per unit)."""
+
+# ------------------------------------------------------------------------ defaults
+DEFAULT_BASE = 0x20
+DEFAULT_BITRATE = 250_000
+DEFAULT_RATE_HZ = 500.0
+"""Default gage poll rate, Hz: one poll is ~300 bits on the wire, so 500 Hz uses ~60 % of 250 kbit/s."""
+MAX_RATE_HZ = 10_000.0
+MAX_BITRATE = 2_000_000
+DEFAULT_REPLY_TIMEOUT_S = 0.1
+"""Time a request waits for its reply frames, seconds (monotonic), as the SocketCAN C++ driver."""
+STARTUP_ATTEMPTS = 3
+"""Tries per start-up request before the board is declared unreachable."""
+DEFAULT_BIAS_SAMPLES = 32
+DEFAULT_BIAS_TIMEOUT_S = 2.0
+AVERAGE_GRACE_S = 1.0
+"""Extra time ``average`` allows beyond its window before giving up, seconds."""
+MAX_PENDING_SAMPLES = 1_000_000
+"""Samples kept for ``read`` if nobody reads (oldest dropped beyond this; ~33 min at 500 Hz)."""
+RATE_WINDOW_S = 1.0
+"""Window of the measured poll rate in ``SensorHealth.rate_hz``, seconds."""
+ERROR_BACKOFF_S = 0.05
+"""Pause after a bus error (send failed, bus closed) before the next poll, seconds."""
+CLOSE_JOIN_TIMEOUT_S = 2.0
+
+URL_FORM = "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000&rate_hz=500&calibration=0&timeout_s=0.1]"
+
+
+def decode_status(status: int) -> list[str]:
+    """Return the names of the NETCANOEM status bits set in ``status`` (bits 0–15), low bit first."""
+    return [STATUS_BIT_NAMES.get(bit, f"reserved bit {bit}") for bit in range(16) if status >> bit & 1]
+
+
+@dataclass(frozen=True)
+class CanCalibration:
+    """What the board reports about its active calibration.
+
+    Attributes:
+        matrix: (6, 6) counts = matrix @ (gages − bias), rows Fx … Tz (as sent, float32 values).
+        counts_per_force, counts_per_torque: counts per device unit.
+        force_unit, torque_unit: unit names (``N``, ``N-m``, ``N-mm`` …).
+        force_si_per_unit, torque_si_per_unit: N per force unit, N·m per torque unit.
+    """
+
+    matrix: np.ndarray
+    counts_per_force: float
+    counts_per_torque: float
+    force_unit: str
+    torque_unit: str
+    force_si_per_unit: float
+    torque_si_per_unit: float
+
+    @property
+    def gages_to_si(self) -> np.ndarray:
+        """(6, 6) K with wrench_si = K @ (gages − bias): rows scaled by SI-per-unit / counts-per-unit."""
+        scale = np.array([self.force_si_per_unit / self.counts_per_force] * 3
+                         + [self.torque_si_per_unit / self.counts_per_torque] * 3)
+        return scale[:, np.newaxis] * self.matrix
+
+
+class _BiasRequest:
+    """A bias in progress: the poll thread adds valid gage samples until ``needed`` are in."""
+
+    def __init__(self, needed: int) -> None:
+        self.needed = needed
+        self.total = np.zeros(6)
+        self.count = 0
+        self.rejected = 0
+        self.done = threading.Event()
+
+
+class AtiCanSensor:
+    """ATI NETCANOEM on a python-can bus, implementing :class:`drivers.sensor.ForceTorqueSensor`.
+
+    Args:
+        bus: a python-can bus to use (not shut down on close); or None to open ``interface``/``channel``.
+        interface, channel, bitrate: used to open a bus when none is given (bit/s; informational otherwise).
+        base: the board's 7-bit base ID (0x20 by default: IDs 0x200–0x20F).
+        rate_hz: gage poll rate in Hz; None polls as fast as the bus answers.
+        calibration_index: the calibration slot (0–15) to select at start.
+        reply_timeout_s: seconds a request waits for its reply.
+        assume_unit_codes: (force, torque) unit codes for firmware older than 3.7, which cannot report them.
+
+    The constructor does no I/O; ``start()`` opens the bus, reads firmware, selects the calibration, reads the
+    matrix, counts per unit, units and serial number, and starts polling.
+    """
+
+    def __init__(
+        self,
+        bus=None,
+        *,
+        interface: str = "virtual",
+        channel: str | None = None,
+        base: int = DEFAULT_BASE,
+        bitrate: int = DEFAULT_BITRATE,
+        rate_hz: float | None = DEFAULT_RATE_HZ,
+        calibration_index: int = 0,
+        reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S,
+        assume_unit_codes: tuple[int, int] = (2, 3),
+    ) -> None:
+        _check_range("base", base, 0, 0x7F)
+        _check_range("calibration_index", calibration_index, 0, 15)
+        _check_range("bitrate", bitrate, 1, MAX_BITRATE)
+        if rate_hz is not None:
+            _check_range("rate_hz", rate_hz, 1e-3, MAX_RATE_HZ)
+        _check_range("reply_timeout_s", reply_timeout_s, 1e-4, 60.0)
+        if assume_unit_codes[0] not in FORCE_UNITS or assume_unit_codes[1] not in TORQUE_UNITS:
+            raise InputError(f"assume_unit_codes {assume_unit_codes!r}: force code must be one of "
+                             f"{sorted(FORCE_UNITS)}, torque code one of {sorted(TORQUE_UNITS)}")
+        if bus is None and not channel:
+            raise InputError("AtiCanSensor needs a python-can bus or a channel to open one")
+        self._bus = bus
+        self._owns_bus = bus is None
+        self.interface = interface
+        self.channel = channel if channel is not None else str(getattr(bus, "channel_info", bus))
+        self.base = base
+        self.bitrate = bitrate
+        self.rate_hz = rate_hz
+        self.calibration_index = calibration_index
+        self.reply_timeout_s = reply_timeout_s
+        self.assume_unit_codes = assume_unit_codes
+        self.calibration: CanCalibration | None = None
+        self.info = SensorInfo(transport="can", serial="", firmware="", force_unit="", torque_unit="",
+                               counts_per_force=0.0, counts_per_torque=0.0, rate_hz=float(rate_hz or 0.0))
+        self._health = SensorHealth()
+        self._lock = threading.Condition()
+        self._pending: collections.deque = collections.deque(maxlen=MAX_PENDING_SAMPLES)
+        self._bias_table = [np.zeros(6)]
+        self._bias_request: _BiasRequest | None = None
+        self._gages_to_si = np.zeros((6, 6))
+        self._sequence = 0
+        self._last_board_status = 0
+        self._silent = False
+        self.send_errors = 0
+        self.overflowed = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._thread_error: BaseException | None = None
+        self._started = False
+        self._closed = False
+
+    # ------------------------------------------------------------------ construction from a URL
+
+    @classmethod
+    def from_url(cls, url: str, bus=None, **options) -> "AtiCanSensor":
+        """Return an unstarted driver for ``can://INTERFACE/CHANNEL[?base=…&bitrate=…&rate_hz=…]``.
+
+        ``CHANNEL`` is everything after the first slash, percent-decoded: ``can://socketcan/can0``,
+        ``can://pcan/PCAN_USBBUS1``, ``can://slcan//dev/ttyACM0@115200`` (serial device and tty baud rate),
+        ``can://virtual/test-1``. Query keys: ``base`` (0x00–0x7F, hex or decimal), ``bitrate`` (bit/s),
+        ``rate_hz`` (poll rate, Hz), ``calibration`` (slot 0–15), ``timeout_s`` (reply timeout, s).
+        ``bus`` (optional) is used instead of opening one; ``options`` override the URL's keys
+        (constructor argument names). Raises InputError naming the part of the URL that is wrong.
+        """
+        kwargs = parse_can_url(url)
+        kwargs.update(options)
+        return cls(bus, **kwargs)
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> None:
+        """Open the bus, read the board's identity and calibration, and start polling.
+
+        Raises DeviceConnectionError when the bus cannot be opened, DeviceTimeoutError when the board does not
+        answer, DeviceError when its answers are inconsistent (calibration echo, unit codes, counts per unit).
+        """
+        if self._closed:
+            raise DeviceError("AtiCanSensor.start() after close(); make a new driver")
+        if self._started:
+            return
+        if self._bus is None:
+            self._bus = self._open_bus()
+        try:
+            self._discover()
+        except BaseException:
+            self._shutdown_owned_bus()
+            raise
+        self._started = True
+        self._thread = threading.Thread(
+            target=self._run, name=f"AtiCanSensor-{self.interface}-{self.channel}-{self.base:#04x}", daemon=False
+        )
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop polling, join the poll thread and shut down a bus this driver opened. Safe to call twice.
+
+        Re-raises (as DeviceError) an unexpected error that ended the poll thread.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        with self._lock:
+            self._lock.notify_all()
+        if self._thread is not None:
+            self._thread.join(CLOSE_JOIN_TIMEOUT_S)
+            if self._thread.is_alive():
+                logger.error("%s did not stop within %.1f s", self._thread.name, CLOSE_JOIN_TIMEOUT_S)
+        self._shutdown_owned_bus()
+        if self._thread_error is not None:
+            raise DeviceError(f"CAN poll thread failed: {self._thread_error!r}") from self._thread_error
+
+    def __enter__(self) -> "AtiCanSensor":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if getattr(self, "_started", False) and not getattr(self, "_closed", True):
+            warnings.warn(f"{self!r} was not closed", ResourceWarning, stacklevel=2)
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else "polling" if self._started else "not started"
+        return (f"AtiCanSensor(interface={self.interface!r}, channel={self.channel!r}, base={self.base:#04x}, "
+                f"bitrate={self.bitrate}, rate_hz={self.rate_hz}, calibration_index={self.calibration_index}, "
+                f"{state})")
+
+    # ------------------------------------------------------------------ the sensor contract
+
+    def read(self, timeout_s: float | None = 1.0) -> WrenchBatch:
+        """Return every sample polled since the last call, oldest first; wait up to ``timeout_s`` seconds
+        (None = forever) for at least one. Raises DeviceTimeoutError when none arrives in time."""
+        self._require_started()
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        with self._lock:
+            while not self._pending:
+                self._raise_if_dead()
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    health = self._health
+                    raise DeviceTimeoutError(
+                        f"no sample from the ATI CAN board (base {self.base:#04x}, {self.interface} "
+                        f"{self.channel!r}) within {timeout_s} s: {health.timeouts} polls unanswered, "
+                        f"{health.received} samples received so far")
+                self._lock.wait(remaining)
+            rows = list(self._pending)
+            self._pending.clear()
+        return self._to_batch(rows)
+
+    def average(self, duration_s: float, timeout_s: float | None = None) -> WrenchAverage:
+        """Poll for ``duration_s`` seconds of fresh samples and return their mean and sample standard deviation.
+
+        Samples already waiting are discarded. Saturated samples and samples with an error status are excluded
+        and counted in ``saturated``; ``lost`` counts polls in the window left unanswered (wholly or partly).
+        Raises DeviceTimeoutError when no sample arrives by ``timeout_s`` (default duration + 1 s) and
+        SensorFaultError when every sample was saturated or had an error status.
+        """
+        self._require_started()
+        _check_range("duration_s", duration_s, 0.0, 3600.0)
+        timeout_s = duration_s + AVERAGE_GRACE_S if timeout_s is None else timeout_s
+        with self._lock:
+            self._pending.clear()
+            before = self._health.snapshot()
+        start = time.monotonic()
+        batches = []
+        while True:
+            now = time.monotonic()
+            if now - start >= duration_s and batches:
+                break
+            if now - start >= timeout_s:
+                break
+            wait = min(max(start + duration_s - now, 0.0), start + timeout_s - now)
+            try:
+                batches.append(self.read(timeout_s=max(wait, 1e-3)))
+            except DeviceTimeoutError:
+                if time.monotonic() - start >= timeout_s:
+                    break
+        batch = WrenchBatch.concatenate(batches)
+        batch_time = batch.time_s
+        after = self.health()
+        lost = (after.timeouts - before.timeouts) + (after.lost - before.lost)
+        if len(batch) == 0:
+            raise DeviceTimeoutError(
+                f"no sample from the ATI CAN board (base {self.base:#04x}) within {timeout_s:.3g} s "
+                f"while averaging: {lost} polls unanswered")
+        good = ~batch.saturated
+        count = int(good.sum())
+        if count == 0:
+            raise SensorFaultError(
+                f"all {len(batch)} samples in the {duration_s} s window were saturated or had an error status "
+                f"(last status {int(batch.status[-1]):#010x}: {', '.join(decode_status(int(batch.status[-1]) & 0xFFFF)) or 'gage saturated'})")
+        wrench = batch.wrench[good]
+        return WrenchAverage(
+            mean=wrench.mean(axis=0),
+            std=wrench.std(axis=0, ddof=1) if count > 1 else np.zeros(6),
+            count=count,
+            saturated=int(len(batch) - count),
+            lost=int(lost),
+            duration_s=float(batch_time[-1] - batch_time[0]) if len(batch) > 1 else 0.0,
+        )
+
+    def bias(self, samples: int = DEFAULT_BIAS_SAMPLES, timeout_s: float = DEFAULT_BIAS_TIMEOUT_S) -> None:
+        """Tare on the host: average the gages of the next ``samples`` valid polls and subtract them from every
+        later sample (the board computes no bias). Raises DeviceTimeoutError if they do not arrive within
+        ``timeout_s`` seconds, SensorFaultError if the gages are saturated or the status reports an error."""
+        self._require_started()
+        _check_range("samples", samples, 1, 100_000)
+        request = _BiasRequest(samples)
+        with self._lock:
+            self._bias_request = request
+        if not request.done.wait(timeout_s):
+            with self._lock:
+                if self._bias_request is request:
+                    self._bias_request = None
+            if request.rejected and not request.count:
+                raise SensorFaultError(
+                    f"cannot bias the ATI CAN board: {request.rejected} samples saturated or with an error status "
+                    f"(last status {self._last_board_status:#06x}: {', '.join(decode_status(self._last_board_status)) or 'gage saturated'})")
+            raise DeviceTimeoutError(
+                f"bias needs {samples} valid samples from the ATI CAN board (base {self.base:#04x}); got "
+                f"{request.count} within {timeout_s} s")
+
+    def clear_bias(self) -> None:
+        """Forget the host bias: later samples are M·sg/Cp of the raw gages."""
+        with self._lock:
+            self._bias_table.append(np.zeros(6))
+
+    @property
+    def gage_bias(self) -> np.ndarray:
+        """(6,) the host gage bias in use, gage counts."""
+        with self._lock:
+            return self._bias_table[-1].copy()
+
+    def health(self) -> SensorHealth:
+        """Return a snapshot of the counters: received, timeouts (polls with no reply), lost (polls with a
+        partial reply), out_of_order (late replies to an earlier poll), duplicate, malformed (our IDs, wrong
+        length), foreign (other IDs), saturated, status_errors, restarts (watchdog-reset bit rising),
+        last_status and the measured poll rate_hz."""
+        with self._lock:
+            return self._health.snapshot()
+
+    # ------------------------------------------------------------------ start-up
+
+    def _open_bus(self):
+        import can
+
+        filters = [{"can_id": self.base << 4, "can_mask": 0x7F0, "extended": False}]
+        try:
+            return can.Bus(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
+                           can_filters=filters, ignore_config=True)
+        except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as error:
+            raise DeviceConnectionError(
+                f"cannot open CAN interface {self.interface!r} channel {self.channel!r} at {self.bitrate} bit/s: "
+                f"{error}") from error
+
+    def _shutdown_owned_bus(self) -> None:
+        if self._owns_bus and self._bus is not None:
+            try:
+                self._bus.shutdown()
+            except Exception:  # a failed shutdown must not hide the error that got us here
+                logger.exception("shutting down CAN bus %r failed", self.channel)
+            self._bus = None
+
+    def _discover(self) -> None:
+        """Read firmware, select the calibration, read matrix, counts per unit, units, serial (§4.1 sequence)."""
+        major, minor, build = struct.unpack(">BBH", self._request(OP_FIRMWARE, b"", "firmware version")[OP_FIRMWARE])
+        firmware = f"{major}.{minor}.{build}"
+        self._select_calibration()
+        rows = []
+        for axis in range(6):
+            replies = self._request(OP_MATRIX, bytes([axis]), f"matrix row {axis}",
+                                    (OP_MATRIX, OP_MATRIX + 1, OP_MATRIX + 2))
+            rows.append(np.frombuffer(b"".join(replies[OP_MATRIX + k] for k in range(3)), dtype=">f4"))
+        matrix = np.array(rows, dtype=np.float64)
+        if not np.all(np.isfinite(matrix)) or np.linalg.matrix_rank(matrix) < 6:
+            raise DeviceError(f"ATI CAN board sent an unusable calibration matrix (slot {self.calibration_index}): "
+                              f"{matrix.tolist()}")
+        if (major, minor) >= FIRMWARE_WITH_COUNTS:
+            cpf, cpt = struct.unpack(">II", self._request(OP_COUNTS_PER_UNIT, b"", "counts per unit")[OP_COUNTS_PER_UNIT])
+            force_code, torque_code = self._request(OP_UNIT_CODES, b"", "unit codes")[OP_UNIT_CODES]
+        else:
+            cpf = cpt = LEGACY_COUNTS_PER_UNIT
+            force_code, torque_code = self.assume_unit_codes
+            logger.warning("ATI CAN firmware %s < 3.7 reports no counts per unit or units: assuming 1e6 counts "
+                           "per unit and unit codes %s", firmware, self.assume_unit_codes)
+        if cpf <= 0 or cpt <= 0:
+            raise DeviceError(f"ATI CAN board reports counts per unit CpF={cpf}, CpT={cpt}; both must be > 0")
+        if force_code not in FORCE_UNITS or torque_code not in TORQUE_UNITS:
+            raise DeviceError(f"ATI CAN board reports unknown unit codes force={force_code}, torque={torque_code} "
+                              f"(known: force {sorted(FORCE_UNITS)}, torque {sorted(TORQUE_UNITS)})")
+        serial = self._request(OP_SERIAL, b"", "serial number")[OP_SERIAL].rstrip(b"\x00 ").decode("ascii", "replace")
+        force_unit, force_si = FORCE_UNITS[force_code]
+        torque_unit, torque_si = TORQUE_UNITS[torque_code]
+        self.calibration = CanCalibration(matrix, float(cpf), float(cpt), force_unit, torque_unit, force_si, torque_si)
+        self._gages_to_si = self.calibration.gages_to_si
+        self.info = SensorInfo(
+            transport="can",
+            serial=serial,
+            firmware=firmware,
+            force_unit=force_unit,
+            torque_unit=torque_unit,
+            counts_per_force=float(cpf),
+            counts_per_torque=float(cpt),
+            rate_hz=float(self.rate_hz or 0.0),
+            extra={
+                "interface": self.interface,
+                "channel": self.channel,
+                "base": f"{self.base:#04x}",
+                "bitrate": self.bitrate,
+                "calibration_index": self.calibration_index,
+                "calibration_matrix": matrix.tolist(),
+                "force_unit_code": int(force_code),
+                "torque_unit_code": int(torque_code),
+            },
+        )
+
+    def _select_calibration(self) -> None:
+        echo = self._request(OP_SELECT_CALIBRATION, bytes([self.calibration_index]),
+                             "set active calibration")[OP_SELECT_CALIBRATION]
+        if echo[0] != self.calibration_index:
+            raise DeviceError(f"ATI CAN board selected calibration {echo[0]} instead of {self.calibration_index}")
+
+    def _request(self, opcode: int, data: bytes, what: str, reply_ops: tuple[int, ...] | None = None) -> dict[int, bytes]:
+        """Send one start-up request and return its reply frames by opcode; retry, then raise DeviceTimeoutError."""
+        import can
+
+        reply_ops = reply_ops or (opcode,)
+        for _attempt in range(STARTUP_ATTEMPTS):
+            tally = SensorHealth()
+            self._drain(tally)
+            try:
+                self._bus.send(can.Message(arbitration_id=self.base << 4 | opcode, data=data, is_extended_id=False))
+            except can.CanError as error:
+                raise DeviceConnectionError(
+                    f"cannot send the {what} request on CAN {self.interface!r} {self.channel!r}: {error}") from error
+            replies = self._collect(reply_ops, time.monotonic() + self.reply_timeout_s, tally)
+            self._merge(tally)
+            if len(replies) == len(reply_ops):
+                return replies
+        raise DeviceTimeoutError(
+            f"ATI CAN board at base {self.base:#04x} on {self.interface} channel {self.channel!r} did not answer "
+            f"the {what} request (ID {self.base << 4 | opcode:#05x}) within {self.reply_timeout_s} s, "
+            f"{STARTUP_ATTEMPTS} tries: check power, wiring and termination, the bit rate ({self.bitrate} bit/s) "
+            f"and the base ID")
+
+    def _collect(self, reply_ops: tuple[int, ...], deadline: float, tally: SensorHealth) -> dict[int, bytes]:
+        """Receive frames until every opcode in ``reply_ops`` arrived or ``deadline`` (monotonic) passed.
+
+        Frames that are not wanted replies are counted in ``tally`` (a scratch SensorHealth, merged later).
+        """
+        replies: dict[int, bytes] = {}
+        while len(replies) < len(reply_ops):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            message = self._bus.recv(timeout=remaining)
+            if message is None:
+                break
+            opcode = self._classify(message, tally)
+            if opcode is None:
+                continue
+            if opcode in reply_ops:
+                if opcode in replies:
+                    tally.duplicate += 1
+                else:
+                    replies[opcode] = bytes(message.data)
+            else:
+                tally.out_of_order += 1  # a reply to another (earlier) request
+        return replies
+
+    def _classify(self, message, tally: SensorHealth) -> int | None:
+        """Return the reply opcode of a valid frame from our board, or None (counting why in ``tally``)."""
+        if not getattr(message, "is_rx", True):
+            return None  # our own request, echoed back
+        if message.is_error_frame or message.is_remote_frame or message.is_extended_id:
+            tally.foreign += 1
+            return None
+        if message.arbitration_id >> 4 != self.base:
+            tally.foreign += 1
+            return None
+        opcode = message.arbitration_id & 0xF
+        if REPLY_LENGTHS.get(opcode) != message.dlc:
+            tally.malformed += 1
+            return None
+        return opcode
+
+    def _drain(self, tally: SensorHealth) -> None:
+        """Discard frames already queued (late replies to a request that timed out), counting them."""
+        while (message := self._bus.recv(timeout=0.0)) is not None:
+            if self._classify(message, tally) is not None:
+                tally.out_of_order += 1
+
+    def _merge(self, tally: SensorHealth) -> None:
+        """Add the frame counters of ``tally`` to the driver's health (under the lock)."""
+        if tally.duplicate or tally.out_of_order or tally.malformed or tally.foreign:
+            with self._lock:
+                self._health.duplicate += tally.duplicate
+                self._health.out_of_order += tally.out_of_order
+                self._health.malformed += tally.malformed
+                self._health.foreign += tally.foreign
+
+    # ------------------------------------------------------------------ the poll loop
+
+    def _run(self) -> None:
+        period_s = 1.0 / self.rate_hz if self.rate_hz else 0.0
+        next_poll = time.monotonic()
+        rate_start, rate_count = next_poll, 0
+        try:
+            while not self._stop.is_set():
+                if period_s:
+                    delay = next_poll - time.monotonic()
+                    if delay > 0 and self._stop.wait(delay):
+                        break
+                    next_poll += period_s
+                    now = time.monotonic()
+                    if next_poll < now - period_s:
+                        next_poll = now  # fell behind (silent board, slow bus): do not burst to catch up
+                try:
+                    if self._poll_once():
+                        rate_count += 1
+                except Exception as error:  # the loop never raises: count, log, back off
+                    self.send_errors += 1
+                    with self._lock:
+                        self._health.timeouts += 1
+                    if self.send_errors in (1, 10, 100) or self.send_errors % 1000 == 0:
+                        logger.warning("CAN poll failed (%d so far): %r", self.send_errors, error)
+                    self._stop.wait(ERROR_BACKOFF_S)
+                now = time.monotonic()
+                if now - rate_start >= RATE_WINDOW_S:
+                    with self._lock:
+                        self._health.rate_hz = rate_count / (now - rate_start)
+                    rate_start, rate_count = now, 0
+        except BaseException as error:  # only a bug gets here; close() re-raises it
+            self._thread_error = error
+            logger.exception("CAN poll thread failed")
+            with self._lock:
+                self._lock.notify_all()
+
+    def _poll_once(self) -> bool:
+        """Request the gages once; store the sample and return True, or count the failure and return False."""
+        import can
+
+        tally = SensorHealth()
+        self._drain(tally)
+        self._sequence += 1
+        self._bus.send(can.Message(arbitration_id=self.base << 4 | OP_GAGES, data=b"", is_extended_id=False))
+        replies = self._collect((OP_GAGES, OP_GAGES_SECOND), time.monotonic() + self.reply_timeout_s, tally)
+        self._merge(tally)
+        received_at = time.monotonic()
+        if len(replies) < 2:
+            with self._lock:
+                if replies:
+                    self._health.lost += 1
+                else:
+                    self._health.timeouts += 1
+            if not self._silent:
+                self._silent = True
+                logger.warning("ATI CAN board (base %#04x) did not answer a gage request within %s s",
+                               self.base, self.reply_timeout_s)
+            return False
+        if self._silent:
+            self._silent = False
+            logger.info("ATI CAN board (base %#04x) answers again", self.base)
+        status, sg0, sg2, sg4 = struct.unpack(">Hhhh", replies[OP_GAGES])
+        sg1, sg3, sg5 = struct.unpack(">hhh", replies[OP_GAGES_SECOND])
+        gages = (sg0, sg1, sg2, sg3, sg4, sg5)
+        saturated_gage = GAGE_MAX in gages or GAGE_MIN in gages
+        flagged = saturated_gage or bool(status & STATUS_ERROR_MASK)
+        with self._lock:
+            health = self._health
+            health.received += 1
+            health.last_status = status
+            if saturated_gage:
+                health.saturated += 1
+            if status & STATUS_ERROR_MASK:
+                health.status_errors += 1
+            if status & STATUS_WATCHDOG_RESET and not self._last_board_status & STATUS_WATCHDOG_RESET:
+                health.restarts += 1
+            self._last_board_status = status
+            request = self._bias_request
+            if request is not None:
+                if flagged:
+                    request.rejected += 1
+                else:
+                    request.total += gages
+                    request.count += 1
+                    if request.count >= request.needed:
+                        self._bias_table.append(request.total / request.count)
+                        self._bias_request = None
+                        request.done.set()
+            if len(self._pending) == self._pending.maxlen:
+                self.overflowed += 1
+            host_status = status | (HOST_STATUS_GAGE_SATURATED if saturated_gage else 0)
+            self._pending.append((received_at, host_status, *gages, self._sequence, len(self._bias_table) - 1,
+                                  flagged))
+            self._lock.notify_all()
+        return True
+
+    def _to_batch(self, rows: list[tuple]) -> WrenchBatch:
+        """Convert pending rows to a WrenchBatch: wrench_si = K · (sg − bias), K = diag(SI/Cp) · M, once."""
+        if not rows:
+            return WrenchBatch.empty()
+        table = np.array(rows, dtype=np.float64)
+        gages = table[:, 2:8].astype(np.int64)
+        with self._lock:
+            biases = np.array(self._bias_table)
+        bias = biases[table[:, 9].astype(np.intp)]
+        wrench = (gages - bias) @ self._gages_to_si.T
+        return WrenchBatch(
+            time_s=table[:, 0].copy(),
+            wrench=wrench,
+            counts=gages,
+            status=table[:, 1].astype(np.uint32),
+            sequence=table[:, 8].astype(np.int64),
+            saturated=table[:, 10].astype(bool),
+        )
+
+    # ------------------------------------------------------------------ helpers
+
+    def _require_started(self) -> None:
+        if not self._started or self._closed:
+            raise DeviceError(f"{self!r}: call start() before reading (and not after close())")
+
+    def _raise_if_dead(self) -> None:
+        if self._thread_error is not None:
+            raise DeviceError(f"CAN poll thread failed: {self._thread_error!r}") from self._thread_error
+
+
+def _check_range(name: str, value, low, high) -> None:
+    """Raise InputError naming ``name`` when ``value`` is not a number in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not low <= value <= high:
+        raise InputError(f"{name} = {value!r} is out of range {low}..{high}")
+
+
+_URL_KEYS = {
+    "base": ("base", lambda v: int(v, 0)),
+    "bitrate": ("bitrate", int),
+    "rate_hz": ("rate_hz", float),
+    "calibration": ("calibration_index", int),
+    "timeout_s": ("reply_timeout_s", float),
+}
+
+
+def parse_can_url(url: str) -> dict:
+    """Return the constructor keyword arguments named by a ``can://`` URL (see ``AtiCanSensor.from_url``).
+
+    Raises InputError with the expected form and the offending part of the URL.
+    """
+    import can
+
+    parts = urlsplit(url)
+    if parts.scheme != "can":
+        raise InputError(f"sensor URL {url!r}: scheme must be 'can'; expected {URL_FORM}")
+    interface = parts.netloc
+    if not interface:
+        raise InputError(f"sensor URL {url!r}: missing INTERFACE; expected {URL_FORM}")
+    if interface not in can.VALID_INTERFACES:
+        raise InputError(f"sensor URL {url!r}: unknown python-can interface {interface!r}; one of "
+                         f"{', '.join(sorted(can.VALID_INTERFACES))}")
+    channel = unquote(parts.path[1:]) if parts.path.startswith("/") else ""
+    if not channel:
+        raise InputError(f"sensor URL {url!r}: missing CHANNEL after the interface; expected {URL_FORM}")
+    kwargs: dict = {"interface": interface, "channel": channel}
+    seen = set()
+    for key, value in parse_qsl(parts.query, keep_blank_values=True):
+        if key not in _URL_KEYS:
+            raise InputError(f"sensor URL {url!r}: unknown query key {key!r}; allowed: {', '.join(_URL_KEYS)}")
+        if key in seen:
+            raise InputError(f"sensor URL {url!r}: query key {key!r} given twice")
+        seen.add(key)
+        name, convert = _URL_KEYS[key]
+        try:
+            kwargs[name] = convert(value)
+        except ValueError:
+            raise InputError(f"sensor URL {url!r}: {key}={value!r} is not a number") from None
+    limits = {"base": (0, 0x7F), "bitrate": (1, MAX_BITRATE), "rate_hz": (1e-3, MAX_RATE_HZ),
+              "calibration_index": (0, 15), "reply_timeout_s": (1e-4, 60.0)}
+    for name, (low, high) in limits.items():
+        if name in kwargs and not low <= kwargs[name] <= high:
+            key = next(k for k, (n, _) in _URL_KEYS.items() if n == name)
+            raise InputError(f"sensor URL {url!r}: {key}={kwargs[name]!r} is out of range {low}..{high}")
+    return kwargs
