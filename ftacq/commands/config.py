@@ -1,0 +1,63 @@
+"""``ftacq config``: write a commented example CELL.toml, or check one.
+
+    ftacq config init [PATH] [--force]     write the example (default CELL.toml; refuses to overwrite)
+    ftacq config check PATH                validate a file and print the plan settings it gives
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ftacq.errors import InputError
+
+DEFAULT_CONFIG_PATH = Path("CELL.toml")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``config`` sub-command with its ``init`` and ``check`` actions."""
+    parser = subparsers.add_parser(
+        "config", help="write or check a cell configuration (CELL.toml)",
+        description="Write a commented example CELL.toml (robot, sensor, tool, poses, sampling, output; SI units), "
+                    "or validate one.")
+    actions = parser.add_subparsers(dest="config_action", metavar="ACTION", required=True)
+    init = actions.add_parser("init", help="write a commented example CELL.toml",
+                              description="Write a commented example configuration with every key at its default.")
+    init.add_argument("path", nargs="?", type=Path, default=DEFAULT_CONFIG_PATH,
+                      help="where to write it (default %(default)s)")
+    init.add_argument("--force", action="store_true", help="overwrite an existing file")
+    init.set_defaults(func=run_init)
+    check = actions.add_parser("check", help="validate a CELL.toml and print its values",
+                               description="Validate every key (type, range, unknown keys); exit 2 on a bad value.")
+    check.add_argument("path", type=Path, help="the configuration file")
+    check.set_defaults(func=run_check)
+
+
+def run_init(args: argparse.Namespace) -> int:
+    """Write the example configuration; refuse to overwrite without --force."""
+    from ftacq.config import example_config_text
+    from ftacq.fileio import atomic_write
+
+    path: Path = args.path
+    if path.exists() and not args.force:
+        raise InputError(f"{path}: already exists; pass --force to overwrite it")
+    if path.exists() and path.is_dir():
+        raise InputError(f"{path}: is a folder; give a file name such as {path / DEFAULT_CONFIG_PATH}")
+    with atomic_write(path) as handle:
+        handle.write(example_config_text())
+    print(f"wrote {path}: edit robot.host, robot.model, sensor.url and the tool cylinder, then run "
+          f"`ftacq calibrate --config {path} --dry-run` to check the plan", file=sys.stderr)
+    return 0
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Validate a configuration and print it as the procedure will use it."""
+    import json
+
+    from ftacq.config import load_config
+
+    config = load_config(args.path)
+    print(json.dumps(config.to_dict(), indent=2))
+    print(f"{args.path}: OK", file=sys.stderr)
+    return 0
