@@ -1,0 +1,533 @@
+"""Simulated Universal Robots controller that the unmodified ur-rtde client drives, in its own process.
+
+    python -m tests.fakes.ur_controller --host 127.0.0.2 [--model UR5e] [--time-scale 1.0] [--pose-shm NAME]
+        [--initial-q q0 .. q5] [--mount floor|wall|ceiling] [--version 5.11.1.108318]
+
+Listens on the controller's fixed ports of ``--host``: 30004 (RTDE), 29999 (dashboard), 30003 (script), and on a
+line-based control port (port 0, reported) for tests. Prints one line when listening::
+
+    READY {"host": "127.0.0.2", "rtde": 30004, "dashboard": 29999, "script": 30003, "control": 40123, ...}
+
+or, when a fixed port is taken, ``BIND_ERROR {"host": ..., "port": ..., "error": ...}`` and exits with status 3
+(tests/fakes/ur_process.py then retries on another address). Why a process: ur-rtde's constructors hold the GIL,
+so a fake in the client's process deadlocks (spec ``/work/shared/specs/ur.md`` §7-§8).
+
+Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` or ``{"ok": false, "error": ...}``):
+
+- ``ping`` · ``state`` · ``commands`` (every motion command executed: kind, target, speed, acceleration, async,
+  time, accepted, reason, source, move) · ``events`` · ``clear_commands``
+- ``fault KIND [now | after S | move_after S [move K] | move_fraction F [move K]]`` with KIND one of
+  ``protective_stop``, ``emergency_stop``, ``program_stop``, ``drop`` (close every client connection),
+  ``freeze`` (keep connections, stop sending data and answering: a pulled cable). K counts moves from 1 as in
+  ``commands``' ``move`` field; default: the next move.
+- ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
+  on the dashboard, as on a real arm) · ``restore`` (end a freeze) · ``clear_faults``
+- ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import json
+import signal
+import socket
+import struct
+import sys
+import threading
+import time
+
+import numpy as np
+
+from ftacq.kinematics import ur_model
+from tests.fakes import rtde_protocol as rp
+from tests.fakes.ur_dashboard import GREETING, dashboard_reply
+from tests.fakes.ur_simulator import Fault, URSimulator
+
+RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
+TICK_HZ = 500.0
+MAX_STREAM_HZ = 500.0
+SEND_TIMEOUT_S = 1.0
+BIND_ERROR_EXIT = 3
+FAULT_KINDS = ("protective_stop", "emergency_stop", "program_stop", "drop", "freeze")
+
+
+def _listener(host: str, port: int) -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind((host, port))
+    sock.listen(8)
+    return sock
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes | None:
+    chunks, got = [], 0
+    while got < n:
+        chunk = sock.recv(n - got)
+        if not chunk:
+            return None
+        chunks.append(chunk)
+        got += len(chunk)
+    return b"".join(chunks)
+
+
+class _OutputPlan:
+    """Turns a simulator snapshot into the flat value list of one output recipe."""
+
+    def __init__(self, recipe: rp.Recipe) -> None:
+        self.recipe = recipe
+        self.items = []
+        for name, type_name, count in zip(recipe.names, recipe.types, recipe.counts):
+            source, key = "field", name
+            for prefix, src in (("output_int_register_", "out_int"), ("output_double_register_", "out_dbl"),
+                                ("input_int_register_", "in_int"), ("input_double_register_", "in_dbl")):
+                if name.startswith(prefix):
+                    source, key = src, int(name[len(prefix):])
+            zero = 0.0 if rp.TYPE_FORMATS[type_name][0] == "d" else (False if type_name == "BOOL" else 0)
+            self.items.append((source, key, count, zero))
+
+    def flatten(self, snap: dict) -> list:
+        out: list = []
+        fields = snap["fields"]
+        for source, key, count, zero in self.items:
+            value = fields.get(key) if source == "field" else snap[source][key]
+            if value is None:
+                value = (zero,) * count if count > 1 else zero
+            if count > 1:
+                out.extend(value)
+            else:
+                out.append(value)
+        return out
+
+
+class RTDEConnection:
+    """One client on port 30004: setup requests answered synchronously, data packages sent by the tick thread."""
+
+    def __init__(self, server: "ControllerServer", sock: socket.socket) -> None:
+        self.server, self.sock = server, sock
+        self.send_lock = threading.Lock()
+        self.protocol_version = 1
+        self.outputs: _OutputPlan | None = None
+        self.inputs: dict[int, rp.Recipe] = {}
+        self.period_s = 1.0 / MAX_STREAM_HZ
+        self.next_send_s = 0.0
+        self.streaming = False
+        self.closed = False
+        sock.settimeout(None)
+
+    def send(self, package_type: int, payload: bytes = b"") -> bool:
+        with self.send_lock:
+            return self._send_locked(rp.frame(package_type, payload))
+
+    def _send_locked(self, data: bytes) -> bool:
+        if self.closed:
+            return False
+        try:
+            self.sock.settimeout(SEND_TIMEOUT_S)
+            self.sock.sendall(data)
+            return True
+        except OSError:
+            self.close()
+            return False
+
+    def send_data(self, snap: dict) -> None:
+        with self.send_lock:
+            if self.streaming and self.outputs is not None:
+                self._send_locked(rp.frame(rp.DATA_PACKAGE, self.outputs.recipe.pack(self.outputs.flatten(snap))))
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed, self.streaming = True, False
+        try:
+            self.sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self.sock.close()
+
+    def serve(self) -> None:
+        try:
+            while not self.closed:
+                header = _recv_exact(self.sock, rp.HEADER_SIZE)
+                if header is None:
+                    break
+                size, package_type = rp.HEADER.unpack(header)
+                body = _recv_exact(self.sock, max(size - rp.HEADER_SIZE, 0)) if size > rp.HEADER_SIZE else b""
+                if body is None:
+                    break
+                if self.server.frozen:
+                    continue
+                self._handle(package_type, body)
+        except OSError:
+            pass
+        finally:
+            self.close()
+            self.server.forget(self)
+
+    def _handle(self, package_type: int, body: bytes) -> None:
+        sim = self.server.sim
+        if package_type == rp.REQUEST_PROTOCOL_VERSION:
+            requested = struct.unpack(">H", body[:2])[0] if len(body) >= 2 else 1
+            accepted = requested in (1, 2)
+            if accepted:
+                self.protocol_version = requested
+            self.send(rp.REQUEST_PROTOCOL_VERSION, bytes([1 if accepted else 0]))
+        elif package_type == rp.GET_URCONTROL_VERSION:
+            self.send(rp.GET_URCONTROL_VERSION, rp.pack_version(*sim.version))
+        elif package_type == rp.CONTROL_PACKAGE_SETUP_OUTPUTS:
+            frequency = MAX_STREAM_HZ
+            if self.protocol_version >= 2 and len(body) >= 8:
+                frequency = struct.unpack(">d", body[:8])[0]
+                body = body[8:]
+            recipe = rp.Recipe.build(1, rp.split_names(body), rp.OUTPUT_TYPES)
+            if recipe.known:
+                self.outputs = _OutputPlan(recipe)
+                frequency = frequency if 0 < frequency <= MAX_STREAM_HZ else MAX_STREAM_HZ
+                self.period_s = 1.0 / frequency
+            self.send(rp.CONTROL_PACKAGE_SETUP_OUTPUTS, recipe.setup_reply())
+        elif package_type == rp.CONTROL_PACKAGE_SETUP_INPUTS:
+            recipe = rp.Recipe.build(len(self.inputs) + 1, rp.split_names(body), rp.INPUT_TYPES)
+            self.inputs[recipe.recipe_id] = recipe
+            self.send(rp.CONTROL_PACKAGE_SETUP_INPUTS, recipe.setup_reply())
+        elif package_type == rp.CONTROL_PACKAGE_START:
+            with self.send_lock:
+                ok = self._send_locked(rp.frame(rp.CONTROL_PACKAGE_START, bytes([1 if self.outputs else 0])))
+                if ok and self.outputs is not None:
+                    self.streaming = True
+                    self.next_send_s = time.monotonic()
+            self.server.update_stream_period()
+        elif package_type == rp.CONTROL_PACKAGE_PAUSE:
+            with self.send_lock:
+                self.streaming = False
+                self._send_locked(rp.frame(rp.CONTROL_PACKAGE_PAUSE, bytes([1])))
+        elif package_type == rp.DATA_PACKAGE and body:
+            recipe = self.inputs.get(body[0])
+            if recipe is None or not recipe.known:
+                return
+            values = recipe.unpack_partial(body[1:])
+            doubles = sum(c for t, c in zip(recipe.types, recipe.counts) if rp.TYPE_FORMATS[t][0] == "d")
+            sim.apply_inputs(values, doubles)
+
+
+class ControllerServer:
+    """All listeners, connection threads and the tick thread of one simulated controller."""
+
+    def __init__(self, sim: URSimulator, host: str, pose_shm: str | None = None) -> None:
+        self.sim, self.host = sim, host
+        self.stop_event = threading.Event()
+        self.frozen = False
+        self.lock = threading.Lock()
+        self.rtde_connections: list[RTDEConnection] = []
+        self.other_sockets: list[socket.socket] = []
+        self.threads: list[threading.Thread] = []
+        self.listeners: dict[str, socket.socket] = {}
+        self.shared_pose = None
+        if pose_shm:
+            from tests.fakes.world import SharedPose
+            self.shared_pose = SharedPose(pose_shm)
+        sim.on_network_fault = self._network_fault
+
+    # -------------------------------------------------------------- setup
+    def bind(self) -> None:
+        """Bind the fixed ports, then the control port (raises OSError with ``.port`` set on failure)."""
+        for name, port in (("rtde", RTDE_PORT), ("dashboard", DASHBOARD_PORT), ("script", SCRIPT_PORT), ("control", 0)):
+            try:
+                self.listeners[name] = _listener(self.host, port)
+            except OSError as error:
+                error.port = port  # type: ignore[attr-defined]
+                self.close_listeners()
+                raise
+
+    def ready_info(self) -> dict:
+        return {"host": self.host, "rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "script": SCRIPT_PORT,
+                "control": self.listeners["control"].getsockname()[1], "model": self.sim.model.name,
+                "version": ".".join(str(v) for v in self.sim.version), "time_scale": self.sim.time_scale}
+
+    def start(self) -> None:
+        for name, handler in (("rtde", self._rtde_client), ("dashboard", self._dashboard_client),
+                              ("script", self._script_client), ("control", self._control_client)):
+            self._spawn(f"ur-fake-accept-{name}", self._accept_loop, self.listeners[name], handler, name)
+        self._spawn("ur-fake-tick", self._tick_loop)
+
+    def _spawn(self, name: str, target, *args) -> threading.Thread:
+        thread = threading.Thread(target=target, args=args, name=name, daemon=True)
+        thread.start()
+        self.threads.append(thread)
+        return thread
+
+    def _accept_loop(self, listener: socket.socket, handler, name: str) -> None:
+        while not self.stop_event.is_set():
+            try:
+                client, _ = listener.accept()
+            except OSError:
+                return
+            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._spawn(f"ur-fake-{name}-client", handler, client)
+
+    # -------------------------------------------------------------- RTDE
+    def _rtde_client(self, sock: socket.socket) -> None:
+        connection = RTDEConnection(self, sock)
+        with self.lock:
+            self.rtde_connections.append(connection)
+        connection.serve()
+
+    def forget(self, connection: RTDEConnection) -> None:
+        with self.lock:
+            if connection in self.rtde_connections:
+                self.rtde_connections.remove(connection)
+        self.update_stream_period()
+
+    def update_stream_period(self) -> None:
+        with self.lock:
+            periods = [c.period_s for c in self.rtde_connections if c.streaming]
+        with self.sim.lock:
+            self.sim.stream_period_s = max(periods) if periods else 1.0 / MAX_STREAM_HZ
+
+    def _tick_loop(self) -> None:
+        period = 1.0 / TICK_HZ
+        next_tick = time.monotonic()
+        while not self.stop_event.is_set():
+            now = time.monotonic()
+            snap = self.sim.step(now)
+            if self.shared_pose is not None:
+                self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"])
+            if not self.frozen:
+                with self.lock:
+                    connections = [c for c in self.rtde_connections if c.streaming]
+                for connection in connections:
+                    if now >= connection.next_send_s:
+                        connection.send_data(snap)
+                        connection.next_send_s += connection.period_s
+                        if connection.next_send_s < now:
+                            connection.next_send_s = now + connection.period_s
+            next_tick += period
+            delay = next_tick - time.monotonic()
+            if delay > 0:
+                self.stop_event.wait(delay)
+            else:
+                next_tick = time.monotonic()
+
+    # -------------------------------------------------------------- dashboard, script, control
+    def _track(self, sock: socket.socket) -> None:
+        with self.lock:
+            self.other_sockets.append(sock)
+
+    def _untrack(self, sock: socket.socket) -> None:
+        with self.lock:
+            if sock in self.other_sockets:
+                self.other_sockets.remove(sock)
+        try:
+            sock.close()
+        except OSError:
+            pass
+
+    def _lines(self, sock: socket.socket):
+        buffer = b""
+        while True:
+            while b"\n" not in buffer:
+                chunk = sock.recv(4096)
+                if not chunk:
+                    return
+                buffer += chunk
+            line, buffer = buffer.split(b"\n", 1)
+            yield line.decode("utf-8", "replace").rstrip("\r")
+
+    def _dashboard_client(self, sock: socket.socket) -> None:
+        self._track(sock)
+        try:
+            sock.sendall((GREETING + "\n").encode())
+            for line in self._lines(sock):
+                if self.frozen:
+                    continue
+                reply = dashboard_reply(self.sim, line)
+                sock.sendall((reply + "\n").encode())
+                if line.strip().lower() == "quit":
+                    break
+        except OSError:
+            pass
+        finally:
+            self._untrack(sock)
+
+    def _script_client(self, sock: socket.socket) -> None:
+        self._track(sock)
+        buffer = b""
+        try:
+            while True:
+                chunk = sock.recv(65536)
+                if not chunk:
+                    break
+                buffer += chunk
+                if buffer.endswith(b"\nend\n") or buffer.endswith(b"\nend"):
+                    if not self.frozen:
+                        self.sim.receive_script(buffer.decode("utf-8", "replace"))
+                    buffer = b""
+        except OSError:
+            pass
+        finally:
+            if buffer.strip() and not self.frozen:
+                self.sim.receive_script(buffer.decode("utf-8", "replace"))
+            self._untrack(sock)
+
+    def _control_client(self, sock: socket.socket) -> None:
+        try:
+            for line in self._lines(sock):
+                if not line.strip():
+                    continue
+                try:
+                    reply = {"ok": True, **self.control(line)}
+                except (ValueError, IndexError, KeyError) as error:
+                    reply = {"ok": False, "error": f"{type(error).__name__}: {error}"}
+                sock.sendall((json.dumps(reply) + "\n").encode())
+        except OSError:
+            pass
+        finally:
+            sock.close()
+
+    def control(self, line: str) -> dict:
+        """Execute one control-port command (see the module docstring)."""
+        words = line.split()
+        command = words[0].lower()
+        sim = self.sim
+        if command == "ping":
+            return {}
+        if command == "state":
+            return {"state": sim.state_view(), "frozen": self.frozen}
+        if command == "commands":
+            with sim.lock:
+                return {"commands": list(sim.commands)}
+        if command == "events":
+            with sim.lock:
+                return {"events": list(sim.events)}
+        if command == "clear_commands":
+            with sim.lock:
+                sim.commands.clear()
+            return {}
+        if command == "fault":
+            kind = words[1]
+            if kind not in FAULT_KINDS:
+                raise ValueError(f"unknown fault {kind!r}; known: {', '.join(FAULT_KINDS)}")
+            fault = Fault(kind)
+            rest = words[2:]
+            if rest:
+                fault.trigger = rest[0]
+                if fault.trigger not in ("now", "after", "move_after", "move_fraction"):
+                    raise ValueError(f"unknown trigger {fault.trigger!r}")
+                if fault.trigger != "now":
+                    fault.value = float(rest[1])
+                if len(rest) >= 4 and rest[2] == "move":
+                    fault.move = int(rest[3])
+            sim.inject(fault)
+            return {"fault": {"kind": fault.kind, "trigger": fault.trigger, "value": fault.value, "move": fault.move}}
+        if command == "clear_faults":
+            with sim.lock:
+                sim.faults.clear()
+            return {}
+        if command == "release_estop":
+            sim.release_emergency_stop()
+            return {}
+        if command == "restore":
+            self.frozen = False
+            return {}
+        if command == "set":
+            what, values = words[1], [float(v) for v in words[2:]]
+            with sim.lock:
+                if what == "time_scale":
+                    sim.time_scale = values[0]
+                elif what == "q":
+                    if len(values) != 6:
+                        raise ValueError("set q needs 6 joint angles (rad)")
+                    sim.q = np.array(values)
+                elif what == "tcp_offset":
+                    if len(values) != 6:
+                        raise ValueError("set tcp_offset needs x y z rx ry rz")
+                    sim.tcp_offset = np.array(values)
+                else:
+                    raise ValueError(f"cannot set {what!r}")
+            return {}
+        if command == "quit":
+            threading.Timer(0.05, self.stop_event.set).start()
+            return {}
+        raise ValueError(f"unknown control command {command!r}")
+
+    # -------------------------------------------------------------- faults and shutdown
+    def _network_fault(self, kind: str) -> None:
+        if kind == "freeze":
+            self.frozen = True
+            return
+        self.close_clients()
+
+    def close_clients(self) -> None:
+        with self.lock:
+            connections, others = list(self.rtde_connections), list(self.other_sockets)
+        for connection in connections:
+            connection.close()
+        for sock in others:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def close_listeners(self) -> None:
+        for listener in self.listeners.values():
+            try:
+                listener.close()
+            except OSError:
+                pass
+
+    def close(self) -> None:
+        self.stop_event.set()
+        self.close_listeners()
+        self.close_clients()
+        for thread in self.threads[:6]:
+            thread.join(timeout=1.0)
+        if self.shared_pose is not None:
+            self.shared_pose.close()
+
+
+def parse_version(text: str) -> tuple[int, int, int, int]:
+    parts = [int(p) for p in text.split(".")]
+    if not 2 <= len(parts) <= 4:
+        raise argparse.ArgumentTypeError(f"version {text!r}: expected MAJOR.MINOR[.BUGFIX[.BUILD]]")
+    return tuple(parts + [0] * (4 - len(parts)))  # type: ignore[return-value]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m tests.fakes.ur_controller", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--host", required=True, help="loopback address to bind, e.g. 127.0.0.2")
+    parser.add_argument("--model", default="UR5e", help="UR model (default UR5e)")
+    parser.add_argument("--time-scale", type=float, default=1.0, help="0 = instant moves, 1 = real time")
+    parser.add_argument("--pose-shm", default=None, help="SharedPose block to publish the flange pose into")
+    parser.add_argument("--initial-q", type=float, nargs=6, default=None, metavar="Q", help="initial joint angles, rad")
+    parser.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor")
+    parser.add_argument("--version", type=parse_version, default=(5, 11, 1, 108318), help="controller version")
+    parser.add_argument("--serial-number", default="20235500123")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version,
+                      initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
+                      serial_number=args.serial_number)
+    server = ControllerServer(sim, args.host, args.pose_shm)
+    try:
+        server.bind()
+    except OSError as error:
+        info = {"host": args.host, "port": getattr(error, "port", None), "errno": error.errno,
+                "in_use": error.errno == errno.EADDRINUSE, "error": str(error)}
+        print("BIND_ERROR " + json.dumps(info), flush=True)
+        return BIND_ERROR_EXIT
+    signal.signal(signal.SIGTERM, lambda *_: server.stop_event.set())
+    signal.signal(signal.SIGINT, lambda *_: server.stop_event.set())
+    server.start()
+    print("READY " + json.dumps(server.ready_info()), flush=True)
+    try:
+        while not server.stop_event.wait(0.5):
+            pass
+    finally:
+        server.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,601 @@
+"""State machine of the simulated UR controller: modes, registers, the ur_rtde control-script handshake,
+motion, fault injection and the record of executed motion commands. No sockets here (see ur_controller.py).
+
+All public methods take ``self.lock``; the network threads call them, the tick thread calls :meth:`step`.
+The control script is emulated as spec ``/work/shared/specs/ur.md`` §4.5 describes: ``input_int_register_(0+off)``
+carries the command id, ``output_int_register_(0+off)`` is 1 (ready) / 2 (done), results go to
+``output_int_register_(1+off)`` / ``output_double_register_(0..5+off)``, the async progress word to
+``output_int_register_(2+off)``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ftacq.kinematics import URModel, flange_pose, forward_kinematics
+from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
+from tests.fakes.rtde_protocol import REGISTER_COUNT
+from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
+
+# robot_mode (spec §1.4)
+ROBOT_MODE_POWER_OFF, ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = 3, 4, 5, 7
+ROBOT_MODE_NAMES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
+                    4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
+# safety_mode
+SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, SAFETY_ROBOT_EMERGENCY_STOP = 1, 3, 7
+SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
+                     6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT"}
+# runtime_state
+RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
+
+# command ids (spec §4.4)
+CMD_CLEAR, CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK = 0, 1, 2, 3, 4
+CMD_SET_PAYLOAD, CMD_SET_TCP, CMD_PROTECTIVE_STOP, CMD_STOPL, CMD_STOPJ = 17, 29, 31, 33, 34
+CMD_GET_TCP_OFFSET, CMD_FK_DEFAULT, CMD_FK_ARGS, CMD_MOVE_PATH, CMD_IS_STEADY = 40, 43, 44, 45, 47
+CMD_GET_FLANGE_POSE, CMD_STOP_SCRIPT = 58, 255
+REALTIME_COMMANDS = frozenset({6, 9, 10, 11, 24, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
+REALTIME_NAMES = {9: "speedj", 10: "speedl", 11: "servoj", 24: "servol", 66: "direct_torque"}
+
+SCRIPT_COMPILE_DELAY_S = 0.05
+"""Delay between receiving a script and running it (also orders the client's 'clear' before the start, §7)."""
+MIN_SETTLE_S = 0.012
+"""'Done' is signalled at least this long (and 2.5 stream periods) after the final state is published (§7.11)."""
+STEADY_SPEED_RAD_S = 1e-6
+
+_PATH_LINE = re.compile(
+    r"^\s*(movej|movel|movep)\(\s*(p?)\[([-+0-9.eE,\s]+)\]\s*,\s*a\s*=\s*([-+0-9.eE]+)\s*,\s*v\s*=\s*([-+0-9.eE]+)"
+    r"\s*,\s*r\s*=\s*([-+0-9.eE]+)\s*\)", re.MULTILINE)
+_INT_OFFSET = re.compile(r"#\s*int register offset\s*\n\s*(\d+)")
+_WRITE_OUT_INT = re.compile(r"write_output_integer_register\(\s*(\d+)\s*(?:\+\s*(\d+))?\s*,\s*(-?\d+)\s*\)")
+
+
+@dataclass
+class ScriptProgram:
+    """An uploaded URScript program as the fake understands it."""
+
+    is_control_script: bool
+    int_offset: int = 0
+    path: list[tuple[str, np.ndarray, float, float, float]] = field(default_factory=list)
+    output_writes: list[tuple[int, int]] = field(default_factory=list)
+    name: str = "rtde_control"
+
+    @classmethod
+    def parse(cls, text: str) -> "ScriptProgram":
+        """Recognise ur_rtde's control script (``def rtde_control():``), its register offset and path lines."""
+        head = re.search(r"def\s+([A-Za-z_][A-Za-z0-9_]*)\s*\(", text)
+        name = head.group(1) if head else "script"
+        if name != "rtde_control":
+            writes = [(int(m.group(1)) + int(m.group(2) or 0), int(m.group(3))) for m in _WRITE_OUT_INT.finditer(text)]
+            return cls(False, name=name, output_writes=writes)
+        offset_match = _INT_OFFSET.search(text)
+        path = []
+        for m in _PATH_LINE.finditer(text):
+            values = np.array([float(v) for v in m.group(3).split(",")])
+            kind = "movej" if m.group(1) == "movej" else "movel"
+            path.append((kind, values, float(m.group(4)), float(m.group(5)), float(m.group(6))))
+        return cls(True, int(offset_match.group(1)) if offset_match else 0, path)
+
+
+@dataclass
+class Fault:
+    """A fault to inject: kind in {protective_stop, emergency_stop, program_stop, drop, freeze}.
+
+    trigger: "now", "after" (``value`` wall seconds after injection), "move_after" (``value`` wall seconds into
+    move ``move``), "move_fraction" (at fraction ``value`` of move ``move``'s duration). ``move`` is the 1-based
+    number of the motion command as counted in the record; None means the next move.
+    """
+
+    kind: str
+    trigger: str = "now"
+    value: float = 0.0
+    move: int | None = None
+    created_s: float = 0.0
+
+
+class URSimulator:
+    """The simulated controller's state. ``network`` hooks (drop/freeze) are set by the server."""
+
+    def __init__(self, model: URModel, *, time_scale: float = 1.0, version: tuple[int, int, int, int] = (5, 11, 1, 108318),
+                 initial_q: np.ndarray | None = None, mount: str = "floor", serial_number: str = "20235500123") -> None:
+        self.lock = threading.RLock()
+        self.model = model
+        self.time_scale = float(time_scale)
+        self.version = version
+        self.mount = mount
+        self.serial_number = serial_number
+        self.start_s = time.monotonic()
+        self._last_step_s = self.start_s
+        self.q = np.array(initial_q if initial_q is not None else [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0], dtype=float)
+        if not within_joint_limits(model, self.q):
+            raise ValueError(f"initial joint angles {self.q.tolist()} are outside the {model.name} joint limits")
+        self.qd = np.zeros(6)
+        self.tcp_offset = np.zeros(6)
+        self.payload_kg, self.payload_cog = 0.0, np.zeros(3)
+        self.robot_mode = ROBOT_MODE_RUNNING
+        self.safety_mode = SAFETY_NORMAL
+        self.estop_pressed = False
+        self.popup: str | None = None
+        self.runtime_state = RUNTIME_STOPPED
+        self.loaded_program: str | None = None
+        self.speed_slider = 1.0
+        self.in_int = [0] * REGISTER_COUNT
+        self.in_dbl = [0.0] * REGISTER_COUNT
+        self.out_int = [0] * REGISTER_COUNT
+        self.out_dbl = [0.0] * REGISTER_COUNT
+        self.in_bits = [0, 0]
+        self.out_bits = [0, 0]
+        self.input_seq = 0
+        self._last_realtime_seq = -1
+        self.last_input_double_count = 0
+        # script emulation
+        self.script: ScriptProgram | None = None
+        self._pending_script: tuple[float, ScriptProgram] | None = None
+        self._executing = False
+        self._job: tuple[str, float] | None = None  # ("motion", 0) wait for rest; ("until", t) wait for time
+        self._async_op_id = 0
+        self._async_counter = 0
+        # motion
+        self.motion: Motion | None = None
+        self.motion_t = 0.0
+        self._motion_started_s = 0.0
+        self._motion_number = 0
+        self._motion_finished_s = self.start_s
+        self._path_queue: list[tuple[str, np.ndarray, float, float, float]] = []
+        self._path_total = 0
+        self.move_count = 0
+        self.commands: list[dict] = []
+        self.faults: list[Fault] = []
+        self.events: list[dict] = []
+        self.stream_period_s = 0.002  # longest period among streaming clients; set by the server
+        self.on_network_fault = None  # callable(kind) installed by the server
+        self._tcp_pose_prev = self.tcp_pose()
+        self.tcp_speed = np.zeros(6)
+
+    # ------------------------------------------------------------------ geometry
+    def controller_time_s(self, now: float | None = None) -> float:
+        return (time.monotonic() if now is None else now) - self.start_s
+
+    def flange_pose(self) -> np.ndarray:
+        return flange_pose(self.model, self.q)
+
+    def tcp_pose_for(self, q: np.ndarray, tcp: np.ndarray) -> np.ndarray:
+        """Pose of ``base_T_flange(q) @ flange_T_tcp`` as [x, y, z, rx, ry, rz]."""
+        base_T_flange = forward_kinematics(self.model, q)
+        flange_T_tcp = np.eye(4)
+        flange_T_tcp[:3, :3] = rotation_from_rotvec(tcp[3:6])
+        flange_T_tcp[:3, 3] = tcp[:3]
+        if not np.any(tcp):
+            return flange_pose(self.model, q)
+        base_T_tcp = base_T_flange @ flange_T_tcp
+        return np.concatenate([base_T_tcp[:3, 3], rotvec_from_rotation(base_T_tcp[:3, :3])])
+
+    def tcp_pose(self) -> np.ndarray:
+        return self.tcp_pose_for(self.q, self.tcp_offset)
+
+    # ------------------------------------------------------------------ modes
+    def safety_status_bits(self) -> int:
+        if self.safety_mode == SAFETY_PROTECTIVE_STOP:
+            return (1 << 2) | (1 << 10)
+        if self.safety_mode == SAFETY_ROBOT_EMERGENCY_STOP or self.estop_pressed:
+            return (1 << 6) | (1 << 7) | (1 << 10)
+        return 1 << 0
+
+    def robot_status_bits(self) -> int:
+        powered = self.robot_mode in (ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING)
+        return (1 if powered else 0) | (2 if self.runtime_state == RUNTIME_PLAYING else 0)
+
+    def can_move(self) -> bool:
+        return (self.robot_mode == ROBOT_MODE_RUNNING and self.safety_mode == SAFETY_NORMAL
+                and not self.estop_pressed)
+
+    def _event(self, what: str, **details) -> None:
+        self.events.append({"time": self.controller_time_s(), "event": what, **details})
+
+    # ------------------------------------------------------------------ inputs
+    def apply_inputs(self, values: dict[str, object], double_count: int) -> None:
+        """Apply a decoded client data package (name → value)."""
+        with self.lock:
+            for name, value in values.items():
+                if name.startswith("input_int_register_"):
+                    self.in_int[int(name.rsplit("_", 1)[1])] = int(value)
+                elif name.startswith("input_double_register_"):
+                    self.in_dbl[int(name.rsplit("_", 1)[1])] = float(value)
+                elif name == "speed_slider_fraction" and values.get("speed_slider_mask", 0):
+                    self.speed_slider = min(max(float(value), 0.0), 1.0)
+                elif name == "input_bit_registers0_to_31":
+                    self.in_bits[0] = int(value)
+                elif name == "input_bit_registers32_to_63":
+                    self.in_bits[1] = int(value)
+            self.last_input_double_count = double_count
+            self.input_seq += 1
+
+    # ------------------------------------------------------------------ scripts
+    def receive_script(self, text: str) -> None:
+        """A program arrived on port 30003: it replaces the running one after a short 'compile' delay."""
+        program = ScriptProgram.parse(text)
+        with self.lock:
+            self._event("script_received", name=program.name, control=program.is_control_script,
+                        path_points=len(program.path))
+            self._pending_script = (time.monotonic() + SCRIPT_COMPILE_DELAY_S, program)
+
+    def _start_script(self, program: ScriptProgram) -> None:
+        self._halt_motion()
+        if not program.is_control_script:
+            for register, value in program.output_writes:
+                if 0 <= register < REGISTER_COUNT:
+                    self.out_int[register] = value
+            self.script = None
+            self.runtime_state = RUNTIME_STOPPED
+            return
+        if not self.can_move():
+            self.popup = "Cannot start program: the robot is not ready (power on, release brakes, clear stops)"
+            self._event("script_refused", reason=self.popup)
+            return
+        self.script = program
+        off = program.int_offset
+        self._executing = False
+        self._job = None
+        self._write_async(running=False, progress=0)
+        self.out_int[off] = 1
+        self.runtime_state = RUNTIME_PLAYING
+        self._event("script_started", offset=off)
+
+    def stop_program(self, reason: str) -> None:
+        """Stop the running program (dashboard ``stop``, pendant stop, script end)."""
+        with self.lock:
+            if self.runtime_state == RUNTIME_PLAYING:
+                self._event("program_stopped", reason=reason)
+            self.script = None
+            self._job = None
+            self.runtime_state = RUNTIME_STOPPED
+            if self.motion is not None:
+                self._begin_stop(4.0)
+
+    # ------------------------------------------------------------------ faults
+    def inject(self, fault: Fault) -> None:
+        with self.lock:
+            fault.created_s = time.monotonic()
+            if fault.trigger in ("move_after", "move_fraction") and fault.move is None:
+                fault.move = self.move_count + 1
+            if fault.trigger == "now":
+                self._fire(fault)
+            else:
+                self.faults.append(fault)
+
+    def _fire(self, fault: Fault) -> None:
+        self._event("fault", kind=fault.kind)
+        if fault.kind == "protective_stop":
+            self.safety_mode = SAFETY_PROTECTIVE_STOP
+            self.popup = "Protective stop: C153A1 (simulated)"
+            self._halt_motion()
+        elif fault.kind == "emergency_stop":
+            self.estop_pressed = True
+            self.safety_mode = SAFETY_ROBOT_EMERGENCY_STOP
+            self.robot_mode = ROBOT_MODE_POWER_OFF
+            self.popup = "Emergency stop: the robot emergency stop button is pressed (simulated)"
+            self._halt_motion()
+            self.script, self._job, self.runtime_state = None, None, RUNTIME_STOPPED
+        elif fault.kind == "program_stop":
+            self.stop_program("program stopped on the teach pendant (simulated)")
+        elif fault.kind in ("drop", "freeze"):
+            if self.on_network_fault is not None:
+                self.on_network_fault(fault.kind)
+        else:
+            raise ValueError(f"unknown fault kind {fault.kind!r}")
+
+    def release_emergency_stop(self) -> None:
+        with self.lock:
+            self.estop_pressed = False
+            if self.safety_mode == SAFETY_ROBOT_EMERGENCY_STOP:
+                self.safety_mode = SAFETY_NORMAL
+            self._event("emergency_stop_released")
+
+    def unlock_protective_stop(self) -> bool:
+        with self.lock:
+            if self.safety_mode != SAFETY_PROTECTIVE_STOP:
+                return False
+            self.safety_mode = SAFETY_NORMAL
+            self.popup = None
+            self._event("protective_stop_unlocked")
+            return True
+
+    # ------------------------------------------------------------------ motion
+    def _halt_motion(self) -> None:
+        """Stop dead (safety stop): the arm stays where it is."""
+        if self.motion is not None:
+            self._event("motion_halted", move=self._motion_number)
+        self.motion = None
+        self._path_queue.clear()
+        self.qd = np.zeros(6)
+        self._write_async(running=False, progress=0)
+        if self._job is not None:
+            self._job = None
+            self._executing = True  # the aborted command is not re-run; the client's clear re-arms
+
+    def _record(self, kind: str, target, speed: float, acceleration: float, asynchronous: bool, accepted: bool,
+                reason: str = "", source: str = "rtde") -> dict:
+        entry = {"index": len(self.commands) + 1, "kind": kind,
+                 "target": [float(v) for v in target] if target is not None else None,
+                 "speed": float(speed), "acceleration": float(acceleration), "async": bool(asynchronous),
+                 "time": self.controller_time_s(), "accepted": accepted, "reason": reason, "source": source,
+                 "move": None}
+        self.commands.append(entry)
+        return entry
+
+    def _start_move(self, kind: str, target: np.ndarray, speed: float, acceleration: float, asynchronous: bool,
+                    source: str = "rtde") -> bool:
+        target = np.asarray(target, dtype=float)
+        reason = ""
+        if target.shape != (6,) or not np.all(np.isfinite(target)):
+            reason = "target is not 6 finite numbers"
+        elif not (math.isfinite(speed) and math.isfinite(acceleration)) or speed <= 0 or acceleration <= 0:
+            reason = "speed and acceleration must be > 0"
+        elif not self.can_move():
+            reason = "robot cannot move (not running or a safety stop is active)"
+        elif kind == "movej" and not within_joint_limits(self.model, target):
+            reason = "joint position limit violated by the target"
+        entry = self._record(kind, target if target.size == 6 else None, speed, acceleration, asynchronous,
+                             not reason, reason, source)
+        if reason:
+            self._event("move_rejected", reason=reason)
+            if "limit" in reason:
+                self._fire(Fault("protective_stop"))
+            return False
+        self.move_count += 1
+        entry["move"] = self.move_count
+        if kind == "movej":
+            self.motion = JointMove(self.model, self.q, target, speed, acceleration)
+        else:
+            self.motion = LinearMove(self.model, self.q, target, speed, acceleration)
+        self.motion_t = 0.0
+        self._motion_number = self.move_count
+        self._motion_started_s = time.monotonic()
+        return True
+
+    def _begin_stop(self, deceleration: float) -> None:
+        if self.motion is not None:
+            self.motion = self.motion.stopping(self.motion_t, max(deceleration, 1e-6))
+            self.motion_t = 0.0
+        self._path_queue.clear()
+
+    def _advance_motion(self, now: float, dt: float) -> None:
+        motion = self.motion
+        if motion is None:
+            self.qd = np.zeros(6)
+            return
+        if self.time_scale <= 0:
+            t = motion.duration_s
+        else:
+            t = self.motion_t + dt * self.time_scale * self.speed_slider
+        fired = None
+        for fault in list(self.faults):
+            if fault.move != self._motion_number or fault.trigger not in ("move_after", "move_fraction"):
+                continue
+            if fault.trigger == "move_fraction":
+                t_fault = fault.value * motion.duration_s
+                if t >= t_fault:
+                    t = t_fault
+                    fired = fault
+                    break
+            elif now - self._motion_started_s >= fault.value:
+                fired = fault
+                break
+        self.motion_t = t
+        sample = motion.sample(t)
+        if sample is None or not within_joint_limits(self.model, sample[0]):
+            self._event("limit_reached", move=self._motion_number)
+            self._fire(Fault("protective_stop"))
+            return
+        self.q, self.qd = sample
+        if fired is not None:
+            self.faults.remove(fired)
+            self._fire(fired)
+            return
+        if motion.done(t):
+            self.qd = np.zeros(6)
+            self.motion = None
+            self._motion_finished_s = now
+            if self._path_queue:
+                self._next_path_point(now)
+            else:
+                self._write_async(running=False, progress=0)
+
+    def _next_path_point(self, now: float) -> None:
+        index = self._path_total - len(self._path_queue)
+        kind, values, acceleration, speed, _blend = self._path_queue.pop(0)
+        self._write_async(running=True, progress=index, new_operation=False)
+        if not self._start_move(kind, values, speed, acceleration, True, source="path"):
+            self._path_queue.clear()
+            self._write_async(running=False, progress=0)
+
+    # ------------------------------------------------------------------ control script
+    def _write_async(self, running: bool, progress: int, new_operation: bool = False) -> None:
+        if self.script is None:
+            return
+        if new_operation:
+            self._async_op_id = (self._async_op_id + 1) % 128
+        self._async_counter = (self._async_counter + 1) % 128
+        word = (self._async_op_id << 24) | (self._async_counter << 16) | ((1 << 15) if running else 0) | (progress & 0x7FFF)
+        self.out_int[self.script.int_offset + 2] = word
+
+    def _settle_s(self) -> float:
+        return max(MIN_SETTLE_S, 2.5 * self.stream_period_s)
+
+    def _run_script(self, now: float) -> None:
+        script = self.script
+        if script is None or self.runtime_state != RUNTIME_PLAYING:
+            return
+        off = script.int_offset
+        if self._job is not None:
+            kind, until = self._job
+            if kind == "motion" and self.motion is None and not self._path_queue:
+                self._job = ("until", now + self._settle_s())
+            elif kind == "until" and now >= until:
+                self._job = None
+                self._executing = True
+                self.out_int[off] = 2
+            return
+        cmd = self.in_int[off]
+        if cmd == CMD_CLEAR:
+            self._executing = False
+            self.out_int[off] = 1
+            return
+        if cmd in REALTIME_COMMANDS:
+            if self.input_seq != self._last_realtime_seq:
+                self._last_realtime_seq = self.input_seq
+                self._realtime_command(cmd, off)
+            self.out_int[off] = 1
+            return
+        if self._executing:
+            return
+        if cmd == CMD_STOP_SCRIPT:
+            self._event("script_stopped")
+            self.script, self._job, self.runtime_state = None, None, RUNTIME_STOPPED
+            return
+        if not self.can_move() and cmd in (CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK, CMD_MOVE_PATH):
+            self._record("movej" if cmd in (1, 2) else "movel", None, 0.0, 0.0, False, False, "safety stop active")
+            self._executing = True
+            return
+        wait_for_motion = self._command(cmd, off)
+        if wait_for_motion:
+            self._job = ("motion", 0.0)
+        else:
+            self._executing = True
+            self.out_int[off] = 2
+
+    def _realtime_command(self, cmd: int, off: int) -> None:
+        if cmd == CMD_GET_FLANGE_POSE:
+            self.out_dbl[off:off + 6] = list(self.flange_pose())
+        elif cmd in REALTIME_NAMES:
+            values = self.in_dbl[off:off + 8]
+            self._record(REALTIME_NAMES[cmd], values[:6], values[6] if len(values) > 6 else 0.0,
+                         values[7] if len(values) > 7 else 0.0, True, False, "not simulated")
+
+    def _command(self, cmd: int, off: int) -> bool:
+        """Execute one regular command; return True when 'done' must wait for the arm to come to rest."""
+        d = self.in_dbl
+        asynchronous = bool(self.in_int[off + 1])
+        if cmd in (CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK):
+            target = np.array(d[off:off + 6])
+            speed, acceleration = d[off + 6], d[off + 7]
+            kind = "movej" if cmd in (CMD_MOVEJ, CMD_MOVEJ_IK) else "movel"
+            if cmd == CMD_MOVEJ_IK:
+                solved = joint_positions_for_pose(self.model, target, self.q)
+                target = solved if solved is not None else np.full(6, np.nan)
+            elif cmd == CMD_MOVEL_FK:
+                target = flange_pose(self.model, target)
+            started = self._start_move(kind, target, speed, acceleration, asynchronous)
+            if started:
+                self._write_async(running=True, progress=0, new_operation=True)
+            return started and not asynchronous
+        if cmd == CMD_MOVE_PATH:
+            asynchronous = bool(self.in_int[off + 1])
+            self._path_queue = list(self.script.path)
+            self._path_total = len(self._path_queue)
+            if not self._path_queue:
+                return False
+            self._write_async(running=True, progress=0, new_operation=True)
+            self._next_path_point(time.monotonic())
+            return not asynchronous
+        if cmd in (CMD_STOPJ, CMD_STOPL):
+            deceleration = d[off]
+            self._record("stopj" if cmd == CMD_STOPJ else "stopl", None, 0.0, deceleration, asynchronous, True)
+            self._begin_stop(deceleration)
+            return not asynchronous
+        if cmd == CMD_IS_STEADY:
+            steady = self.motion is None and float(np.max(np.abs(self.qd))) < STEADY_SPEED_RAD_S
+            self.out_int[off + 1] = 1 if steady else 0
+        elif cmd == CMD_FK_DEFAULT:
+            self.out_dbl[off:off + 6] = list(self.tcp_pose())
+        elif cmd == CMD_FK_ARGS:
+            q = np.array(d[off:off + 6])
+            tcp = np.array(d[off + 6:off + 12]) if self.last_input_double_count >= 12 else self.tcp_offset
+            self.out_dbl[off:off + 6] = list(self.tcp_pose_for(q, tcp))
+        elif cmd == CMD_GET_TCP_OFFSET:
+            self.out_dbl[off:off + 6] = list(self.tcp_offset)
+        elif cmd == CMD_SET_TCP:
+            self.tcp_offset = np.array(d[off:off + 6])
+            self._event("tcp_set", tcp=list(self.tcp_offset))
+        elif cmd == CMD_SET_PAYLOAD:
+            self.payload_kg, self.payload_cog = d[off], np.array(d[off + 1:off + 4])
+        elif cmd == CMD_PROTECTIVE_STOP:
+            self._fire(Fault("protective_stop"))
+        return False
+
+    # ------------------------------------------------------------------ tick
+    def step(self, now: float | None = None) -> dict:
+        """Advance the simulation to ``now`` and return the snapshot of output fields."""
+        now = time.monotonic() if now is None else now
+        with self.lock:
+            dt = max(now - self._last_step_s, 0.0)
+            self._last_step_s = now
+            if self._pending_script is not None and now >= self._pending_script[0]:
+                program = self._pending_script[1]
+                self._pending_script = None
+                self._start_script(program)
+            for fault in list(self.faults):
+                if fault.trigger == "after" and now - fault.created_s >= fault.value:
+                    self.faults.remove(fault)
+                    self._fire(fault)
+            self._advance_motion(now, dt)
+            self._run_script(now)
+            return self.snapshot(now, dt)
+
+    def snapshot(self, now: float, dt: float) -> dict:
+        tcp = self.tcp_pose()
+        if dt > 0:
+            self.tcp_speed = np.concatenate([(tcp[:3] - self._tcp_pose_prev[:3]) / dt,
+                                             rotvec_from_rotation(rotation_from_rotvec(tcp[3:6])
+                                                                  @ rotation_from_rotvec(self._tcp_pose_prev[3:6]).T) / dt])
+        self._tcp_pose_prev = tcp
+        q, qd = tuple(self.q.tolist()), tuple(self.qd.tolist())
+        moving = self.motion is not None
+        running = self.robot_mode == ROBOT_MODE_RUNNING
+        joint_mode = 253 if running else (255 if self.robot_mode == ROBOT_MODE_IDLE else 239)
+        gravity = {"floor": (0.0, 0.0, -9.81), "wall": (-9.81, 0.0, 0.0), "ceiling": (0.0, 0.0, 9.81)}[self.mount]
+        safety_ok = self.safety_mode == SAFETY_NORMAL
+        fields = {
+            "timestamp": now - self.start_s,
+            "actual_q": q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": (0.0,) * 6,
+            "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(tcp.tolist()),
+            "actual_TCP_speed": tuple(self.tcp_speed.tolist()), "target_TCP_speed": tuple(self.tcp_speed.tolist()),
+            "tcp_offset": tuple(self.tcp_offset.tolist()),
+            "joint_temperatures": (31.0, 32.0, 33.0, 34.0, 35.0, 36.0),
+            "actual_execution_time": 0.2, "robot_mode": int(self.robot_mode), "safety_mode": int(self.safety_mode),
+            "safety_status": int(self.safety_mode),
+            "joint_mode": (joint_mode,) * 6, "actual_tool_accelerometer": (0.0, 0.0, 9.81),
+            "speed_scaling": (1.0 if safety_ok and running else 0.0),
+            "speed_scaling_combined": (self.speed_slider if safety_ok and running else 0.0),
+            "target_speed_fraction": self.speed_slider,
+            "actual_main_voltage": 48.0, "actual_robot_voltage": 48.0 if running else 0.0,
+            "actual_robot_current": 0.8 if moving else 0.3,
+            "actual_joint_voltage": (47.8,) * 6 if running else (0.0,) * 6,
+            "runtime_state": int(self.runtime_state), "robot_status_bits": self.robot_status_bits(),
+            "safety_status_bits": self.safety_status_bits(),
+            "payload": float(self.payload_kg), "payload_cog": tuple(self.payload_cog.tolist()),
+            "target_gravity": gravity, "elbow_position": tuple(forward_kinematics(self.model, self.q)[:3, 3].tolist()),
+        }
+        return {"fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
+                "in_int": list(self.in_int), "in_dbl": list(self.in_dbl),
+                "out_bits": list(self.out_bits), "in_bits": list(self.in_bits),
+                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": self.flange_pose()}
+
+    # ------------------------------------------------------------------ control channel views
+    def state_view(self) -> dict:
+        with self.lock:
+            return {
+                "time": self.controller_time_s(), "model": self.model.name, "q": self.q.tolist(),
+                "flange_pose": self.flange_pose().tolist(), "tcp_pose": self.tcp_pose().tolist(),
+                "tcp_offset": self.tcp_offset.tolist(), "robot_mode": self.robot_mode,
+                "safety_mode": self.safety_mode, "runtime_state": self.runtime_state,
+                "estop_pressed": self.estop_pressed, "moving": self.motion is not None,
+                "move_count": self.move_count, "motion_number": self._motion_number if self.motion else None,
+                "time_scale": self.time_scale, "script_offset": self.script.int_offset if self.script else None,
+                "pending_faults": len(self.faults), "popup": self.popup,
+            }
