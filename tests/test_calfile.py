@@ -1,0 +1,96 @@
+"""Calibration JSON: exact round trip, required keys with SI units, and clear errors for bad files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from ftacq.calfile import FORMAT_VERSION, calibration_to_dict, load_calibration, save_calibration
+from ftacq.errors import InputError
+from ftacq.identification import identify
+from tests.fakes.pose_records import example_record
+from tests.fakes.world import CellTruth
+
+
+@pytest.fixture(scope="module")
+def identified():
+    return identify(example_record(seed=2), mount="floor").calibration
+
+
+def test_round_trip_is_exact(tmp_path, identified):
+    path = tmp_path / "cal.json"
+    save_calibration(path, identified)
+    back = load_calibration(path)
+    for name in ("sensor_rotation", "force_bias", "torque_bias", "gravity_base", "center_of_mass"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(identified, name))
+    assert back.mass_kg == identified.mass_kg
+    assert back.uncertainty["mass_kg"] == identified.uncertainty["mass_kg"]
+    assert back.metadata["method"] == "srom+refine"
+    assert back.metadata["residuals"]["labels"] == list(identified.metadata["residuals"]["labels"])
+
+
+def test_document_has_the_required_keys_and_shapes(identified):
+    document = calibration_to_dict(identified)
+    assert document["format"] == "ftacq-calibration" and document["version"] == FORMAT_VERSION
+    assert np.array(document["sensor_rotation"]).shape == (3, 3)
+    for key in ("force_bias", "torque_bias", "gravity_base", "center_of_mass_m"):
+        assert len(document[key]) == 3
+    assert document["mass_kg"] == pytest.approx(identified.mass_kg)
+    assert document["base_tilt_deg"] == pytest.approx(list(identified.base_tilt_deg))
+    for key in ("uncertainty", "residuals", "outliers", "method", "software_version", "created_utc", "mount",
+                "base_tilt_relative_deg", "warnings", "diagnostics"):
+        assert key in document, key
+    json.dumps(document, allow_nan=False)
+
+
+def write(tmp_path, document) -> str:
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(document))
+    return str(path)
+
+
+def good_document():
+    return calibration_to_dict(CellTruth().calibration())
+
+
+@pytest.mark.parametrize(
+    "change, expected",
+    [
+        (lambda d: d.update(version=2), "reads calibration version 1, the file has 2"),
+        (lambda d: d.pop("version"), "the file has None"),
+        (lambda d: d.update(format="other"), "key 'format'"),
+        (lambda d: d.pop("torque_bias"), "missing required key 'torque_bias'"),
+        (lambda d: d.update(force_bias=[1, 2]), "key 'force_bias': expected shape \\[3\\], got \\[2\\]"),
+        (lambda d: d.update(center_of_mass_m=["a", 0, 0]), "key 'center_of_mass_m'"),
+        (lambda d: d.update(sensor_rotation=[[1, 0, 0], [0, 1, 0], [0, 0, -1]]), "not a rotation matrix"),
+        (lambda d: d.update(mass_kg=d["mass_kg"] * 1.01), "disagrees with"),
+    ],
+)
+def test_bad_calibration_files_are_refused_with_the_key(tmp_path, change, expected):
+    document = good_document()
+    change(document)
+    with pytest.raises(InputError, match=expected):
+        load_calibration(write(tmp_path, document))
+
+
+def test_unreadable_and_invalid_json(tmp_path):
+    with pytest.raises(InputError, match="cannot read"):
+        load_calibration(tmp_path / "missing.json")
+    path = tmp_path / "broken.json"
+    path.write_text('{"format": ')
+    with pytest.raises(InputError, match="not valid JSON"):
+        load_calibration(path)
+    path.write_text("[1, 2]")
+    with pytest.raises(InputError, match="JSON object"):
+        load_calibration(path)
+
+
+def test_save_is_atomic(tmp_path):
+    path = tmp_path / "cal.json"
+    path.write_text("previous")
+    bad = CellTruth().calibration()
+    object.__setattr__(bad, "metadata", {"not_serialisable": object()})
+    with pytest.raises(TypeError):
+        save_calibration(path, bad)
+    assert path.read_text() == "previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["cal.json"]
