@@ -464,7 +464,9 @@ def test_fake_ignores_request_dlc_and_replies_in_frame_order(channel, physics):
             assert bytes(echo.data) == b"\x0c" and board.active_calibration_index == 12
             first, _ = _ask(bus, 0x200, b"", 2)
             assert struct.unpack(">H", bytes(first.data[:2]))[0] & 0x0040  # empty slot: bad active calibration
-            assert _ask(bus, 0x20C, b"", 1) == [] and board.active_calibration_index == 0  # reset: no reply, slot 0
+            bus.send(can.Message(arbitration_id=0x20C, data=b"", is_extended_id=False))  # reset: no reply
+            (after_reset,) = _ask(bus, 0x20F, b"", 1)  # the board answers in order: the next frame is 0xF's
+            assert after_reset.arbitration_id == 0x20F and board.active_calibration_index == 0 and board.reset_count == 1
             (base_ack,) = _ask(bus, 0x20D, b"\x33", 1)
             (rate_ack,) = _ask(bus, 0x20E, b"\x03", 1)
             assert (base_ack.dlc, rate_ack.dlc, board.base, board.bitrate) == (0, 0, 0x20, 250_000)
