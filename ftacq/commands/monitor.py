@@ -11,11 +11,65 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+import threading
+import time
 from pathlib import Path
+
+import numpy as np
 
 from ftacq.errors import InputError
 
 DEFAULT_SIM_MODEL = "UR5e"
+SIM_SENSOR_RATE_HZ = 7000.0
+SIM_JOG_RATE_HZ = 30.0
+SIM_JOG_AMPLITUDE_RAD = np.array([0.35, 0.15, 0.2, 0.7, 0.7, 1.2])
+"""Peak joint excursions (rad) of the simulated technician's jog around the start configuration."""
+SIM_JOG_PERIOD_S = np.array([23.0, 17.0, 19.0, 11.0, 7.0, 13.0])
+SIM_CONTACT_EVERY_S = 8.0
+SIM_CONTACT_DURATION_S = 2.0
+SIM_CONTACT_WRENCH = np.array([0.0, 6.0, -15.0, 0.3, 0.0, 0.0])
+"""The simulated push on the tool (sensor frame, N and N·m) every SIM_CONTACT_EVERY_S seconds."""
+
+
+class SimulatedTechnician:
+    """Jogs the simulated arm and pushes on the tool, through the simulator's own back door (``--sim`` only).
+
+    On a real cell the technician jogs the arm from the pendant; the monitor itself never moves the robot.
+    Owns the thread "ftacq-sim-technician" (started by :meth:`start`, joined by :meth:`close`).
+    """
+
+    def __init__(self, cell, period_s: float = 1.0 / SIM_JOG_RATE_HZ) -> None:
+        self.cell = cell
+        self.period_s = period_s
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ftacq-sim-technician")
+
+    def start(self) -> "SimulatedTechnician":
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop jogging, remove the push, join the thread."""
+        self._stop.set()
+        self._thread.join()
+        self.cell.set_contact(np.zeros(6))
+
+    def _run(self) -> None:
+        q_start = np.asarray(self.cell.initial_q, dtype=float)
+        start_s = time.monotonic()
+        next_s = start_s
+        while not self._stop.wait(max(0.0, next_s - time.monotonic())):
+            next_s += self.period_s
+            t = time.monotonic() - start_s
+            try:
+                self.cell.controller.set_joint_positions(
+                    q_start + SIM_JOG_AMPLITUDE_RAD * np.sin(2 * np.pi * t / SIM_JOG_PERIOD_S))
+                pushing = (t % SIM_CONTACT_EVERY_S) > SIM_CONTACT_EVERY_S - SIM_CONTACT_DURATION_S
+                self.cell.set_contact(SIM_CONTACT_WRENCH if pushing else np.zeros(6))
+            except Exception as error:  # noqa: BLE001 - the demo stops jogging; the monitor goes on
+                self.error = error
+                return
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -33,12 +87,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     source.add_argument("--config", type=Path, metavar="CELL.toml",
                         help="cell configuration (robot.host, robot.model, sensor.url)")
     source.add_argument("--sim", action="store_true",
-                        help="run against the simulated cell (UR controller + Net F/T on loopback)")
+                        help="run against the simulated cell (UR controller + Net F/T at 7 kHz on loopback); a "
+                             "simulated technician jogs the arm and pushes on the tool every 8 s")
     parser.add_argument("--calibration", type=Path, metavar="CALIBRATION.json",
                         help="calibration from `ftacq calibrate`/`ftacq identify` (needed for compensation with "
                              "--config; --sim defaults to the simulated cell's ground truth)")
     parser.add_argument("--seconds", type=float, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
+    parser.add_argument("--sim-still", action="store_true", help="with --sim: leave the simulated arm still")
     parser.add_argument("--record", type=Path, metavar="FILE.csv",
                         help="also write every sample (raw, flange pose, compensated) to this CSV")
     add_sink_args(parser)
@@ -64,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         if args.sim:
             from tests.fakes.cell import SimulatedCell
 
-            cell = stack.enter_context(SimulatedCell(sensor="netft"))
+            cell = stack.enter_context(SimulatedCell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
             robot_host, sensor_url = cell.robot_host, cell.sensor_url
             model_name = getattr(cell, "model_name", DEFAULT_SIM_MODEL)
             if calibration is None:
@@ -83,9 +139,11 @@ def run(args: argparse.Namespace) -> int:
         sensor.start()
         from drivers.ur import URStateReader
 
-        robot = URStateReader(robot_host)
+        robot = URStateReader(robot_host, model=model)
         stack.callback(robot.close)
         robot.start()
+        if args.sim and not args.sim_still:
+            stack.callback(SimulatedTechnician(cell).start().close)
 
         recording = open_recording(args)
         stack.callback(close_recording, recording)
