@@ -135,14 +135,14 @@ class CollisionChecker:
             out[k, TOOL, 1] = origins[6] + self.tool_length_m * frames[5, :3, 2]
         return out.reshape(q.shape[:-1] + (7, 2, 3))
 
-    def _problems(self, q_samples: np.ndarray) -> tuple[list[str], np.ndarray]:
+    def _problems(self, q_samples: np.ndarray, check_limits: bool = True) -> tuple[list[str], np.ndarray]:
         """Return (problems, index of the first bad sample per problem) for samples (S, 6)."""
         problems: list[str] = []
         first_bad: list[int] = []
         lower, upper = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
         bad_limit = np.any((q_samples < lower - LIMIT_TOLERANCE_RAD) | (q_samples > upper + LIMIT_TOLERANCE_RAD),
                            axis=-1)
-        if bad_limit.any():
+        if check_limits and bad_limit.any():
             k = int(np.argmax(bad_limit))
             joints = np.flatnonzero((q_samples[k] < lower - LIMIT_TOLERANCE_RAD)
                                     | (q_samples[k] > upper + LIMIT_TOLERANCE_RAD))
@@ -196,13 +196,14 @@ class CollisionChecker:
         fractions = np.linspace(0.0, 1.0, steps + 1)[:, None]
         return q_from + fractions * (q_to - q_from)
 
-    def problems_along(self, q_from: np.ndarray, q_to: np.ndarray,
-                       max_step_rad: float = PATH_MAX_STEP_RAD) -> list[str]:
+    def problems_along(self, q_from: np.ndarray, q_to: np.ndarray, max_step_rad: float = PATH_MAX_STEP_RAD,
+                       check_limits: bool = True) -> list[str]:
         """Return the problems along the joint move q_from → q_to, sampled every ``max_step_rad``; empty = clear.
 
-        Each message says how far along the move (in %) the problem first occurs.
+        Each message says how far along the move (in %) the problem first occurs. ``check_limits=False`` checks
+        geometry only (it is 2π-periodic in every joint, so a planner may check a move once for any winding).
         """
         samples = self.path_samples(q_from, q_to, max_step_rad)
-        problems, first_bad = self._problems(samples)
+        problems, first_bad = self._problems(samples, check_limits)
         last = max(len(samples) - 1, 1)
         return [f"{p} at {100.0 * k / last:.0f} % of the move" for p, k in zip(problems, first_bad)]

@@ -1,0 +1,772 @@
+"""The calibration plan: pose sets, reachability and collision checks, motion order, duration estimate.
+
+:func:`make_plan` builds the A/E/V pose sets (:mod:`procedures.poses`), solves the IK of every pose in each of
+the eight branches (:mod:`procedures.ik`), keeps the branch that reaches the most poses without collision
+(:mod:`procedures.collision`; ties go to the robot's current branch), rejects the rest with a reason, orders the
+poses to shorten joint travel (nearest neighbour from the current configuration, then 2-opt, on a speed-weighted
+joint distance), checks every joint move of that order for collisions along the path (a colliding move is
+penalised and the order re-optimised; a pose that cannot be reached cleanly from anywhere is rejected), and
+estimates the duration from trapezoidal joint profiles.
+
+Order of the sets: A, E and V poses are interleaved in one tour. Validation poses measured among the others
+see the same thermal state and time as the identification poses, so their error measures the calibration, not
+the drift (which the executor's revisit of the first pose reports separately); putting V last would also add
+a long detour back to the region the tour has left. Identification and validation stay separate by
+``Plan.set_names``, not by order.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from functools import lru_cache
+
+import numpy as np
+
+from ftacq.errors import ConfigError, PlanError
+from ftacq.kinematics import UR_MODELS, URModel, ur_model
+from ftacq.so3 import rotation_from_rotvec
+from procedures.collision import CollisionChecker
+from procedures.ik import TWO_PI, Branch, IKResult, branch_of, solve_ik_branches, wrap_near
+from procedures.poses import MOUNTS, PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
+
+PLAN_FORMAT_VERSION = 1
+
+DEFAULT_CENTER_FRACTION: dict[str, tuple[float, float, float]] = {
+    "floor": (-0.30, -0.45, 0.45),
+    "wall": (-0.40, -0.50, 0.45),
+    "ceiling": (-0.10, -0.35, 0.75),
+}
+"""Default pose-set centre per mount, as a fraction of the arm's reach |a2| + |a3| (UR5e floor: (−0.245, −0.368,
+0.368) m). Chosen so that all 24 cube rotations and the 40° cone are reachable without collision, with the wrist
+clear of singularities, for every model in the table with a 0.05 × 0.1 m tool."""
+ALTERNATIVE_CENTER_FRACTIONS: tuple[tuple[float, float, float], ...] = (
+    (-0.30, -0.45, 0.50), (-0.30, -0.50, 0.45), (-0.25, -0.45, 0.45), (-0.40, -0.50, 0.30), (-0.20, -0.35, 0.75),
+    (-0.10, -0.35, 0.75), (-0.30, -0.45, 0.40), (-0.40, -0.50, 0.45), (-0.30, -0.35, 0.60), (-0.20, -0.55, 0.45),
+)
+"""Tried in this order when no centre is given and the mount's default does not reach every pose."""
+
+MAX_JOINT_ACCELERATION_RAD_S2 = 10.0
+"""The largest joint acceleration a plan accepts (the UR controllers allow more; calibration needs no more)."""
+MIN_IDENTIFICATION_POSES = 12
+"""Fewest identification poses (A + E) a plan may proceed with."""
+COLLIDING_EDGE_PENALTY_RAD = 1e3
+"""Cost added to a joint move that failed the path check, so the 2-opt avoids it."""
+MAX_REORDER_ROUNDS = 40
+MAX_2OPT_PASSES = 50
+
+
+def _as_tuple(value, shape_name: str, length: int | None = None):
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=float)
+    if length is not None and arr.shape != (length,):
+        raise ConfigError(f"{shape_name} must have {length} numbers, got {arr.tolist()!r}")
+    if not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{shape_name} must be finite, got {arr.tolist()!r}")
+    if arr.ndim == 1:
+        return tuple(float(v) for v in arr)
+    return tuple(tuple(float(v) for v in row) for row in arr)
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """Everything the plan depends on (SI units; the ``[poses]``, ``[tool]`` and ``[robot]`` parts of CELL.toml).
+
+    Attributes:
+        model: UR model name ("UR5e"…). mount: "floor", "wall" or "ceiling".
+        center_m: centre of the pose sets in the base frame (3,), m; None = the model's and mount's default
+            (:func:`default_center_m`, and alternatives if that does not reach every pose).
+        special: include the 24 special orientations (A set). random_count: size of the E set.
+        validation_count: size of the V set. cone_half_angle_deg: cone of the E and V tool axes, degrees.
+        nominal_rotvec: nominal orientation of the cone (rotation vector of base_R_flange, rad); None = tool down.
+        position_jitter_m: E/V positions move uniformly within ± this per axis, m. seed: random seed.
+        tool_radius_m, tool_length_m: bounding cylinder of sensor + tool along the flange z axis, m.
+        table_margin_m: clearance above the mounting surface, m.
+        joint_speed_rad_s, joint_acceleration_rad_s2: moveJ speed and acceleration.
+        settle_time_s: expected settle time per pose (estimate only). average_time_s: averaging time per pose.
+        explicit_poses: extra user poses (N, 6) [x, y, z, rx, ry, rz] used for identification, or None.
+        min_identification_poses: fewest A + E poses to proceed. require_srom: refuse unless all 24 A remain.
+        drift_check: the executor revisits the first pose at the end (counted in the duration estimate).
+        clearance_m: link-link and tool-link clearance beyond the capsule radii, m.
+    """
+
+    model: str = "UR5e"
+    mount: str = "floor"
+    center_m: tuple[float, float, float] | None = None
+    special: bool = True
+    random_count: int = 24
+    validation_count: int = 12
+    cone_half_angle_deg: float = 40.0
+    nominal_rotvec: tuple[float, float, float] | None = None
+    position_jitter_m: float = 0.0
+    seed: int = 0
+    tool_radius_m: float = 0.045
+    tool_length_m: float = 0.1
+    table_margin_m: float = 0.02
+    joint_speed_rad_s: float = 1.0
+    joint_acceleration_rad_s2: float = 1.4
+    settle_time_s: float = 1.0
+    average_time_s: float = 0.5
+    explicit_poses: tuple[tuple[float, ...], ...] | None = None
+    min_identification_poses: int = MIN_IDENTIFICATION_POSES
+    require_srom: bool = False
+    drift_check: bool = True
+    clearance_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "center_m", _as_tuple(self.center_m, "poses.center_m", 3))
+        set_(self, "nominal_rotvec", _as_tuple(self.nominal_rotvec, "poses.nominal_rotvec", 3))
+        if self.explicit_poses is not None:
+            try:
+                pose_set = explicit_poses(np.asarray(self.explicit_poses, dtype=float).reshape(-1, 6)
+                                          if np.size(self.explicit_poses) else np.empty((0, 6)))
+            except ValueError as exc:
+                raise ConfigError(f"poses.explicit: {exc}") from exc
+            set_(self, "explicit_poses", tuple(tuple(float(v) for v in row) for row in pose_set.poses))
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the key, the value and the allowed range for the first bad value."""
+        try:
+            model = ur_model(self.model)
+        except ValueError as exc:
+            raise ConfigError(f"robot.model = {self.model!r}: {exc}") from exc
+        if self.mount not in MOUNTS:
+            raise ConfigError(f"robot.mount = {self.mount!r}: must be one of {', '.join(MOUNTS)}")
+        checks = [
+            ("poses.random_count", self.random_count, 0, 1000),
+            ("poses.validation_count", self.validation_count, 0, 1000),
+            ("poses.cone_half_angle_deg", self.cone_half_angle_deg, 0.0, 90.0),
+            ("poses.position_jitter_m", self.position_jitter_m, 0.0, 0.5),
+            ("tool.radius_m", self.tool_radius_m, 0.0, 0.5),
+            ("tool.length_m", self.tool_length_m, 0.0, 1.0),
+            ("robot.table_margin_m", self.table_margin_m, 0.0, 0.5),
+            ("robot.joint_speed_rad_s", self.joint_speed_rad_s, 1e-3, min(model.max_joint_speed_rad_s)),
+            ("robot.joint_acceleration_rad_s2", self.joint_acceleration_rad_s2, 1e-3, MAX_JOINT_ACCELERATION_RAD_S2),
+            ("sampling.settle_time_s", self.settle_time_s, 0.0, 600.0),
+            ("sampling.average_time_s", self.average_time_s, 0.0, 600.0),
+            ("poses.min_identification_poses", self.min_identification_poses, 1, 10000),
+            ("robot.clearance_m", self.clearance_m, 0.0, 0.5),
+        ]
+        for key, value, low, high in checks:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+                    or not low <= value <= high:
+                raise ConfigError(f"{key} = {value!r}: must be a number in [{low:g}, {high:g}]")
+        for key in ("random_count", "validation_count", "seed", "min_identification_poses"):
+            if not isinstance(getattr(self, key), (int, np.integer)) or isinstance(getattr(self, key), bool):
+                raise ConfigError(f"poses.{key} = {getattr(self, key)!r}: must be an integer")
+        if not (self.special or self.random_count or self.explicit_poses):
+            raise ConfigError("poses: no identification poses (special = false, random_count = 0, no explicit poses)")
+
+    @property
+    def ur(self) -> URModel:
+        """The UR model these settings name."""
+        return ur_model(self.model)
+
+    def to_dict(self) -> dict:
+        """Return a JSON-ready dict of the settings."""
+        out = asdict(self)
+        for key, value in out.items():
+            if isinstance(value, tuple):
+                out[key] = json.loads(json.dumps(value))
+        return out
+
+    @staticmethod
+    def from_dict(data: dict) -> "PlanSettings":
+        """Rebuild settings from :meth:`to_dict`; unknown keys raise ConfigError naming them."""
+        known = {f.name for f in fields(PlanSettings)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"plan settings: unknown key(s) {', '.join(unknown)}")
+        return PlanSettings(**data)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A checked plan, in execution order (arrays are read-only copies).
+
+    Attributes:
+        poses: flange poses (N, 6) in the base frame. joint_targets_rad: IK solutions (N, 6), each joint the
+            2π-equivalent nearest the previous target. labels: "A07", "E13", "V02", "X01"… set_names: "A"/"E"/"V".
+        rejected: (label, reason) of every pose left out. estimated_duration_s: moves + settle + averaging
+            (+ the drift-check revisit). joint_travel_rad: weighted joint travel of this order from the start
+            configuration; listing_travel_rad: the same for the listing order (A, E, V as generated).
+        settings: the settings it was made from. center_m: the centre used. branch: the IK branch used (str).
+        start_q_rad: the configuration the plan starts from.
+    """
+
+    poses: np.ndarray
+    joint_targets_rad: np.ndarray
+    labels: tuple[str, ...]
+    set_names: tuple[str, ...]
+    rejected: tuple[tuple[str, str], ...]
+    estimated_duration_s: float
+    joint_travel_rad: float
+    listing_travel_rad: float
+    settings: PlanSettings
+    center_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    branch: str = ""
+    start_q_rad: tuple[float, ...] = field(default=(0.0,) * 6)
+
+    def __post_init__(self) -> None:
+        for name in ("poses", "joint_targets_rad"):
+            arr = np.array(getattr(self, name), dtype=float).reshape(-1, 6)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    @property
+    def srom_ready(self) -> bool:
+        """True when all 24 special poses (A01…A24) are in the plan (the SROM closed form needs all of them)."""
+        return sum(1 for s in self.set_names if s == "A") == 24
+
+    def indices(self, set_name: str) -> np.ndarray:
+        """Return the plan indices of the poses of one set ("A", "E" or "V")."""
+        return np.array([i for i, s in enumerate(self.set_names) if s == set_name], dtype=int)
+
+    def to_json(self) -> str:
+        """Return the plan as JSON (the run folder stores it so --resume continues the same plan)."""
+        return json.dumps({
+            "format_version": PLAN_FORMAT_VERSION,
+            "settings": self.settings.to_dict(),
+            "labels": list(self.labels),
+            "set_names": list(self.set_names),
+            "poses": self.poses.tolist(),
+            "joint_targets_rad": self.joint_targets_rad.tolist(),
+            "rejected": [list(r) for r in self.rejected],
+            "estimated_duration_s": self.estimated_duration_s,
+            "joint_travel_rad": self.joint_travel_rad,
+            "listing_travel_rad": self.listing_travel_rad,
+            "center_m": list(self.center_m),
+            "branch": self.branch,
+            "start_q_rad": list(self.start_q_rad),
+        }, indent=1)
+
+    @staticmethod
+    def from_json(text: str) -> "Plan":
+        """Rebuild a plan from :meth:`to_json`. Raises PlanError naming what is missing or inconsistent."""
+        try:
+            data = json.loads(text)
+            if data.get("format_version") != PLAN_FORMAT_VERSION:
+                raise PlanError(f"plan JSON: format_version {data.get('format_version')!r}, "
+                                f"expected {PLAN_FORMAT_VERSION}")
+            plan = Plan(
+                poses=np.array(data["poses"], dtype=float).reshape(-1, 6),
+                joint_targets_rad=np.array(data["joint_targets_rad"], dtype=float).reshape(-1, 6),
+                labels=tuple(data["labels"]),
+                set_names=tuple(data["set_names"]),
+                rejected=tuple((str(a), str(b)) for a, b in data["rejected"]),
+                estimated_duration_s=float(data["estimated_duration_s"]),
+                joint_travel_rad=float(data["joint_travel_rad"]),
+                listing_travel_rad=float(data["listing_travel_rad"]),
+                settings=PlanSettings.from_dict(data["settings"]),
+                center_m=tuple(float(v) for v in data["center_m"]),
+                branch=str(data["branch"]),
+                start_q_rad=tuple(float(v) for v in data["start_q_rad"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, PlanError):
+                raise
+            raise PlanError(f"plan JSON is invalid: {exc!r}") from exc
+        n = len(plan.labels)
+        if not (len(plan.poses) == len(plan.joint_targets_rad) == len(plan.set_names) == n):
+            raise PlanError(f"plan JSON is inconsistent: {n} labels, {len(plan.poses)} poses, "
+                            f"{len(plan.joint_targets_rad)} joint targets, {len(plan.set_names)} set names")
+        return plan
+
+
+# ------------------------------------------------------------------------------------------------------------
+# helpers
+# ------------------------------------------------------------------------------------------------------------
+
+def reach_m(model: URModel) -> float:
+    """Return |a2| + |a3|: the distance from shoulder to wrist when stretched, m."""
+    return abs(model.a[1]) + abs(model.a[2])
+
+
+def default_center_m(model: URModel | str, mount: str = "floor") -> np.ndarray:
+    """Return the default centre (3,) of the pose sets for a model and mount, m (see DEFAULT_CENTER_FRACTION)."""
+    model = ur_model(model) if isinstance(model, str) else model
+    return reach_m(model) * np.array(DEFAULT_CENTER_FRACTION[mount])
+
+
+def home_configuration_rad(mount: str = "floor") -> np.ndarray:
+    """Return a typical start configuration (6,): the UR "home" with the elbow up and the tool down (floor)."""
+    del mount  # the same joint angles work as a start for every mount; kept for symmetry with default_center_m
+    return np.array([np.pi / 2, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
+
+
+def joint_weights(model: URModel) -> np.ndarray:
+    """Return the per-joint weights of the travel metric: slowest rated joint speed / rated speed of each joint.
+
+    With them, weighted travel (rad) is proportional to the time the joints need at rated speed.
+    """
+    speeds = np.array(model.max_joint_speed_rad_s)
+    return speeds.min() / speeds
+
+
+def weighted_distance_matrix(q: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Return D[i, j] = Σ_k w_k |q_i,k − q_j,k| for configurations q (M, 6)."""
+    return np.abs(q[:, None, :] - q[None, :, :]) @ weights
+
+
+def path_travel(start_q: np.ndarray, q_sequence: np.ndarray, weights: np.ndarray) -> float:
+    """Return the weighted joint travel of start → q_sequence[0] → … (rad)."""
+    all_q = np.vstack([np.asarray(start_q, dtype=float)[None, :], q_sequence])
+    return float((np.abs(np.diff(all_q, axis=0)) @ weights).sum())
+
+
+def trapezoid_time_s(distance_rad: float, speed_rad_s: float, acceleration_rad_s2: float) -> float:
+    """Return the duration of a trapezoidal (or triangular) profile over ``distance_rad``, s."""
+    distance_rad = abs(distance_rad)
+    if distance_rad == 0.0:
+        return 0.0
+    if distance_rad >= speed_rad_s**2 / acceleration_rad_s2:
+        return distance_rad / speed_rad_s + speed_rad_s / acceleration_rad_s2
+    return 2.0 * np.sqrt(distance_rad / acceleration_rad_s2)
+
+
+def move_time_s(q_from: np.ndarray, q_to: np.ndarray, speed_rad_s: float, acceleration_rad_s2: float) -> float:
+    """Return the duration of a moveJ: the leading joint's trapezoid (a UR synchronises the others to it), s."""
+    delta = float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from))))
+    return trapezoid_time_s(delta, speed_rad_s, acceleration_rad_s2)
+
+
+def estimate_duration_s(settings: PlanSettings, start_q: np.ndarray, q_sequence: np.ndarray) -> float:
+    """Return moves + (settle + averaging) per pose, plus the drift-check revisit of the first pose, s."""
+    all_q = np.vstack([np.asarray(start_q, dtype=float)[None, :], q_sequence])
+    moves = sum(move_time_s(a, b, settings.joint_speed_rad_s, settings.joint_acceleration_rad_s2)
+                for a, b in zip(all_q[:-1], all_q[1:]))
+    per_pose = settings.settle_time_s + settings.average_time_s
+    total = moves + len(q_sequence) * per_pose
+    if settings.drift_check and len(q_sequence):
+        total += move_time_s(q_sequence[-1], q_sequence[0], settings.joint_speed_rad_s,
+                             settings.joint_acceleration_rad_s2) + per_pose
+    return float(total)
+
+
+def nearest_neighbour_order(dist: np.ndarray) -> list[int]:
+    """Return a path over nodes 1..M−1 starting from node 0, greedily nearest first (indices into dist)."""
+    m = dist.shape[0]
+    unvisited = set(range(1, m))
+    order = [0]
+    while unvisited:
+        last = order[-1]
+        nxt = min(unvisited, key=lambda j: dist[last, j])
+        order.append(nxt)
+        unvisited.remove(nxt)
+    return order
+
+
+def two_opt(order: list[int], dist: np.ndarray, max_passes: int = MAX_2OPT_PASSES) -> list[int]:
+    """Improve an open path with a fixed first node by 2-opt segment reversals until no move shortens it."""
+    tour = np.array(order)
+    n = len(tour)
+    for _ in range(max_passes):
+        improved = False
+        for i in range(1, n - 1):
+            a, b = tour[i - 1], tour[i]
+            js = np.arange(i + 1, n)
+            c = tour[js]
+            d_next = np.where(js + 1 < n, dist[c, tour[np.minimum(js + 1, n - 1)]], 0.0)
+            e_new = np.where(js + 1 < n, dist[b, tour[np.minimum(js + 1, n - 1)]], 0.0)
+            delta = dist[a, c] + e_new - dist[a, b] - d_next
+            k = int(np.argmin(delta))
+            if delta[k] < -1e-12:
+                j = js[k]
+                tour[i:j + 1] = tour[i:j + 1][::-1].copy()
+                improved = True
+        if not improved:
+            break
+    return tour.tolist()
+
+
+@lru_cache(maxsize=8)
+def _checker(model: str, tool_radius_m: float, tool_length_m: float, mount: str, table_margin_m: float,
+             clearance_m: float) -> CollisionChecker:
+    return CollisionChecker(ur_model(model), tool_radius_m, tool_length_m, mount, table_margin_m, clearance_m)
+
+
+def collision_checker(settings: PlanSettings) -> CollisionChecker:
+    """Return the (cached) collision checker for the settings' arm, tool and mount."""
+    return _checker(settings.model, settings.tool_radius_m, settings.tool_length_m, settings.mount,
+                    settings.table_margin_m, settings.clearance_m)
+
+
+def check_path(settings: PlanSettings, q_from: np.ndarray, q_to: np.ndarray) -> list[str]:
+    """Return the collision and joint-limit problems along the moveJ q_from → q_to (sampled); empty = clear.
+
+    The executor calls this before every move, so that nothing leaves the checked plan.
+    """
+    q_from, q_to = np.asarray(q_from, dtype=float).reshape(6), np.asarray(q_to, dtype=float).reshape(6)
+    if not (np.all(np.isfinite(q_from)) and np.all(np.isfinite(q_to))):
+        return ["joint values are not finite"]
+    return collision_checker(settings).problems_along(q_from, q_to)
+
+
+def build_pose_set(settings: PlanSettings, center_m: np.ndarray) -> PoseSet:
+    """Return the listing-order pose set: A (if special), E, explicit (set "E", labels X01…), V."""
+    nominal = None if settings.nominal_rotvec is None else rotation_from_rotvec(np.array(settings.nominal_rotvec))
+    if nominal is None:
+        nominal = tool_down_rotation(settings.mount)
+    out = PoseSet.empty()
+    if settings.special:
+        out = out + special_poses(center_m)
+    if settings.random_count:
+        out = out + random_cone_poses(settings.random_count, settings.cone_half_angle_deg, nominal, center_m,
+                                      settings.position_jitter_m, settings.seed, "E", settings.mount)
+    if settings.explicit_poses:
+        out = out + explicit_poses(np.array(settings.explicit_poses))
+    if settings.validation_count:
+        out = out + random_cone_poses(settings.validation_count, settings.cone_half_angle_deg, nominal, center_m,
+                                      settings.position_jitter_m, settings.seed, "V", settings.mount)
+    return out
+
+
+@dataclass
+class _Candidate:
+    center: np.ndarray
+    poses: PoseSet
+    branch: Branch
+    q: list[np.ndarray | None]
+    reasons: list[str]
+
+    @property
+    def ok_count(self) -> int:
+        return sum(q is not None for q in self.q)
+
+
+def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -> _Candidate:
+    """Solve and statically check every pose in all branches; return the best branch's outcome."""
+    model = settings.ur
+    checker = collision_checker(settings)
+    poses = build_pose_set(settings, center)
+    per_branch: dict[Branch, tuple[list, list]] = {b: ([], []) for b in Branch.all()}
+    for pose in poses.poses:
+        results = solve_ik_branches(model, pose, start_q)
+        for b, result in results.items():
+            q, reason = _static_check(checker, result)
+            per_branch[b][0].append(q)
+            per_branch[b][1].append(reason)
+    start_branch = branch_of(model, start_q)
+    weights = joint_weights(model)
+
+    def score(b: Branch):
+        qs = [q for q in per_branch[b][0] if q is not None]
+        travel = min((float(np.abs(q - start_q) @ weights) for q in qs), default=np.inf)
+        return (-len(qs), b != start_branch, travel)
+
+    best = min(Branch.all(), key=score)
+    qs, reasons = per_branch[best]
+    for i, q in enumerate(qs):  # say when another branch would have reached a rejected pose
+        if q is None:
+            others = [b for b in Branch.all() if per_branch[b][0][i] is not None]
+            if others:
+                reasons[i] += f" (reachable in branch {others[0]}, but not without a flip from branch {best})"
+    return _Candidate(center, poses, best, qs, reasons)
+
+
+def _static_check(checker: CollisionChecker, result: IKResult) -> tuple[np.ndarray | None, str]:
+    if not result.ok:
+        return None, result.reason
+    problems = checker.problems_at(result.q_rad)
+    if problems:
+        return None, "collision: " + "; ".join(problems)
+    return result.q_rad, ""
+
+
+def _minimum_problems(settings: PlanSettings, candidate: _Candidate, keep: list[bool]) -> list[str]:
+    """Return why the kept poses are not enough (empty = enough)."""
+    names = candidate.poses.set_names
+    n_ident = sum(1 for k, s in zip(keep, names) if k and s in ("A", "E"))
+    n_a = sum(1 for k, s in zip(keep, names) if k and s == "A")
+    n_v = sum(1 for k, s in zip(keep, names) if k and s == "V")
+    problems = []
+    need = min(settings.min_identification_poses, sum(1 for s in names if s in ("A", "E")))
+    if n_ident < need:
+        problems.append(f"only {n_ident} identification poses (A + E) remain, at least {need} needed")
+    if settings.require_srom and settings.special and n_a < 24:
+        problems.append(f"only {n_a} of the 24 special poses remain; SROM needs all 24 (require_srom)")
+    if settings.validation_count and n_v == 0:
+        problems.append("no validation pose (V) remains")
+    return problems
+
+
+def angle_delta(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+    """Return the shortest signed per-joint move from q_from to an equivalent of q_to, each in (−π, π] rad."""
+    return np.angle(np.exp(1j * (np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float))))
+
+
+ALTERNATIVE_MOVE_JOINTS = (5, 3, 0, 4)
+"""Joints (0-based: wrist 3, wrist 1, base, wrist 2) tried the long way round (δ ∓ 2π) when the shortest move
+collides: turning the wrist the other way often takes the tool round the outside of the forearm."""
+
+
+class _MoveGraph:
+    """Moves between poses (node 0 = the start configuration) with their path checks, cached.
+
+    The geometry of a move is 2π-periodic in every joint, so a move is checked once as (from-node, delta) from
+    the canonical configuration; joint limits are checked on the actual targets of a sequence.
+    """
+
+    def __init__(self, settings: PlanSettings, start_q: np.ndarray, q: np.ndarray) -> None:
+        self.model = settings.ur
+        self.checker = collision_checker(settings)
+        self.weights = joint_weights(self.model)
+        self.lower, self.upper = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
+        self.nodes = np.vstack([start_q[None, :], q])
+        n = len(self.nodes)
+        self.delta = angle_delta(self.nodes[:, None, :], self.nodes[None, :, :])  # (n, n, 6), δ[a, b]
+        self.delta[0, :] = angle_delta(start_q, self.nodes)  # from the start
+        self.cost = np.abs(self.delta) @ self.weights
+        self.bad: dict[tuple[int, int], str] = {}
+        self._checked: dict[tuple, list[str]] = {}
+        self.labels = ["the start configuration"] + [""] * (n - 1)
+
+    def _check(self, a: int, move: np.ndarray) -> list[str]:
+        key = (a, tuple(np.round(move, 9)))
+        if key not in self._checked:
+            self._checked[key] = self.checker.problems_along(self.nodes[a], self.nodes[a] + move, check_limits=False)
+        return self._checked[key]
+
+    def move(self, a: int, b: int) -> np.ndarray:
+        """Return the joint move a → b (shortest unless an alternative replaced a colliding one)."""
+        return self.delta[a, b]
+
+    def check_edge(self, a: int, b: int) -> bool:
+        """Check the move a → b; if it collides try the alternatives; return True when clear (updates cost)."""
+        key = (min(a, b), max(a, b))
+        if key in self.bad:
+            return False
+        problems = self._check(a, self.delta[a, b])
+        if not problems:
+            return True
+        for j in ALTERNATIVE_MOVE_JOINTS:
+            move = self.delta[a, b].copy()
+            if move[j] == 0.0:
+                continue
+            move[j] -= np.sign(move[j]) * TWO_PI
+            if not self._check(a, move):
+                self._set(a, b, move)
+                return True
+        self.bad[key] = problems[0]
+        return False
+
+    def _set(self, a: int, b: int, move: np.ndarray) -> None:
+        self.delta[a, b] = move
+        self.cost[a, b] = np.abs(move) @ self.weights
+        if a != 0 and b != 0:
+            self.delta[b, a] = -move
+            self.cost[b, a] = self.cost[a, b]
+
+    def sequence(self, path: list[int]) -> tuple[np.ndarray, list[tuple[int, int]]]:
+        """Return the actual joint targets along ``path`` (node 0 first) and the moves that failed a check.
+
+        A target outside the joint limits is replaced by the equivalent nearest its predecessor within the
+        limits, and that move is checked as it is.
+        """
+        q = self.nodes[0].copy()
+        out = []
+        failed = []
+        for a, b in zip(path[:-1], path[1:]):
+            ok = self.check_edge(a, b)
+            target = q + self.move(a, b)
+            if np.any(target < self.lower - 1e-9) or np.any(target > self.upper + 1e-9):
+                wrapped = wrap_near(self.nodes[b], q, self.lower, self.upper)
+                target = self.nodes[b] if wrapped is None else wrapped
+                problems = self.checker.problems_along(q, target)
+                if problems:
+                    self.bad[(min(a, b), max(a, b))] = problems[0]
+                    ok = False
+            if not ok:
+                failed.append((a, b))
+            target = np.clip(target, self.lower, self.upper)  # only rounding: farther out was re-wrapped above
+            out.append(target)
+            q = target
+        return np.array(out).reshape(-1, 6), failed
+
+
+def _order_and_check(settings: PlanSettings, start_q: np.ndarray, q: np.ndarray,
+                     labels: list[str]) -> tuple[list[int], np.ndarray, list[tuple[int, str]]]:
+    """Order poses (indices into q), check each move along its path, and return the joint targets.
+
+    Returns (order, joint targets in that order, rejected) where rejected lists (index, reason) of poses dropped
+    because no tour found avoided a colliding move into them.
+    """
+    graph = _MoveGraph(settings, start_q, q)
+    active = list(range(len(q)))
+    rejected: list[tuple[int, str]] = []
+    while True:
+        sub = [0] + [i + 1 for i in active]
+        for _ in range(MAX_REORDER_ROUNDS):
+            dist = graph.cost[np.ix_(sub, sub)].copy()
+            for (a, b) in graph.bad:
+                if a in sub and b in sub:
+                    ia, ib = sub.index(a), sub.index(b)
+                    dist[ia, ib] += COLLIDING_EDGE_PENALTY_RAD
+                    dist[ib, ia] += COLLIDING_EDGE_PENALTY_RAD
+            # the first move leaves the start: its cost is directed, the rest symmetric
+            tour = two_opt(nearest_neighbour_order(dist), dist)
+            path = [sub[t] for t in tour]
+            targets, failed = graph.sequence(path)
+            if not failed:
+                return [p - 1 for p in path[1:]], targets, rejected
+        # drop the pose with the most colliding moves found so far (ties: the pose the first failed move enters)
+        bad_count: dict[int, int] = {}
+        for (a, b) in graph.bad:
+            for node in (a, b):
+                if node != 0 and (node - 1) in active:
+                    bad_count[node] = bad_count.get(node, 0) + 1
+        first_a, first_b = failed[0]
+        worst = max(bad_count, key=lambda node: (bad_count[node], node == first_b))
+        a, b = next(((x, y) if y == worst else (y, x)) for (x, y) in graph.bad if worst in (x, y))
+        frm = "the start configuration" if a == 0 else labels[a - 1]
+        rejected.append((worst - 1, f"no collision-free joint move found (e.g. from {frm}: "
+                                    f"{graph.bad[(min(a, b), max(a, b))]})"))
+        active.remove(worst - 1)
+        if not active:
+            return [], np.empty((0, 6)), rejected
+
+
+def listing_targets(model: URModel, start_q: np.ndarray, q_sequence: np.ndarray) -> np.ndarray:
+    """Return the joint targets of a sequence moved through with the shortest joint moves (within limits)."""
+    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    out = np.empty_like(q_sequence)
+    q = np.asarray(start_q, dtype=float)
+    for i, target in enumerate(q_sequence):
+        nxt = q + angle_delta(q, target)
+        if np.any(nxt < lower) or np.any(nxt > upper):
+            wrapped = wrap_near(target, q, lower, upper)
+            nxt = target if wrapped is None else wrapped
+        out[i] = q = np.clip(nxt, lower, upper)
+    return out
+
+
+def _candidate_centers(settings: PlanSettings) -> list[np.ndarray]:
+    if settings.center_m is not None:
+        return [np.array(settings.center_m)]
+    reach = reach_m(settings.ur)
+    fractions = [DEFAULT_CENTER_FRACTION[settings.mount]] + [
+        f for f in ALTERNATIVE_CENTER_FRACTIONS if f != DEFAULT_CENTER_FRACTION[settings.mount]]
+    return [reach * np.array(f) for f in fractions]
+
+
+def make_plan(settings: PlanSettings, start_q_rad: np.ndarray) -> Plan:
+    """Build, check and order the pose plan from the robot's current configuration ``start_q_rad`` (6,), rad.
+
+    Raises:
+        PlanError: not enough poses remain; its message lists every rejected pose with its reason.
+        ConfigError: bad settings (raised by PlanSettings).
+    """
+    start_q = np.asarray(start_q_rad, dtype=float).reshape(6)
+    model = settings.ur
+    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    if not np.all(np.isfinite(start_q)) or np.any(start_q < lower - 1e-6) or np.any(start_q > upper + 1e-6):
+        raise PlanError(f"start configuration {np.round(start_q, 4).tolist()} rad is outside the joint limits")
+    best_plan: Plan | None = None
+    first_error = ""
+    for center in _candidate_centers(settings):
+        candidate = _evaluate(settings, center, start_q)
+        if best_plan is not None and candidate.ok_count <= len(best_plan):
+            continue  # cannot beat the best plan so far
+        plan, error = _plan_from(settings, candidate, start_q)
+        if plan is None:
+            first_error = first_error or error
+            continue
+        if best_plan is None or len(plan) > len(best_plan):
+            best_plan = plan
+        if not plan.rejected:
+            break
+    if best_plan is None:
+        raise PlanError(first_error)
+    return best_plan
+
+
+def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarray) -> tuple[Plan | None, str]:
+    """Order and check the statically feasible poses of one candidate; return (plan, "") or (None, why not)."""
+    model = settings.ur
+    poses = candidate.poses
+    keep = [q is not None for q in candidate.q]
+    rejected: list[tuple[str, str]] = [(poses.labels[i], candidate.reasons[i]) for i, k in enumerate(keep) if not k]
+    problems = _minimum_problems(settings, candidate, keep)
+    if problems:
+        return None, _plan_error_message(problems, rejected, candidate.center)
+    kept = [i for i, k in enumerate(keep) if k]
+    q_kept = np.array([candidate.q[i] for i in kept])
+    order, q_exec, dropped = _order_and_check(settings, start_q, q_kept, [poses.labels[i] for i in kept])
+    for local, reason in dropped:
+        keep[kept[local]] = False
+        rejected.append((poses.labels[kept[local]], reason))
+    problems = _minimum_problems(settings, candidate, keep)
+    if problems:
+        return None, _plan_error_message(problems, rejected, candidate.center)
+    chosen = [kept[i] for i in order]
+    weights = joint_weights(model)
+    listing = [i for i in kept if keep[i]]
+    q_listing = listing_targets(model, start_q, np.array([candidate.q[i] for i in listing]))
+    return Plan(
+        poses=poses.poses[chosen],
+        joint_targets_rad=q_exec,
+        labels=tuple(poses.labels[i] for i in chosen),
+        set_names=tuple(poses.set_names[i] for i in chosen),
+        rejected=tuple(rejected),
+        estimated_duration_s=estimate_duration_s(settings, start_q, q_exec),
+        joint_travel_rad=path_travel(start_q, q_exec, weights),
+        listing_travel_rad=path_travel(start_q, q_listing, weights),
+        settings=settings,
+        center_m=tuple(float(v) for v in candidate.center),
+        branch=str(candidate.branch),
+        start_q_rad=tuple(float(v) for v in start_q),
+    ), ""
+
+
+def _plan_error_message(problems: list[str], rejected: list[tuple[str, str]], center: np.ndarray) -> str:
+    lines = ["the pose plan cannot proceed: " + "; ".join(problems),
+             f"centre {np.round(center, 3).tolist()} m; {len(rejected)} pose(s) rejected:"]
+    lines += [f"  {label}: {reason}" for label, reason in rejected]
+    return "\n".join(lines)
+
+
+def _minutes(seconds: float) -> str:
+    return f"{int(seconds // 60)} min {seconds % 60:04.1f} s"
+
+
+def format_plan(plan: Plan) -> str:
+    """Return the plan as text for the terminal: poses per set, rejected poses, duration, travel, limits."""
+    s = plan.settings
+    counts = {name: sum(1 for x in plan.set_names if x == name) for name in ("A", "E", "V")}
+    wanted = {"A": 24 if s.special else 0,
+              "E": s.random_count + (len(s.explicit_poses) if s.explicit_poses else 0),
+              "V": s.validation_count}
+    lines = [
+        f"Pose plan for {s.model} ({s.mount} mount), centre "
+        f"({', '.join(f'{v:+.3f}' for v in plan.center_m)}) m, IK branch {plan.branch}",
+        f"  tool cylinder r = {s.tool_radius_m:.3f} m, length {s.tool_length_m:.3f} m; "
+        f"mounting-surface margin {s.table_margin_m * 1000:.0f} mm",
+        "  poses: " + ", ".join(f"{name} {counts[name]}/{wanted[name]}" for name in ("A", "E", "V") if wanted[name])
+        + f"  (total {len(plan)})",
+        "  SROM closed form: " + ("available (all 24 special poses)" if plan.srom_ready
+                                   else "not available (LROM + refinement only)"),
+    ]
+    if plan.rejected:
+        lines.append(f"  rejected {len(plan.rejected)}:")
+        lines += [f"    {label}: {reason}" for label, reason in plan.rejected]
+    saving = 100.0 * (1.0 - plan.joint_travel_rad / plan.listing_travel_rad) if plan.listing_travel_rad else 0.0
+    lines += [
+        f"  joint travel: {plan.joint_travel_rad:.1f} rad in this order, {plan.listing_travel_rad:.1f} rad in "
+        f"listing order ({saving:.0f} % shorter)",
+        f"  limits: joint speed {s.joint_speed_rad_s:.2f} rad/s, acceleration {s.joint_acceleration_rad_s2:.2f} rad/s²",
+        f"  estimated duration: {_minutes(plan.estimated_duration_s)} (settle {s.settle_time_s:.1f} s + average "
+        f"{s.average_time_s:.1f} s per pose" + (", drift-check revisit of the first pose" if s.drift_check else "")
+        + ")",
+        "  order: " + " ".join(plan.labels),
+    ]
+    return "\n".join(lines)
+
+
+__all__ = ["PlanSettings", "Plan", "make_plan", "format_plan", "check_path", "default_center_m",
+           "home_configuration_rad", "collision_checker", "build_pose_set", "UR_MODELS"]
