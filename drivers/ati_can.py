@@ -172,8 +172,9 @@ class CanCalibration:
 class _BiasRequest:
     """A bias in progress: the poll thread adds valid gage samples until ``needed`` are in."""
 
-    def __init__(self, needed: int) -> None:
+    def __init__(self, needed: int, first_sequence: int) -> None:
         self.needed = needed
+        self.first_sequence = first_sequence
         self.total = np.zeros(6)
         self.count = 0
         self.rejected = 0
@@ -191,6 +192,8 @@ class AtiCanSensor:
         calibration_index: the calibration slot (0–15) to select at start.
         reply_timeout_s: seconds a request waits for its reply.
         assume_unit_codes: (force, torque) unit codes for firmware older than 3.7, which cannot report them.
+        bus_options: extra keyword arguments for ``can.Bus`` when the driver opens the bus (e.g. slcan's
+            ``sleep_after_open`` in s, pcan's ``device_id``).
 
     The constructor does no I/O; ``start()`` opens the bus, reads firmware, selects the calibration, reads the
     matrix, counts per unit, units and serial number, and starts polling.
@@ -208,6 +211,7 @@ class AtiCanSensor:
         calibration_index: int = 0,
         reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S,
         assume_unit_codes: tuple[int, int] = (2, 3),
+        bus_options: dict | None = None,
     ) -> None:
         _check_range("base", base, 0, 0x7F)
         _check_range("calibration_index", calibration_index, 0, 15)
@@ -230,6 +234,7 @@ class AtiCanSensor:
         self.calibration_index = calibration_index
         self.reply_timeout_s = reply_timeout_s
         self.assume_unit_codes = assume_unit_codes
+        self.bus_options = dict(bus_options or {})
         self.calibration: CanCalibration | None = None
         self.info = SensorInfo(transport="can", serial="", firmware="", force_unit="", torque_unit="",
                                counts_per_force=0.0, counts_per_torque=0.0, rate_hz=float(rate_hz or 0.0))
@@ -353,7 +358,7 @@ class AtiCanSensor:
     def average(self, duration_s: float, timeout_s: float | None = None) -> WrenchAverage:
         """Poll for ``duration_s`` seconds of fresh samples and return their mean and sample standard deviation.
 
-        Samples already waiting are discarded. Saturated samples and samples with an error status are excluded
+        Only polls requested after the call count (samples waiting or in flight are discarded). Saturated samples and samples with an error status are excluded
         and counted in ``saturated``; ``lost`` counts polls in the window left unanswered (wholly or partly).
         Raises DeviceTimeoutError when no sample arrives by ``timeout_s`` (default duration + 1 s) and
         SensorFaultError when every sample was saturated or had an error status.
@@ -364,21 +369,27 @@ class AtiCanSensor:
         with self._lock:
             self._pending.clear()
             before = self._health.snapshot()
+            first_sequence = self._sequence + 1  # a poll already in flight was requested before this call
         start = time.monotonic()
-        batches = []
+        batches, fresh_count = [], 0
         while True:
             now = time.monotonic()
-            if now - start >= duration_s and batches:
+            if now - start >= duration_s and fresh_count:
                 break
             if now - start >= timeout_s:
                 break
             wait = min(max(start + duration_s - now, 0.0), start + timeout_s - now)
             try:
                 batches.append(self.read(timeout_s=max(wait, 1e-3)))
+                fresh_count += int((batches[-1].sequence >= first_sequence).sum())
             except DeviceTimeoutError:
                 if time.monotonic() - start >= timeout_s:
                     break
         batch = WrenchBatch.concatenate(batches)
+        fresh = batch.sequence >= first_sequence
+        if not fresh.all():
+            batch = WrenchBatch(batch.time_s[fresh], batch.wrench[fresh], batch.counts[fresh], batch.status[fresh],
+                                batch.sequence[fresh], batch.saturated[fresh])
         batch_time = batch.time_s
         after = self.health()
         lost = (after.timeouts - before.timeouts) + (after.lost - before.lost)
@@ -403,13 +414,13 @@ class AtiCanSensor:
         )
 
     def bias(self, samples: int = DEFAULT_BIAS_SAMPLES, timeout_s: float = DEFAULT_BIAS_TIMEOUT_S) -> None:
-        """Tare on the host: average the gages of the next ``samples`` valid polls and subtract them from every
-        later sample (the board computes no bias). Raises DeviceTimeoutError if they do not arrive within
+        """Tare on the host: average the gages of the next ``samples`` valid polls (requested after this call)
+        and subtract them from every later sample (the board computes no bias). Raises DeviceTimeoutError if they do not arrive within
         ``timeout_s`` seconds, SensorFaultError if the gages are saturated or the status reports an error."""
         self._require_started()
         _check_range("samples", samples, 1, 100_000)
-        request = _BiasRequest(samples)
         with self._lock:
+            request = _BiasRequest(samples, self._sequence + 1)
             self._bias_request = request
         if not request.done.wait(timeout_s):
             with self._lock:
@@ -449,8 +460,8 @@ class AtiCanSensor:
 
         filters = [{"can_id": self.base << 4, "can_mask": 0x7F0, "extended": False}]
         try:
-            return can.Bus(interface=self.interface, channel=self.channel, bitrate=self.bitrate,
-                           can_filters=filters, ignore_config=True)
+            return can.Bus(**{"can_filters": filters, **self.bus_options, "interface": self.interface,
+                              "channel": self.channel, "bitrate": self.bitrate, "ignore_config": True})
         except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as error:
             raise DeviceConnectionError(
                 f"cannot open CAN interface {self.interface!r} channel {self.channel!r} at {self.bitrate} bit/s: "
@@ -681,7 +692,7 @@ class AtiCanSensor:
                 health.restarts += 1
             self._last_board_status = status
             request = self._bias_request
-            if request is not None:
+            if request is not None and self._sequence >= request.first_sequence:
                 if flagged:
                     request.rejected += 1
                 else:

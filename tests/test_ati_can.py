@@ -30,7 +30,7 @@ from drivers.ati_can import (
 )
 from drivers.sensor import ForceTorqueSensor, open_sensor
 from ftacq.errors import DeviceConnectionError, DeviceTimeoutError, InputError, SensorFaultError
-from tests.fakes.netcanoem import FakeCanCalibration, FakeNetCanOem, default_calibration_matrix
+from tests.fakes.netcanoem import FakeCanCalibration, FakeNetCanOem, FakeSlcanAdapter, default_calibration_matrix
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose, SharedPose
 
 WAIT_TIMEOUT_S = 10.0
@@ -508,3 +508,29 @@ def test_ftacq_sensor_info_reads_a_fake_board_in_process(channel, fake, capsys):
     assert main(["sensor", "info", f"can://virtual/{channel}"]) == 0
     output = capsys.readouterr().out
     assert "FT23456" in output and "N-mm" in output
+
+
+# ---------------------------------------------------------------------------- slcan through pyserial
+
+
+def test_driver_over_slcan_through_pyserial(channel, fake, physics):
+    """python-can's slcan interface on a real pseudo-terminal (pyserial), bridged to the board's virtual bus."""
+    with FakeSlcanAdapter(channel) as adapter:
+        url = f"can://slcan/{adapter.port}?bitrate=250000&rate_hz=200"
+        with AtiCanSensor.from_url(url, bus_options={"sleep_after_open": 0.0}) as sensor:
+            assert sensor.info.serial == "FT23456" and sensor.info.torque_unit == "N-mm"
+            assert_within_one_count(fresh_samples(sensor, 10), physics.noiseless_wrench(POSES[0]),
+                                    fake.active_calibration)
+        assert adapter.commands[:3] == ["C", "S5", "O"]
+        frames = [command for command in adapter.commands if command.startswith("t")]
+        assert frames[0] == "t20F0" and "t2000" in frames  # firmware request (DLC 0) first; gage polls later
+
+
+def test_slcan_at_the_wrong_bit_rate_times_out(channel, fake):
+    with FakeSlcanAdapter(channel, bus_bitrate=250_000) as adapter:
+        sensor = AtiCanSensor.from_url(f"can://slcan/{adapter.port}?bitrate=500000&timeout_s=0.05",
+                                       bus_options={"sleep_after_open": 0.0})
+        with pytest.raises(DeviceTimeoutError, match=r"bit rate \(500000 bit/s\)"):
+            sensor.start()
+        assert adapter.commands[:3] == ["C", "S6", "O"]
+    assert not fake.requests()  # nothing reached the board

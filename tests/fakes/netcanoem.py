@@ -496,3 +496,132 @@ class FakeNetCanOem:
             major, minor, build = self.firmware
             return [(OP_FIRMWARE, struct.pack(">BBH", major, minor, build))]
         return []  # 0x1, 0x3, 0x4 are reply-only; 0xA, 0xB undocumented; old firmware lacks 0x7–0x9
+
+
+SLCAN_BITRATE_COMMANDS = {
+    "S0": 10_000, "S1": 20_000, "S2": 50_000, "S3": 100_000, "S4": 125_000,
+    "S5": 250_000, "S6": 500_000, "S7": 750_000, "S8": 1_000_000,
+}
+"""Lawicel slcan set-bit-rate commands → bit/s (the ones python-can's slcan interface sends)."""
+SLCAN_OK = b"\r"
+SLCAN_ERROR = b"\a"
+PTY_READ_SIZE = 4096
+
+
+class FakeSlcanAdapter:
+    """A simulated slcan (Lawicel ASCII) USB-CAN adapter on a pseudo-terminal, bridged to a virtual CAN channel.
+
+    python-can's ``slcan`` interface opens ``port`` through pyserial exactly as it opens ``/dev/ttyACM0``; this
+    adapter answers its ASCII commands (``C``, ``O``, ``Sn`` …) with ``\\r``, turns ``tIIIL<data>`` lines into frames
+    on the virtual channel (where a :class:`FakeNetCanOem` listens) and frames from the channel into ``t`` lines.
+    Frames pass only while the adapter is open (``O``) and its bit rate equals ``bus_bitrate``, as on a real bus
+    where a node at the wrong bit rate decodes nothing. ``commands`` records every ASCII command received.
+    """
+
+    def __init__(self, channel: str, bus_bitrate: int = DEFAULT_BITRATE) -> None:
+        import os
+        import tty
+
+        self.bus_bitrate = bus_bitrate
+        self.bitrate: int | None = None
+        self.is_open = False
+        self.commands: list[str] = []
+        self.error: BaseException | None = None
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        self.port = os.ttyname(self._slave)
+        self._bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+        self._write_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads = [
+            threading.Thread(target=self._guard, args=(self._serial_loop,), name=f"FakeSlcan-serial-{self.port}"),
+            threading.Thread(target=self._guard, args=(self._bus_loop,), name=f"FakeSlcan-bus-{channel}"),
+        ]
+        for thread in self._threads:
+            thread.start()
+        self._closed = False
+
+    def close(self) -> None:
+        """Stop and join both threads, close the pty and the virtual bus, re-raise a thread's error. Idempotent."""
+        import os
+
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(CLOSE_JOIN_TIMEOUT_S)
+        self._bus.shutdown()
+        os.close(self._master)
+        os.close(self._slave)
+        if self.error is not None:
+            raise RuntimeError(f"FakeSlcanAdapter thread failed: {self.error!r}") from self.error
+
+    def __enter__(self) -> "FakeSlcanAdapter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def passes_frames(self) -> bool:
+        return self.is_open and self.bitrate == self.bus_bitrate
+
+    def _guard(self, loop) -> None:
+        try:
+            loop()
+        except BaseException as error:  # kept and re-raised by close()
+            if not self._stop.is_set():
+                self.error = error
+                logger.exception("FakeSlcanAdapter thread failed")
+
+    def _write(self, data: bytes) -> None:
+        import os
+
+        with self._write_lock:
+            os.write(self._master, data)
+
+    def _serial_loop(self) -> None:
+        import os
+        import select
+
+        buffer = b""
+        while not self._stop.is_set():
+            readable, _, _ = select.select([self._master], [], [], RECV_POLL_S)
+            if not readable:
+                continue
+            try:
+                buffer += os.read(self._master, PTY_READ_SIZE)
+            except OSError:  # the serial side was closed and nobody holds it: nothing more to read
+                continue
+            while b"\r" in buffer:
+                line, buffer = buffer.split(b"\r", 1)
+                self._command(line.decode("ascii", "replace"))
+
+    def _command(self, line: str) -> None:
+        if line:  # python-can sends an empty line for "no data bit rate"; answered OK, not recorded
+            self.commands.append(line)
+        if line in ("O", "L"):
+            self.is_open = True
+        elif line == "C":
+            self.is_open = False
+        elif line in SLCAN_BITRATE_COMMANDS:
+            self.bitrate = SLCAN_BITRATE_COMMANDS[line]
+        elif line.startswith("t") and len(line) >= 5:
+            dlc = int(line[4])
+            data = bytes.fromhex(line[5 : 5 + 2 * dlc])
+            if self.passes_frames:
+                self._bus.send(can.Message(arbitration_id=int(line[1:4], 16), data=data, is_extended_id=False))
+            self._write(b"z\r")
+            return
+        elif not (line.startswith(("s", "Y", "V", "N", "F", "Z", "X")) or line == ""):
+            self._write(SLCAN_ERROR)
+            return
+        self._write(SLCAN_OK)
+
+    def _bus_loop(self) -> None:
+        while not self._stop.is_set():
+            message = self._bus.recv(timeout=RECV_POLL_S)
+            if message is None or message.is_extended_id or message.is_remote_frame or not self.passes_frames:
+                continue
+            self._write(f"t{message.arbitration_id:03X}{message.dlc:d}{bytes(message.data).hex().upper()}\r".encode())
