@@ -30,8 +30,9 @@ from ftacq.identification.lrom import lrom
 from ftacq.identification.refine import (
     PARAMETER_SLICES,
     ModelParameters,
-    jacobian,
+    PoseSet,
     levenberg_marquardt,
+    normal_equations,
     predict,
 )
 from ftacq.identification.srom import DEFAULT_SPECIAL_TOLERANCE_DEG, match_special, missing_special, srom_gravity_base
@@ -150,10 +151,9 @@ def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.nda
     )
 
 
-def _covariance(params: ModelParameters, rotations: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _covariance(params: ModelParameters, rotations: PoseSet, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return (JᵀWJ, its inverse) at ``params`` with ``weight`` (N, 6) = w/σ²."""
-    jac = jacobian(params, rotations).reshape(-1, 15)
-    information = (jac * weight.reshape(-1)[:, None]).T @ jac
+    information, *_ = normal_equations(params, rotations, np.zeros((len(rotations), 6)), weight)
     try:
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
@@ -258,12 +258,13 @@ def identify(
         # channels it fits sub-optimally; extra scatter τ is re-estimated after each refit
         sigma = np.sqrt(np.maximum(standard_error, floor) ** 2)
     converged, iterations = True, 0
+    pose_set = PoseSet(rotations)
     if refine:
         converged = False
         covariance = None
         for _ in range(MAX_ROBUST_ITERATIONS):
             weight = pose_weight[:, None] / sigma**2
-            result = levenberg_marquardt(params, rotations, wrench, weight, max_iterations=INNER_ITERATIONS)
+            result = levenberg_marquardt(params, pose_set, wrench, weight, max_iterations=INNER_ITERATIONS)
             iterations += result.iterations
             step_ok = covariance is None or bool(
                 np.all(
@@ -283,7 +284,7 @@ def identify(
             new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
             weight_change = float(np.max(np.abs(new_weight - pose_weight)))
             pose_weight = new_weight
-            _, covariance = _covariance(params, rotations, pose_weight[:, None] / sigma**2)
+            _, covariance = _covariance(params, pose_set, pose_weight[:, None] / sigma**2)
             if weight_change <= ROBUST_WEIGHT_TOLERANCE and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok and result.converged:
                 converged = True
                 break
@@ -291,7 +292,7 @@ def identify(
     # --- uncertainty, diagnostics, warnings (step 5) ---
     residual = wrench - predict(params, rotations)
     d2 = robust.pose_statistic(residual, sigma)
-    information, covariance = _covariance(params, rotations, pose_weight[:, None] / sigma**2)
+    information, covariance = _covariance(params, pose_set, pose_weight[:, None] / sigma**2)
     conditioning = diagnostics.fisher_conditioning(information)
     uncertainty = _uncertainty(params, covariance, mount)
     mass_kg = float(np.linalg.norm(params.gravity_base) / STANDARD_GRAVITY_M_S2)

@@ -85,43 +85,112 @@ class ModelParameters:
 def predict(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
     """Return the predicted contact-free wrench (N, 6) at (N, 3, 3) orientations (eqs 10-11)."""
     gravity_sensor = (flange_R_base @ params.gravity_base) @ params.sensor_rotation.T
-    torque = np.cross(params.center_of_mass, gravity_sensor) + params.torque_bias
-    return np.concatenate([gravity_sensor + params.force_bias, torque], axis=1)
+    out = np.empty((len(gravity_sensor), 6))
+    out[:, :3] = gravity_sensor + params.force_bias
+    out[:, 3:] = gravity_sensor @ skew(params.center_of_mass).T + params.torque_bias  # c × g_s
+    return out
 
 
 def jacobian(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
     """Return ∂(predicted wrench)/∂θ, (N, 6, 15), θ ordered as :data:`PARAMETER_NAMES`."""
-    n = len(flange_R_base)
-    m = params.sensor_rotation @ flange_R_base  # (N, 3, 3) = S R_i
-    v = m @ params.gravity_base  # (N, 3)
-    skew_v = skew(v)
-    skew_c = skew(params.center_of_mass)
-    jac = np.zeros((n, 6, 15))
-    jac[:, 0:3, 0:3] = -skew_v
-    jac[:, 0:3, 3:6] = m
-    jac[:, 0:3, 6:9] = np.eye(3)
-    jac[:, 3:6, 0:3] = -(skew_c @ skew_v)
-    jac[:, 3:6, 3:6] = skew_c @ m
-    jac[:, 3:6, 9:12] = -skew_v
-    jac[:, 3:6, 12:15] = np.eye(3)
+    rotations_t = np.ascontiguousarray(np.asarray(flange_R_base, dtype=float).transpose(1, 2, 0))
+    return _jacobian_t(params, rotations_t).transpose(2, 1, 0)
+
+
+class PoseSet:
+    """Orientations laid out for vectorised refinement: ``rotations_t`` (3, 3, N) contiguous per element."""
+
+    def __init__(self, flange_R_base: np.ndarray) -> None:
+        self.flange_R_base = np.asarray(flange_R_base, dtype=float)
+        self.rotations_t = np.ascontiguousarray(self.flange_R_base.transpose(1, 2, 0))
+
+    def __len__(self) -> int:
+        return self.rotations_t.shape[2]
+
+
+def _gravity_terms(params: ModelParameters, rotations_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return (M (3, 3, N) = S R_i, v (3, N) = S R_i g) for a (3, 3, N) block of orientations."""
+    n = rotations_t.shape[2]
+    m = (params.sensor_rotation @ rotations_t.reshape(3, 3 * n)).reshape(3, 3, n)
+    v = np.einsum("abn,b->an", m, params.gravity_base)
+    return m, v
+
+
+def _predict_t(params: ModelParameters, rotations_t: np.ndarray) -> np.ndarray:
+    """Return the predicted wrench (6, N) for a (3, 3, N) block."""
+    gravity_flange = np.einsum("abn,b->an", rotations_t, params.gravity_base)
+    v = params.sensor_rotation @ gravity_flange
+    out = np.empty((6, v.shape[1]))
+    out[:3] = v + params.force_bias[:, None]
+    out[3:] = skew(params.center_of_mass) @ v + params.torque_bias[:, None]
+    return out
+
+
+def _jacobian_t(params: ModelParameters, rotations_t: np.ndarray) -> np.ndarray:
+    """Return the Jacobian as (15, 6, N): [parameter, channel, pose] (contiguous per pose)."""
+    m, v = _gravity_terms(params, rotations_t)
+    n = v.shape[1]
+    c = params.center_of_mass
+    jac = np.zeros((15, 6, n))
+    v0, v1, v2 = v
+    # −[v]× as J[b, a] = −skew(v)[a, b], for the rotation increment on F (cols 0-2) and the centre of mass on T
+    for base, channel in ((0, 0), (9, 3)):
+        jac[base + 1, channel + 0] = v2
+        jac[base + 2, channel + 0] = -v1
+        jac[base + 0, channel + 1] = -v2
+        jac[base + 2, channel + 1] = v0
+        jac[base + 0, channel + 2] = v1
+        jac[base + 1, channel + 2] = -v0
+    jac[3:6, 0:3] = m.transpose(1, 0, 2)  # ∂F_a/∂g_b = M[a, b]
+    jac[6, 0] = jac[7, 1] = jac[8, 2] = 1.0  # ∂F/∂F0 = I
+    # ∂T_a/∂δ_b = −(v_a c_b − δ_ab c·v)
+    jac[0:3, 3:6] = -c[:, None, None] * v[None, :, :]
+    c_dot_v = c @ v
+    for b in range(3):
+        jac[b, 3 + b] += c_dot_v
+    cm = (skew(c) @ m.reshape(3, 3 * n)).reshape(3, 3, n)
+    jac[3:6, 3:6] = cm.transpose(1, 0, 2)  # ∂T_a/∂g_b = ([c]× M)[a, b]
+    jac[12, 3] = jac[13, 4] = jac[14, 5] = 1.0  # ∂T/∂T0 = I
     return jac
 
 
+CHUNK_POSES = 8192
+"""Poses per block when accumulating the normal equations (bounds the Jacobian block's memory)."""
+
+
+def _as_pose_set(flange_R_base) -> PoseSet:
+    return flange_R_base if isinstance(flange_R_base, PoseSet) else PoseSet(flange_R_base)
+
+
 def normal_equations(
-    params: ModelParameters, flange_R_base: np.ndarray, wrench: np.ndarray, weight: np.ndarray
+    params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """Return (JᵀWJ (15, 15), JᵀW r (15,), cost Σ W r², residuals r (N, 6)); ``weight`` (N, 6) = w_i / σ²."""
-    residual = wrench - predict(params, flange_R_base)
-    jac = jacobian(params, flange_R_base).reshape(-1, 15)
-    w = weight.reshape(-1)
-    weighted = jac * w[:, None]
-    return weighted.T @ jac, weighted.T @ residual.reshape(-1), float(np.sum(w * residual.reshape(-1) ** 2)), residual
+    """Return (JᵀWJ (15, 15), JᵀW r (15,), cost Σ W r², residuals r (N, 6)); ``weight`` (N, 6) = w_i / σ².
+
+    ``flange_R_base`` is (N, 3, 3) or a :class:`PoseSet` (reused across calls).
+    """
+    poses = _as_pose_set(flange_R_base)
+    n = len(poses)
+    information = np.zeros((15, 15))
+    gradient = np.zeros(15)
+    residual = np.empty((n, 6))
+    for start in range(0, n, CHUNK_POSES):
+        block = slice(start, min(start + CHUNK_POSES, n))
+        rotations_t = poses.rotations_t[:, :, block]
+        r_t = wrench[block].T - _predict_t(params, rotations_t)
+        residual[block] = r_t.T
+        jac = _jacobian_t(params, rotations_t).reshape(15, -1)
+        weighted = jac * weight[block].T.reshape(-1)
+        information += weighted @ jac.T
+        gradient += weighted @ r_t.reshape(-1)
+    return information, gradient, float(np.sum(weight * residual**2)), residual
 
 
-def cost(params: ModelParameters, flange_R_base: np.ndarray, wrench: np.ndarray, weight: np.ndarray) -> float:
+def cost(params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray) -> float:
     """Return Σ W r² at ``params``."""
-    residual = wrench - predict(params, flange_R_base)
-    return float(np.sum(weight * residual**2))
+    poses = _as_pose_set(flange_R_base)
+    residual = wrench.T - _predict_t(params, poses.rotations_t)
+    return float(np.sum(weight.T * residual**2))
 
 
 @dataclass(frozen=True)
@@ -142,6 +211,7 @@ def levenberg_marquardt(
     max_iterations: int = MAX_ITERATIONS,
 ) -> RefineResult:
     """Minimise Σ weight · r² from ``params`` (``weight`` (N, 6) = w_i / σ_i,ch²); return the optimum."""
+    flange_R_base = _as_pose_set(flange_R_base)
     damping = INITIAL_DAMPING
     jtj, jtr, current, _ = normal_equations(params, flange_R_base, wrench, weight)
     for iteration in range(1, max_iterations + 1):

@@ -15,6 +15,8 @@ quantile k² of χ²₆, then k²/d_i² (a redescending Huber-type weight: the i
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -27,14 +29,22 @@ CHI2_1_MEDIAN = float(chi2.ppf(0.5, 1))
 """Median of χ²₁ (≈ 0.4549): the median of r²/σ² for Gaussian residuals."""
 NOISE_FLOOR_RELATIVE = 1e-13
 """σ never goes below this fraction of a channel's signal range (+ an absolute 1e-15): exact data stay finite."""
-BISECTION_STEPS = 80
+BISECTION_STEPS = 40
+"""Bisection steps of the median-based τ² (relative precision 1e-12 of its bracket)."""
+NEWTON_STEPS = 30
+MEDIAN_SUBSAMPLE = 4096
+"""The median-based scale uses at most this many (evenly spaced) poses."""
+
+
+_WEIGHT_THRESHOLD = float(chi2.ppf(WEIGHT_QUANTILE, CHANNELS))
 
 
 def weight_threshold() -> float:
     """Return k² = χ²₆ quantile below which a pose has full weight."""
-    return float(chi2.ppf(WEIGHT_QUANTILE, CHANNELS))
+    return _WEIGHT_THRESHOLD
 
 
+@functools.lru_cache(maxsize=256)
 def outlier_threshold(n_poses: int) -> float:
     """Return the d² above which a pose is named an outlier (χ²₆ at level OUTLIER_FAMILY_ALPHA / N)."""
     return float(chi2.isf(OUTLIER_FAMILY_ALPHA / max(n_poses, 1), CHANNELS))
@@ -62,38 +72,42 @@ def channel_noise(
     n = len(residual)
     se2 = np.zeros_like(r2) if standard_error is None else np.maximum(standard_error, floor) ** 2
     w = np.asarray(pose_weight, dtype=float)
+    if n == 0:
+        return np.zeros((0, CHANNELS)), np.zeros(CHANNELS)
     if statistic == "median":
-        keep = w > 0
+        keep = np.flatnonzero(w > 0)
+        if keep.size > MEDIAN_SUBSAMPLE:  # the median of a large even subsample is as good and far cheaper
+            keep = keep[np.linspace(0, keep.size - 1, MEDIAN_SUBSAMPLE).astype(int)]
+        r2_keep, se2_keep = r2[keep], se2[keep]
         target = CHI2_1_MEDIAN * dof_ratio
-
-        def excess(tau2: np.ndarray) -> np.ndarray:
-            return np.median(r2[keep] / (se2[keep] + tau2), axis=0) - target
-
-        upper = np.median(r2[keep], axis=0) / target
+        upper = np.maximum(np.median(r2_keep, axis=0) / target, floor**2)
+        if standard_error is None:
+            tau2 = upper  # σ² = median(r²) / (median of χ²₁ · dof ratio)
+        else:
+            need = np.median(r2_keep / np.maximum(se2_keep, 1e-300), axis=0) > target
+            lo, hi = np.zeros(CHANNELS), upper.copy()
+            for _ in range(BISECTION_STEPS):
+                mid = 0.5 * (lo + hi)
+                positive = np.median(r2_keep / (se2_keep + mid), axis=0) > target
+                lo = np.where(positive, mid, lo)
+                hi = np.where(positive, hi, mid)
+            tau2 = np.where(need, hi, 0.0)
     else:
         total = max(w.sum(), 1e-300)
-
-        def excess(tau2: np.ndarray) -> np.ndarray:
-            return (w @ (r2 / (se2 + tau2))) / total - dof_ratio
-
-        upper = (w @ r2) / (total * dof_ratio)
-    tau2 = np.zeros(CHANNELS)
-    lower = np.zeros(CHANNELS)
-    upper = np.maximum(upper, floor**2)
-    if standard_error is None:
-        tau2 = upper  # closed form: σ² = weighted mean (or median-based) r² / dof
-    else:
-        need = excess(np.full(CHANNELS, 1e-300)) > 0  # residuals larger than the measured noise explains
-        lo, hi = lower.copy(), upper.copy()
-        for _ in range(BISECTION_STEPS):
-            mid = 0.5 * (lo + hi)
-            positive = excess(mid) > 0
-            lo = np.where(positive, mid, lo)
-            hi = np.where(positive, hi, mid)
-        tau2 = np.where(need, hi, 0.0)
+        if standard_error is None:
+            tau2 = np.maximum((w @ r2) / (total * dof_ratio), floor**2)
+        else:
+            # Newton on the convex, decreasing f(τ²) = Σ w r²/(se² + τ²)/Σ w − ρ from τ² = 0 (stays left of the root)
+            tau2 = np.zeros(CHANNELS)
+            for _ in range(NEWTON_STEPS):
+                inverse = 1.0 / (se2 + tau2)
+                value = (w @ (r2 * inverse)) / total - dof_ratio
+                slope = -(w @ (r2 * inverse**2)) / total
+                active = value > 1e-12 * dof_ratio
+                if not np.any(active):
+                    break
+                tau2 = np.where(active, tau2 - value / np.minimum(slope, -1e-300), tau2)
     sigma = np.sqrt(np.maximum(se2 + tau2, floor**2))
-    if n == 0:
-        sigma = np.zeros((0, CHANNELS))
     return sigma, np.sqrt(tau2)
 
 
