@@ -422,7 +422,7 @@ class AtiCanSensor:
         with self._lock:
             request = _BiasRequest(samples, self._sequence + 1)
             self._bias_request = request
-        if not request.done.wait(timeout_s):
+        if not request.done.wait(timeout_s) or request.count < request.needed:
             with self._lock:
                 if self._bias_request is request:
                     self._bias_request = None
@@ -679,7 +679,9 @@ class AtiCanSensor:
         sg1, sg3, sg5 = struct.unpack(">hhh", replies[OP_GAGES_SECOND])
         gages = (sg0, sg1, sg2, sg3, sg4, sg5)
         saturated_gage = GAGE_MAX in gages or GAGE_MIN in gages
-        flagged = saturated_gage or bool(status & STATUS_ERROR_MASK)
+        restarted = bool(status & STATUS_WATCHDOG_RESET and not self._last_board_status & STATUS_WATCHDOG_RESET)
+        # after a reset the board is back on slot 0: this sample used the wrong matrix if we selected another
+        flagged = saturated_gage or bool(status & STATUS_ERROR_MASK) or (restarted and self.calibration_index != 0)
         with self._lock:
             health = self._health
             health.received += 1
@@ -688,13 +690,16 @@ class AtiCanSensor:
                 health.saturated += 1
             if status & STATUS_ERROR_MASK:
                 health.status_errors += 1
-            if status & STATUS_WATCHDOG_RESET and not self._last_board_status & STATUS_WATCHDOG_RESET:
+            if restarted:
                 health.restarts += 1
             self._last_board_status = status
             request = self._bias_request
             if request is not None and self._sequence >= request.first_sequence:
                 if flagged:
                     request.rejected += 1
+                    if request.rejected >= request.needed and request.count == 0:
+                        self._bias_request = None
+                        request.done.set()  # bias() reports the fault without waiting for its timeout
                 else:
                     request.total += gages
                     request.count += 1
@@ -708,7 +713,26 @@ class AtiCanSensor:
             self._pending.append((received_at, host_status, *gages, self._sequence, len(self._bias_table) - 1,
                                   flagged))
             self._lock.notify_all()
+        if restarted and self.calibration_index != 0:
+            self._reselect_after_reset()
         return True
+
+    def _reselect_after_reset(self) -> None:
+        """After a board reset the active calibration is slot 0 again: select ours (from the poll thread)."""
+        import can
+
+        tally = SensorHealth()
+        self._drain(tally)
+        self._bus.send(can.Message(arbitration_id=self.base << 4 | OP_SELECT_CALIBRATION,
+                                   data=bytes([self.calibration_index]), is_extended_id=False))
+        echo = self._collect((OP_SELECT_CALIBRATION,), time.monotonic() + self.reply_timeout_s, tally)
+        self._merge(tally)
+        if echo.get(OP_SELECT_CALIBRATION) == bytes([self.calibration_index]):
+            logger.warning("ATI CAN board (base %#04x) reset: calibration %d selected again",
+                           self.base, self.calibration_index)
+        else:
+            logger.error("ATI CAN board (base %#04x) reset and did not confirm calibration %d: readings use "
+                         "slot 0's matrix until the driver is restarted", self.base, self.calibration_index)
 
     def _to_batch(self, rows: list[tuple]) -> WrenchBatch:
         """Convert pending rows to a WrenchBatch: wrench_si = K · (sg − bias), K = diag(SI/Cp) · M, once."""

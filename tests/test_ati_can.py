@@ -265,6 +265,18 @@ def test_watchdog_reset_bit_counts_a_restart(sensor, fake):
     assert sensor.health().restarts == 1  # counted on the rising edge only
 
 
+def test_watchdog_reset_reselects_the_calibration_slot(channel, physics):
+    slot1 = FakeCanCalibration(default_calibration_matrix(500_000, 2_000, 2, 4, seed=11), 500_000, 2_000, 2, 4)
+    with make_fake(channel, physics, extra_calibrations=[slot1]) as board:
+        with AtiCanSensor.from_url(f"can://virtual/{channel}?calibration=1&rate_hz={POLL_RATE_HZ}") as sensor:
+            fresh_samples(sensor)
+            board.watchdog_reset()
+            wait_until(lambda: len(board.requests(OP_SELECT_CALIBRATION)) == 2, "the slot to be selected again")
+            assert board.active_calibration_index == 1 and sensor.health().restarts == 1
+            board.status = 0
+            assert_within_one_count(fresh_samples(sensor), physics.noiseless_wrench(POSES[0]), slot1)
+
+
 # ---------------------------------------------------------------------------- bias and averaging
 
 

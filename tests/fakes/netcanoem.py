@@ -15,7 +15,8 @@ reading follows the robot because ``physics`` reads its pose source (a ``Settabl
 ``SharedPose`` written by the simulated UR controller in another process).
 
 Knobs (thread-safe, usable while a driver polls): ``status`` (u16 status word), ``saturate_gage`` /
-``clear_saturation``, ``silent``, ``drop_reply_frames``, ``gage_offset``, ``power_cycle``. Observables:
+``clear_saturation``, ``silent``, ``drop_reply_frames``, ``gage_offset``, ``power_cycle``,
+``watchdog_reset``. Observables:
 ``received`` (every frame the board saw), ``requests(op)``, ``active_calibration_index``, ``reset_count``.
 """
 
@@ -380,6 +381,13 @@ class FakeNetCanOem:
             if self._pending_bitrate is not None:
                 self._bitrate, self._pending_bitrate = self._pending_bitrate, None
             self._active_index = 0
+
+    def watchdog_reset(self) -> None:
+        """Simulate a watchdog reset: back to calibration slot 0, status bit 0 (watchdog reset) set."""
+        with self._lock:
+            self._active_index = 0
+            self._status |= 0x0001
+            self.reset_count += 1
 
     def requests(self, opcode: int | None = None) -> list[ReceivedFrame]:
         """Frames received on this board's IDs (optionally one opcode), oldest first."""
