@@ -69,10 +69,12 @@ class Calibration:
         gain = np.vstack([self.sensor_rotation, skew @ self.sensor_rotation])  # (6, 3)
         lifted = np.einsum("aj,k->jka", gain, self.gravity_base).reshape(9, 6)
         bias = np.concatenate([self.force_bias, self.torque_bias])
-        for array in (gain, lifted, bias):
+        lifted_negative = -lifted
+        for array in (gain, lifted, lifted_negative, bias):
             array.setflags(write=False)
         object.__setattr__(self, "_gain", gain)
         object.__setattr__(self, "_lifted", lifted)
+        object.__setattr__(self, "_lifted_negative", lifted_negative)
         object.__setattr__(self, "_bias", bias)
         # plain-float copies for the single-sample path (no numpy call overhead)
         object.__setattr__(self, "_gain_rows", tuple(tuple(float(v) for v in row) for row in gain))
@@ -126,12 +128,22 @@ class Calibration:
             raise ValueError(f"flange_R_base: expected (3, 3) or (N, 3, 3), got {rotations.shape}")
         lead = rotations.shape[:-2]
         flat = rotations.reshape(-1, 9)
-        predicted = flat @ self._lifted
-        predicted += self._bias
-        predicted = predicted.reshape(lead + (6,))
+        if wrench.shape != lead + (6,):  # broadcasting case: plain arithmetic
+            predicted = (flat @ self._lifted + self._bias).reshape(lead + (6,))
+            return np.subtract(wrench, predicted, out=out)
         if out is None:
-            return np.subtract(wrench, predicted, out=predicted) if wrench.shape == predicted.shape else wrench - predicted
-        return np.subtract(wrench, predicted, out=out)
+            out = np.empty(lead + (6,))
+        if np.shares_memory(out, wrench):
+            predicted = flat @ self._lifted
+            predicted += self._bias
+            np.subtract(wrench, predicted.reshape(lead + (6,)), out=out)
+            return out
+        # fastest form: out = R·(−L) + wrench − bias, all in place (no temporaries)
+        out_2d = out.reshape(-1, 6)
+        np.matmul(flat, self._lifted_negative, out=out_2d)
+        out_2d += wrench.reshape(-1, 6)
+        out_2d -= self._bias
+        return out
 
     def compensate_sample(self, wrench: "Sequence[float]", flange_R_base: "Sequence[Sequence[float]]") -> list[float]:
         """Return the contact wrench of ONE sample as a list of 6 floats [N, N·m] (fast path, plain Python).

@@ -153,3 +153,25 @@ def test_base_tilt_branch_on_level_floor_and_ceiling():
     assert floor.base_tilt_deg == pytest.approx((0.0, 0.0), abs=1e-7)
     ceiling = identify(simulate_record(CellTruth().with_mount("ceiling"), random_orientations(12, 1), noise=False))
     assert ceiling.calibration.base_tilt_deg == pytest.approx((0.0, 180.0), abs=1e-7)
+
+
+def test_compensation_paths_agree():
+    calibration = CellTruth(base_tilt_deg=(3.0, -20.0)).calibration()
+    rotations = random_orientations(50, seed=3)
+    wrench = np.random.default_rng(4).normal(size=(50, 6))
+    expected = wrench - calibration.predict(rotations)
+    np.testing.assert_allclose(calibration.compensate(wrench, rotations), expected, atol=1e-12)
+    out = np.empty((50, 6))
+    assert calibration.compensate(wrench, rotations, out=out) is out
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    in_place = wrench.copy()
+    calibration.compensate(in_place, rotations, out=in_place)
+    np.testing.assert_allclose(in_place, expected, atol=1e-12)
+    one = calibration.compensate(wrench, rotations[7])  # one orientation for the whole batch
+    np.testing.assert_allclose(one, wrench - calibration.predict(rotations[7]), atol=1e-12)
+    np.testing.assert_allclose(calibration.compensate_sample(wrench[7], rotations[7]), expected[7], atol=1e-12)
+    np.testing.assert_allclose(
+        calibration.compensate_sample(wrench[7].tolist(), rotations[7].tolist()), expected[7], atol=1e-12
+    )
+    # the compensated contact-free reading is zero
+    np.testing.assert_allclose(calibration.compensate(calibration.predict(rotations), rotations), 0.0, atol=1e-12)
