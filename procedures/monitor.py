@@ -101,9 +101,12 @@ class _DashboardWorker:
     """Owns the "ftacq-dashboard" thread: drains the bounded queue into the dashboard."""
 
     def __init__(self, dashboard, sensor: ForceTorqueSensor, model, queue_batches: int,
-                 robot_log_rate_hz: float, health_log_rate_hz: float, period_s: float = DASHBOARD_PERIOD_S) -> None:
+                 robot_log_rate_hz: float, health_log_rate_hz: float, period_s: float = DASHBOARD_PERIOD_S,
+                 robot: RobotStateSource | None = None) -> None:
         self.dashboard = dashboard
         self.sensor = sensor
+        self.robot = robot
+        self._robot_connected = True
         self.model = model
         self.queue: queue.Queue = queue.Queue(maxsize=queue_batches)
         self.dropped_batches = 0
@@ -170,6 +173,18 @@ class _DashboardWorker:
         self.dropped_batches += len(items)
         self.dropped_samples += sum(len(item.batch) for item in items)
 
+    def _check_robot(self, now_s: float) -> None:
+        """Say on the dashboard when the robot's state stream is lost or back (compensation needs it)."""
+        connected = bool(getattr(self.robot, "connected", True)) if self.robot is not None else True
+        if connected != self._robot_connected:
+            self._robot_connected = connected
+            if connected:
+                self.dashboard.log_text("robot state stream is back", time_s=now_s)
+            else:
+                log.warning("robot state stream lost: compensation uses the last orientation received")
+                self.dashboard.log_text("robot state stream lost: compensation uses the last orientation received",
+                                        level="WARN", time_s=now_s)
+
     def _log(self, items: list[_Item], last_robot_s: float, last_health_s: float) -> tuple[float, float]:
         time_s = np.concatenate([item.batch.time_s for item in items])
         raw = np.concatenate([item.batch.wrench for item in items])
@@ -188,6 +203,7 @@ class _DashboardWorker:
             last_robot_s = now_s
         if now_s - last_health_s >= self._health_period_s:
             self.dashboard.log_health(now_s, self.sensor.health(), viewer_dropped=self.dropped_samples)
+            self._check_robot(now_s)
             last_health_s = now_s
         return last_robot_s, last_health_s
 
@@ -299,7 +315,8 @@ class LiveMonitor:
         worker = None
         if self.dashboard is not None:
             worker = _DashboardWorker(self.dashboard, self.sensor, self.model, self.queue_batches,
-                                      self.robot_log_rate_hz, self.health_log_rate_hz, self.dashboard_period_s)
+                                      self.robot_log_rate_hz, self.health_log_rate_hz, self.dashboard_period_s,
+                                      robot=self.robot)
             worker.start()
         recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
         if recorder is not None:

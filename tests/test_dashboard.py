@@ -298,6 +298,31 @@ def test_monitor_logs_every_sample_and_compensates_like_the_core(tmp_path):
     np.testing.assert_allclose(record["contact_fz"], expected[:, 2], atol=1e-6)
 
 
+def read_texts(rrd_path: Path, entity: str) -> list[str]:
+    from rerun.chunk import RrdReader
+
+    texts = []
+    for chunk in RrdReader(rrd_path).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == "/" + entity and "TextLog:text" in batch.schema.names:
+            texts += [row[0] for row in batch.column("TextLog:text").to_pylist()]
+    return texts
+
+
+def test_monitor_says_when_the_robot_state_stream_is_lost(tmp_path):
+    robot = FixedRobotState(Q_HOME_RAD)
+    robot.connected = False  # e.g. the network cable to the controller was pulled
+    sensor = ScriptedSensor(physics_batches(robot.pose, 5))
+    path = tmp_path / "lost.rrd"
+    recording = new_recording(path)
+    monitor = LiveMonitor(sensor, calibration=CellTruth().calibration(), robot=robot, model=MODEL,
+                          dashboard=dash.Dashboard(recording, strict=True), strict=True, batch_period_s=0.0)
+    summary = run_until_exhausted(monitor, sensor)
+    dash.close_recording(recording)
+    assert summary.samples == 5 * BATCH_SAMPLES
+    assert any("robot state stream lost" in text for text in read_texts(path, dash.MONITOR_LOG))
+
+
 class StalledDashboard:
     """A viewer that hangs on the first wrench batch until released (a dead network connection)."""
 
