@@ -195,6 +195,7 @@ class Plan:
             configuration; listing_travel_rad: the same for the listing order (A, E, V as generated).
         settings: the settings it was made from. center_m: the centre used. branch: the IK branch used (str).
         start_q_rad: the configuration the plan starts from.
+        warnings: things the technician should know (e.g. the drift-check revisit move is blocked).
     """
 
     poses: np.ndarray
@@ -209,6 +210,7 @@ class Plan:
     center_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     branch: str = ""
     start_q_rad: tuple[float, ...] = field(default=(0.0,) * 6)
+    warnings: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("poses", "joint_targets_rad"):
@@ -244,6 +246,7 @@ class Plan:
             "center_m": list(self.center_m),
             "branch": self.branch,
             "start_q_rad": list(self.start_q_rad),
+            "warnings": list(self.warnings),
         }, indent=1)
 
     @staticmethod
@@ -267,6 +270,7 @@ class Plan:
                 center_m=tuple(float(v) for v in data["center_m"]),
                 branch=str(data["branch"]),
                 start_q_rad=tuple(float(v) for v in data["start_q_rad"]),
+                warnings=tuple(str(w) for w in data.get("warnings", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PlanError):
@@ -667,6 +671,10 @@ def make_plan(settings: PlanSettings, start_q_rad: np.ndarray) -> Plan:
     lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
     if not np.all(np.isfinite(start_q)) or np.any(start_q < lower - 1e-6) or np.any(start_q > upper + 1e-6):
         raise PlanError(f"start configuration {np.round(start_q, 4).tolist()} rad is outside the joint limits")
+    start_problems = collision_checker(settings).problems_at(start_q)
+    if start_problems:
+        raise PlanError("the robot's current configuration is too close to a collision in the planner's model ("
+                        + "; ".join(start_problems) + "): jog it clear (e.g. to the home configuration) and plan again")
     best_plan: Plan | None = None
     first_error = ""
     for center in _candidate_centers(settings):
@@ -705,6 +713,11 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
     if problems:
         return None, _plan_error_message(problems, rejected, candidate.center)
     chosen = [kept[i] for i in order]
+    warnings = []
+    if settings.drift_check and len(q_exec) > 1:
+        problems = collision_checker(settings).problems_along(q_exec[-1], q_exec[0])
+        if problems:
+            warnings.append(f"the drift-check revisit of {poses.labels[chosen[0]]} is blocked: {problems[0]}")
     weights = joint_weights(model)
     listing = [i for i in kept if keep[i]]
     q_listing = listing_targets(model, start_q, np.array([candidate.q[i] for i in listing]))
@@ -721,6 +734,7 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
         center_m=tuple(float(v) for v in candidate.center),
         branch=str(candidate.branch),
         start_q_rad=tuple(float(v) for v in start_q),
+        warnings=tuple(warnings),
     ), ""
 
 
@@ -752,6 +766,7 @@ def format_plan(plan: Plan) -> str:
         "  SROM closed form: " + ("available (all 24 special poses)" if plan.srom_ready
                                    else "not available (LROM + refinement only)"),
     ]
+    lines += [f"  warning: {w}" for w in plan.warnings]
     if plan.rejected:
         lines.append(f"  rejected {len(plan.rejected)}:")
         lines += [f"    {label}: {reason}" for label, reason in plan.rejected]

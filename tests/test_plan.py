@@ -193,3 +193,15 @@ def test_settings_dict_round_trip():
 def test_start_outside_limits_is_refused():
     with pytest.raises(PlanError, match="joint limits"):
         make_plan(PlanSettings(), np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.0]))
+
+
+def test_start_in_collision_is_refused_with_advice():
+    with pytest.raises(PlanError, match="jog it clear"):
+        make_plan(PlanSettings(), np.zeros(6))  # arm stretched along the table, the flange 6 cm above it
+
+
+def test_plan_from_another_branch_start_still_plans():
+    start = np.array([np.pi / 2, -1.2, -1.6, -1.9, 1.5, 0.0])  # elbow and wrist in the other branches
+    plan = make_plan(PlanSettings(), start)
+    assert len(plan) == 60
+    assert check_path(plan.settings, start, plan.joint_targets_rad[0]) == []
