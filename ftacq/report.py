@@ -20,8 +20,28 @@ def _zyx_deg(rotation: np.ndarray) -> tuple[float, float, float]:
     return float(yaw), float(pitch), float(roll)
 
 
-def format_identification_report(result) -> str:
-    """Return a plain-text report of an :class:`ftacq.identification.IdentificationResult`."""
+def validation_errors(calibration, record) -> dict:
+    """Return the compensation errors on held-out contact-free poses: labels, errors (M, 6), max |e| and RMS per axis.
+
+    ``record`` is a :class:`ftacq.posefile.PoseRecord`; the error is the compensated wrench (ideally 0).
+    """
+    errors = calibration.compensate(record.wrench, record.flange_R_base)
+    return {
+        "labels": list(record.labels),
+        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "errors": errors.tolist(),
+        "max_abs": np.abs(errors).max(axis=0).tolist(),
+        "rms": np.sqrt(np.mean(errors**2, axis=0)).tolist(),
+        "max_force_norm": float(np.linalg.norm(errors[:, :3], axis=1).max()),
+        "max_torque_norm": float(np.linalg.norm(errors[:, 3:], axis=1).max()),
+    }
+
+
+def format_identification_report(result, validation: dict | None = None) -> str:
+    """Return a plain-text report of an :class:`ftacq.identification.IdentificationResult`.
+
+    ``validation`` (from :func:`validation_errors`) adds the compensation error on held-out poses.
+    """
     cal = result.calibration
     unc = cal.uncertainty
     meta = cal.metadata
@@ -100,6 +120,14 @@ def format_identification_report(result) -> str:
             + " ".join(f"{v:+9.5f}" for v in residual[i, 3:])
             + f" {force_norm[i]:8.4f} {torque_norm[i]:8.5f} {result.weights[i]:6.3f}{flag}"
         )
+    if validation is not None:
+        add("")
+        add(f"Validation: compensation error on {len(validation['labels'])} held-out poses (set V; ideally 0)")
+        add("  max |e|  F " + ", ".join(f"{v:.4f}" for v in validation["max_abs"][:3]) + " N; T "
+            + ", ".join(f"{v:.5f}" for v in validation["max_abs"][3:]) + " N·m")
+        add("  RMS      F " + ", ".join(f"{v:.4f}" for v in validation["rms"][:3]) + " N; T "
+            + ", ".join(f"{v:.5f}" for v in validation["rms"][3:]) + " N·m")
+        add(f"  max |F| {validation['max_force_norm']:.4f} N, max |T| {validation['max_torque_norm']:.5f} N·m")
     add("")
     add("Outliers: " + (", ".join(result.outliers) if result.outliers else "none"))
     if result.warnings:

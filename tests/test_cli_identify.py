@@ -121,3 +121,23 @@ def test_compensate_bad_calibration_exit_2(tmp_path, poses_csv, capsys):
     assert main(["compensate", str(cal), str(poses_csv), "-o", str(out)]) == 2
     assert "version" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_validation_poses_are_held_out_and_reported(tmp_path, capsys):
+    truth = CellTruth()
+    rotations = np.concatenate([special_orientations(0.2, seed=1), cone_orientations(30, 40.0, seed=2)])
+    sets = ("A",) * 24 + ("E",) * 24 + ("V",) * 6
+    record = simulate_record(truth, rotations, seed=5, sets=sets)
+    path = tmp_path / "poses.csv"
+    write_pose_csv(path, record)
+    out = tmp_path / "cal.json"
+    assert main(["identify", str(path), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Validation: compensation error on 6 held-out poses" in text
+    calibration = load_calibration(out)
+    assert calibration.metadata["diagnostics"]["poses"] == 48
+    validation = calibration.metadata["validation"]
+    assert validation["labels"] == list(record.labels[48:])
+    assert 0 < validation["max_force_norm"] < 0.05 and 0 < validation["max_torque_norm"] < 0.002
+    assert main(["identify", str(path), "-o", str(out), "--use-validation"]) == 0
+    assert load_calibration(out).metadata["diagnostics"]["poses"] == 54

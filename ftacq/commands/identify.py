@@ -7,6 +7,9 @@ import hashlib
 import sys
 from pathlib import Path
 
+VALIDATION_SET = "V"
+"""Poses of this set (column ``set``) are held out of the fit and used to report the compensation error."""
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``identify`` sub-command."""
@@ -16,7 +19,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Read a pose record CSV (flange poses + mean sensor wrenches), identify the calibration "
             "(Yu, Shi & Lou 2021 closed form, then a robust joint refinement), print a report and write the "
-            "calibration JSON. Nothing is written if the input is bad."
+            "calibration JSON. Poses of set V are held out and their compensation error is reported. "
+            "Nothing is written if the input is bad."
         ),
     )
     parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
@@ -41,23 +45,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="DEG",
         help="a pose within this angle (degrees) of a cube rotation counts as special (default 3)",
     )
+    parser.add_argument(
+        "--use-validation",
+        action="store_true",
+        help="also fit the poses of set V (by default they are held out and their compensation error is reported)",
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Identify, print the report, write the calibration; return the exit status."""
+    import numpy as np
+
     from ftacq.calfile import save_calibration
     from ftacq.calibration import Calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
     from ftacq.posefile import read_pose_csv
-    from ftacq.report import format_identification_report
+    from ftacq.identification.diagnostics import MIN_POSES
+    from ftacq.report import format_identification_report, validation_errors
 
     path = Path(args.poses)
     record = read_pose_csv(path)
+    held_out = np.array([name.strip().upper() == VALIDATION_SET for name in record.sets])
+    validation = None
+    fit_record = record
+    if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
+        fit_record = record.select(~held_out)
     try:
         result = identify(
-            record,
+            fit_record,
             mount=args.mount,
             method=args.method,
             refine=not args.no_refine,
@@ -65,7 +82,11 @@ def run(args: argparse.Namespace) -> int:
         )
     except IdentificationError as error:
         raise InputError(f"{path}: cannot identify a calibration: {error}") from error
+    if fit_record is not record:
+        validation = validation_errors(result.calibration, record.select(held_out))
     metadata = dict(result.calibration.metadata)
+    if validation is not None:
+        metadata["validation"] = validation
     metadata["input"] = {
         "file": str(path),
         "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
@@ -83,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         uncertainty=result.calibration.uncertainty,
         metadata=metadata,
     )
-    sys.stdout.write(format_identification_report(result))
+    sys.stdout.write(format_identification_report(result, validation=validation))
     save_calibration(args.output, calibration)
     print(f"wrote {args.output}")
     return 0
