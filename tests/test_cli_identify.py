@@ -141,3 +141,30 @@ def test_validation_poses_are_held_out_and_reported(tmp_path, capsys):
     assert 0 < validation["max_force_norm"] < 0.05 and 0 < validation["max_torque_norm"] < 0.002
     assert main(["identify", str(path), "-o", str(out), "--use-validation"]) == 0
     assert load_calibration(out).metadata["diagnostics"]["poses"] == 54
+
+
+def test_compensate_reads_a_monitor_style_record(tmp_path, capsys):
+    truth = CellTruth()
+    cal = tmp_path / "cal.json"
+    from ftacq.calfile import save_calibration
+
+    save_calibration(cal, truth.calibration())
+    record = simulate_record(truth, cone_orientations(3, 30.0, seed=1), noise=False)
+    lines = ["# ftacq monitor record", "time_s,x,y,z,rx,ry,rz,fx,fy,fz,tx,ty,tz,contact_fx,contact_fy,contact_fz,"
+             "contact_tx,contact_ty,contact_tz,sequence"]
+    for k in range(3):
+        pose = ",".join(repr(float(v)) for v in record.pose[k])
+        wrench = ",".join(repr(float(v)) for v in record.wrench[k] + [1.0, 0, 0, 0, 0, 0])
+        lines.append(f"{k},{pose},{wrench},,,,,,,{k}")
+    lines.append("3,,,,,,," + ",".join(repr(float(v)) for v in record.wrench[0]) + ",,,,,,,3")  # no robot pose
+    path = tmp_path / "monitor.csv"
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.csv"
+    assert main(["compensate", str(cal), str(path), "-o", str(out)]) == 0
+    assert "1 rows without a flange pose" in capsys.readouterr().err
+    rows = list(csv.DictReader(open(out)))
+    assert list(rows[0]).count("contact_fx") == 1 and len(rows) == 4
+    for row in rows[:3]:
+        assert float(row["contact_fx"]) == pytest.approx(1.0, abs=1e-9)
+        assert float(row["contact_tz"]) == pytest.approx(0.0, abs=1e-9)
+    assert rows[3]["contact_fx"] == "" and rows[3]["sequence"] == "3"

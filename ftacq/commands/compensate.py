@@ -1,9 +1,10 @@
 """``ftacq compensate CALIBRATION.json POSES.csv [-o OUT.csv]``: the contact wrench of every row.
 
 Reads any CSV with the rotation (``rx, ry, rz``: rotation vector of base_R_flange, rad) and wrench
-(``fx .. tz``: N, N·m, sensor frame) columns — a pose record or a sensor record — and writes every input
-column followed by ``contact_fx .. contact_tz`` (N, N·m, sensor frame): the reading minus the predicted
-gravity wrench and the biases.
+(``fx .. tz``: N, N·m, sensor frame) columns — a pose record or a sensor (monitor) record — and writes every
+input column followed by ``contact_fx .. contact_tz`` (N, N·m, sensor frame): the reading minus the predicted
+gravity wrench and the biases. Existing ``contact_*`` columns are overwritten; rows whose rotation cells are
+all empty (recorded without a robot) keep empty contact cells.
 """
 
 from __future__ import annotations
@@ -44,22 +45,42 @@ def run(args: argparse.Namespace) -> int:
     calibration = load_calibration(args.calibration)
     path = Path(args.poses)
     header, rows, lines = read_csv_table(path, REQUIRED_COLUMNS)
-    values = np.column_stack([numeric_column(path, header, rows, lines, name) for name in REQUIRED_COLUMNS]) if rows else np.zeros((0, 9))
+    rotation_positions = [header.index(name) for name in REQUIRED_COLUMNS[:3]]
+    # rows recorded without a robot pose (all of rx, ry, rz empty, as in a monitor record) stay uncompensated
+    known = np.array([any(row[k] != "" for k in rotation_positions) for row in rows], dtype=bool)
+    known_rows = [row for row, flag in zip(rows, known) if flag]
+    known_lines = [line for line, flag in zip(lines, known) if flag]
+    values = np.zeros((len(known_rows), 9))
+    for k, name in enumerate(REQUIRED_COLUMNS):
+        values[:, k] = numeric_column(path, header, known_rows, known_lines, name)
     flange_R_base = np.swapaxes(rotation_from_rotvec(values[:, :3]), -1, -2)
-    contact = calibration.compensate(values[:, 3:], flange_R_base) if rows else np.zeros((0, 6))
-    # an input that already has contact_* columns (a compensated file) keeps them; ours get a suffix
-    out_header = header + [name if name not in header else f"{name}_new" for name in CONTACT_COLUMNS]
+    contact = np.full((len(rows), 6), np.nan)
+    if len(known_rows):
+        contact[known] = calibration.compensate(values[:, 3:], flange_R_base)
+    # contact_* columns already in the input (a monitor record) are overwritten; otherwise appended
+    out_header = header + [name for name in CONTACT_COLUMNS if name not in header]
+    contact_positions = [out_header.index(name) for name in CONTACT_COLUMNS]
 
     def write(handle) -> None:
         handle.write(",".join(out_header) + "\n")
+        width = len(out_header)
         for row, wrench in zip(rows, contact):
             cells = [c if not any(x in c for x in ',"\n') else '"' + c.replace('"', '""') + '"' for c in row]
-            handle.write(",".join(cells + [repr(float(v)) for v in wrench]) + "\n")
+            cells += [""] * (width - len(cells))
+            for position, value in zip(contact_positions, wrench):
+                cells[position] = "" if np.isnan(value) else repr(float(value))
+            handle.write(",".join(cells) + "\n")
 
     if args.output:
         with atomic_write(args.output) as handle:
             write(handle)
-        print(f"wrote {len(rows)} compensated rows to {args.output}", file=sys.stderr)
+        print(f"wrote {int(known.sum())} compensated rows to {args.output}", file=sys.stderr)
     else:
-        write(sys.stdout)
+        try:
+            write(sys.stdout)
+            sys.stdout.flush()
+        except BrokenPipeError:  # e.g. piped into `head`: not an error
+            pass
+    if not known.all():
+        print(f"ftacq: {int((~known).sum())} rows without a flange pose were left uncompensated", file=sys.stderr)
     return 0
