@@ -2,7 +2,10 @@
 
 The procedure never calls a writer or the dashboard directly: it emits these records to a list of
 listeners (callables taking one event). A listener must not block and must not raise; the procedure
-catches and logs listener errors so a broken viewer can never stop the robot mid-plan.
+catches and logs listener errors so a broken viewer can never stop the robot mid-plan. Listeners should
+ignore event types they do not know (new ones may be added). A listener may declare ``critical = True``
+(the run-folder writer does): its error then stops the procedure, because data that cannot be recorded
+must not be measured.
 All poses are flange poses in the robot base frame [x, y, z (m), rx, ry, rz (rad)]; wrenches are
 sensor-frame [Fx, Fy, Fz (N), Tx, Ty, Tz (N·m)].
 """
@@ -51,6 +54,22 @@ class PoseMeasured:
     count: int
     saturated: int
     lost: int
+    t_start_s: float | None = None  # averaging window start, UNIX time, s
+    t_end_s: float | None = None  # averaging window end, UNIX time, s
+
+
+@dataclass(frozen=True)
+class DriftChecked:
+    """The first pose was measured again at the end: ``drift`` (6,) = revisit − first mean [N, N·m].
+
+    At the same pose the gravity wrench is identical, so the difference is the sensor's bias drift over
+    ``elapsed_s`` seconds. ``warning`` is set when the force or torque drift norm exceeds its threshold.
+    """
+
+    label: str
+    drift: np.ndarray
+    elapsed_s: float
+    warning: str = ""
 
 
 @dataclass(frozen=True)
@@ -73,5 +92,5 @@ class Validated:
     rms: np.ndarray = field(default_factory=lambda: np.zeros(6))  # (6,) per axis
 
 
-ProcedureEvent = PlanReady | StateChanged | PoseMeasured | Identified | Validated
+ProcedureEvent = PlanReady | StateChanged | PoseMeasured | DriftChecked | Identified | Validated
 Listener = Callable[[ProcedureEvent], None]

@@ -1,0 +1,314 @@
+"""``ftacq calibrate``: plan, check, confirm, move, settle, average, record; identify, validate, report.
+
+    ftacq calibrate --config CELL.toml [--dry-run] [--yes] [--resume RUN_DIR] [--out DIR] [viewer flags]
+    ftacq calibrate --sim [--sensor netft|can] [--dry-run] [--yes] [--resume RUN_DIR] [--out DIR] [--time-scale X]
+
+The robot never moves without a checked plan that the user confirmed (``--yes`` confirms in advance; without a
+terminal on stdin and without ``--yes`` the command refuses to move). ``--dry-run`` prints the plan and moves
+nothing. Every measured pose is kept in the run folder; an interrupted or failed run ends with the command that
+resumes it. Exit status: 0 done, 1 fault (data kept), 2 bad input, 130 interrupted (data kept).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+import sys
+from pathlib import Path
+
+from ftacq.errors import AbortedError, InputError
+
+DEFAULT_SIM_TIME_SCALE = 10.0
+"""--sim runs the simulated controller this many times faster than real time (the plan shows real time)."""
+SIM_MIN_AVERAGE_TIME_S = 0.05
+SIM_MIN_SETTLE_WINDOW_S = 0.02
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the ``calibrate`` sub-command."""
+    parser = subparsers.add_parser(
+        "calibrate", help="run the calibration procedure (plan, move, measure, identify, validate)",
+        description="Plan and check the pose set, print it, ask for confirmation, move the robot through it "
+                    "(moveJ at the configured speed and acceleration), average the sensor at each still pose, "
+                    "then identify and validate the calibration. Writes RUN_DIR/poses.csv (one row per pose, "
+                    "as measured), run.json, calibration.json and report.md. Ctrl-C stops the robot and keeps "
+                    "the data; resume with --resume RUN_DIR.")
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--config", type=Path, metavar="CELL.toml", help="cell configuration (ftacq config init)")
+    source.add_argument("--sim", action="store_true",
+                        help="start the simulated cell (UR controller + Net F/T or CAN sensor on loopback) and "
+                             "calibrate it end to end; prints the identified parameters beside the true ones")
+    parser.add_argument("--dry-run", action="store_true", help="print the checked plan and stop; move nothing")
+    parser.add_argument("--yes", "-y", action="store_true", help="confirm the plan without asking")
+    parser.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                        help="continue a stopped or failed run: same plan, measured poses are not measured again")
+    parser.add_argument("--out", type=Path, metavar="DIR",
+                        help="parent folder of the run folder (default: output.folder of the config, 'runs')")
+    sim = parser.add_argument_group("simulation (--sim)")
+    sim.add_argument("--sensor", choices=("netft", "can"), default="netft",
+                     help="simulated sensor transport (default %(default)s)")
+    sim.add_argument("--time-scale", type=float, default=None, metavar="X",
+                     help=f"simulated time runs X times faster than real time (0 = instant moves; default "
+                          f"{DEFAULT_SIM_TIME_SCALE:g}); settle and averaging times shrink by the same factor")
+    sim.add_argument("--model", default="UR5e", help="simulated UR model (default %(default)s)")
+    sim.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor",
+                     help="simulated mount (default %(default)s)")
+    viewer = parser.add_argument_group("live view")
+    viewer.add_argument("--rerun", action="store_true",
+                        help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
+    try:
+        from ftacq.dashboard import add_sink_args
+
+        add_sink_args(parser)
+    except ImportError:  # pragma: no cover - dashboard not installed
+        pass
+    parser.set_defaults(func=run)
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+
+
+def _sim_config(args: argparse.Namespace):
+    from ftacq.config import CellConfig, RobotConfig
+
+    return CellConfig(robot=RobotConfig(host="(simulated)", model=args.model, mount=args.mount), source="--sim")
+
+
+def sim_sampling(sampling, time_scale: float):
+    """Return the sampling settings scaled to a simulation running ``time_scale`` times faster (0 = instant)."""
+    from dataclasses import replace
+
+    factor = 0.0 if time_scale <= 0 else 1.0 / time_scale
+    return replace(sampling, settle_time_s=sampling.settle_time_s * factor,
+                   settle_window_s=max(sampling.settle_window_s * factor, SIM_MIN_SETTLE_WINDOW_S),
+                   average_time_s=max(sampling.average_time_s * factor, SIM_MIN_AVERAGE_TIME_S))
+
+
+def _wants_dashboard(args: argparse.Namespace) -> bool:
+    return bool(getattr(args, "rerun", False) or getattr(args, "spawn", False) or getattr(args, "connect", None)
+                or getattr(args, "serve", False) or getattr(args, "save", None) is not None)
+
+
+def _confirm(args: argparse.Namespace) -> None:
+    if args.yes:
+        return
+    if not sys.stdin or not sys.stdin.isatty():
+        raise InputError("refusing to move the robot: no terminal to confirm the plan on (stdin is not a tty); "
+                         "check the plan above (or with --dry-run) and pass --yes")
+    answer = input("Move the robot through this plan? Keep the e-stop within reach. [y/N] ")
+    if answer.strip().lower() not in ("y", "yes"):
+        raise AbortedError("plan not confirmed: the robot did not move")
+
+
+def _install_sigterm() -> object:
+    """Turn SIGTERM into KeyboardInterrupt (same clean stop as Ctrl-C); return the previous handler."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread
+        return None
+
+
+def _err(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+# ------------------------------------------------------------------------------------------------ command
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``ftacq calibrate``; return the exit status (raises FtacqError subclasses for the CLI to report)."""
+    from drivers.robot import MotionLimits
+    from drivers.sensor import open_sensor
+    from ftacq.config import config_from_dict, load_config
+    from procedures.calibration import CalibrationProcedure, ProcedureOptions, calibration_steps, \
+        check_steps, count_measurements
+    from procedures.plan import Plan, format_plan, make_plan
+    from procedures.progress import ProgressListener
+    from procedures.run_folder import RunFolder, RunFolderWriter
+
+    if not (args.config or args.sim or args.resume):
+        raise InputError("give --config CELL.toml, --sim, or --resume RUN_DIR")
+    time_scale = DEFAULT_SIM_TIME_SCALE if args.time_scale is None else args.time_scale
+    if not time_scale >= 0:
+        raise InputError(f"--time-scale {args.time_scale}: must be ≥ 0")
+
+    folder: RunFolder | None = None
+    sim_info: dict = {}
+    if args.resume:
+        folder = RunFolder.open(args.resume)
+        if folder.status == "done":
+            raise InputError(f"{args.resume}: this run is already done (calibration.json is there); nothing to resume")
+        config = config_from_dict(folder.config, str(folder.path / "run.json"))
+        plan = Plan.from_json(folder.plan_json)
+        sim_info = dict(folder.document.get("sim") or {})
+        if args.config:
+            _err(f"note: --resume uses the configuration stored in {folder.path}/run.json; {args.config} is ignored")
+        if sim_info and not args.sim:
+            raise InputError(f"{args.resume}: this run was made with --sim; resume it with --sim --resume {args.resume}")
+    elif args.sim:
+        config = _sim_config(args)
+        plan = None
+    else:
+        config = load_config(args.config)
+        plan = None
+    if args.sim:
+        sim_info = {"sensor": sim_info.get("sensor", args.sensor), "time_scale": time_scale,
+                    "model": sim_info.get("model", config.robot.model),
+                    "mount": sim_info.get("mount", config.robot.mount)}
+    out_parent = args.out or Path(config.output.folder)
+
+    with contextlib.ExitStack() as stack:
+        cell = None
+        if args.sim:
+            from tests.fakes.cell import SimulatedCell
+
+            _err(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, "
+                 f"time scale {time_scale:g}) and a simulated {sim_info['sensor']} sensor on loopback …")
+            cell = stack.enter_context(SimulatedCell(sensor=sim_info["sensor"], model=sim_info["model"],
+                                                     mount=sim_info["mount"], time_scale=time_scale))
+            config = config.replace_section("robot", host=cell.robot_host)
+            config = config.replace_section("sensor", url=cell.sensor_url)
+        settings = config.plan_settings() if plan is None else plan.settings
+        limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
+                              joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
+        from drivers.ur import URRobot
+
+        robot = URRobot(config.robot.host, limits, model=settings.model)
+        stack.callback(robot.close)
+        robot.start()
+        start_q = robot.joint_positions()
+
+        measured = folder.measured() if folder else {}
+        if plan is None:
+            plan = make_plan(settings, start_q)
+        print(format_plan(plan), flush=True)
+        if cell is not None and time_scale != 1.0:
+            print(f"  simulation: time scale {time_scale:g} ("
+                  + ("moves complete at once" if time_scale == 0 else f"{time_scale:g}× faster than real time")
+                  + "; settle and averaging times shrink alike): the estimate above is for a real robot",
+                  flush=True)
+        drift_check = config.sampling.drift_check
+        remaining = count_measurements(plan, measured, drift_check)
+        if folder is not None:
+            print(f"  resuming {folder.path}: {len(measured)} poses already measured, {remaining} to measure",
+                  flush=True)
+        problems = check_steps(calibration_steps(plan, measured, drift_check), settings, start_q)
+        if problems:
+            from ftacq.errors import PlanError
+
+            raise PlanError("the plan's moves from the robot's current configuration are not clear:\n  "
+                            + "\n  ".join(problems))
+        print(f"  path check: {sum(1 for _ in calibration_steps(plan, measured, drift_check)) // 2} moves "
+              "checked for collisions and joint limits from the current configuration: clear", flush=True)
+        if args.dry_run:
+            print("dry run: the robot did not move", flush=True)
+            return 0
+        _confirm(args)
+
+        sensor = open_sensor(config.sensor.url)
+        stack.callback(sensor.close)
+        sensor.start()
+
+        if folder is None:
+            extra = {"sim": sim_info} if args.sim else {}
+            folder = RunFolder.create(out_parent, config.to_dict(), plan.to_json(), extra=extra)
+        _err(f"run folder: {folder.path}")
+        sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
+        options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
+        progress = ProgressListener(remaining, plan.estimated_duration_s / (max(time_scale, 1.0) if args.sim else 1))
+        stack.callback(progress.close)
+        listeners = [RunFolderWriter(folder), progress]
+        if _wants_dashboard(args):
+            listeners.append(_dashboard_listener(args, stack))
+        procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
+        previous = _install_sigterm()
+        try:
+            result = procedure.run()
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+        progress.close()
+        return _finish(args, folder, plan, config, result, cell)
+
+
+def _as_dict(sampling) -> dict:
+    from dataclasses import asdict
+
+    return asdict(sampling)
+
+
+def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack):
+    from ftacq.dashboard import Dashboard, DashboardListener, close_recording, open_recording
+
+    recording = open_recording(args)
+    stack.callback(close_recording, recording)
+    return DashboardListener(Dashboard(recording))
+
+
+def _finish(args, folder, plan, config, result, cell) -> int:
+    """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
+    import numpy as np
+
+    from ftacq.calfile import save_calibration
+    from procedures.report import format_truth_comparison, write_report
+    from procedures.run_folder import CALIBRATION_JSON
+
+    truth = cell.truth.calibration() if cell is not None else None
+    if result.identification is not None:
+        calibration = result.identification.calibration
+        from dataclasses import replace
+
+        metadata = dict(calibration.metadata)
+        metadata["run_folder"] = str(folder.path)
+        if result.validation is not None:
+            metadata["validation"] = {"poses": list(result.validation.labels),
+                                      "max_abs": np.asarray(result.validation.max_abs).tolist(),
+                                      "rms": np.asarray(result.validation.rms).tolist()}
+        if result.drift is not None:
+            metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
+                                       "elapsed_s": result.drift.elapsed_s}
+        calibration = replace(calibration, metadata=metadata)
+        save_calibration(folder.path / CALIBRATION_JSON, calibration)
+    report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
+                          title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration")
+    resume = f"ftacq calibrate {'--sim ' if cell is not None else ''}--resume {folder.path}"
+    if result.status != "done":
+        kept = len(result.measured)
+        text = (f"calibration {result.status}: {result.message}\n"
+                f"the robot was stopped; {kept} measured poses are kept in {folder.path / 'poses.csv'}\n"
+                f"resume with: {resume}")
+        if result.interrupted:
+            text = "interrupted: " + text
+        raise AbortedError(text) from result.error
+    print("")
+    if result.identification is not None:
+        cal = result.identification.calibration
+        alpha, beta = cal.base_tilt_deg
+        print(f"identified ({result.identification.method_used}): tool mass {cal.mass_kg:.4f} kg, base tilt "
+              f"({alpha:+.3f}°, {beta:+.3f}°), outliers: {', '.join(result.identification.outliers) or 'none'}")
+    if truth is not None and result.identification is not None:
+        print("")
+        print(format_truth_comparison(result.identification.calibration, truth))
+    if result.validation is not None:
+        v = result.validation
+        print("")
+        print(f"validation on {len(v.labels)} held-out poses (compensated wrench, ideally 0):")
+        print("  max |error|: F " + " ".join(f"{x:.4f}" for x in v.max_abs[:3]) + " N, T "
+              + " ".join(f"{x:.5f}" for x in v.max_abs[3:]) + " N·m")
+        print("  RMS error:   F " + " ".join(f"{x:.4f}" for x in v.rms[:3]) + " N, T "
+              + " ".join(f"{x:.5f}" for x in v.rms[3:]) + " N·m")
+    if result.drift is not None:
+        d = result.drift
+        print(f"drift check ({d.label} revisited after {d.elapsed_s:.0f} s): |ΔF| {np.linalg.norm(d.drift[:3]):.4f} N,"
+              f" |ΔT| {np.linalg.norm(d.drift[3:]):.5f} N·m" + (" — WARNING" if d.warning else ""))
+    for warning in result.warnings:
+        print(f"warning: {warning}")
+    print("")
+    print(f"calibration: {folder.path / CALIBRATION_JSON}")
+    print(f"report:      {report}")
+    print(f"poses:       {folder.path / 'poses.csv'}")
+    return 0

@@ -1,0 +1,84 @@
+"""A procedure listener that shows progress on stderr: pose i/N, state, ETA (rich on a terminal, lines otherwise)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Callable, TextIO
+
+from procedures import events
+
+
+class ProgressListener:
+    """Show the run's progress. ``total`` is the number of poses this run still measures (drift revisit included).
+
+    On a terminal a rich progress bar (pose i/N, state, elapsed, ETA); otherwise one line per measured pose,
+    so CI logs stay readable. The ETA is the mean time per pose so far times the poses left (before the first
+    pose: the plan's estimate). Call :meth:`close` when the run ends.
+    """
+
+    def __init__(self, total: int, estimated_s: float, stream: TextIO | None = None,
+                 clock_s: Callable[[], float] = time.monotonic, force_terminal: bool | None = None) -> None:
+        from rich.console import Console
+
+        self.total = max(int(total), 1)
+        self.done = 0
+        self._estimated_s = float(estimated_s)
+        self._clock_s = clock_s
+        self._start = clock_s()
+        self._state = "starting"
+        self._label = ""
+        self._stream = stream or sys.stderr
+        self.console = Console(file=self._stream, force_terminal=force_terminal, stderr=stream is None)
+        self._progress = None
+        self._task = None
+        if self.console.is_terminal:
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn)
+
+            self._progress = Progress(TextColumn("[bold]{task.description:<28}"), BarColumn(),
+                                      MofNCompleteColumn(), TextColumn("poses"), TimeElapsedColumn(),
+                                      TextColumn("ETA {task.fields[eta]}"), console=self.console, transient=False)
+            self._task = self._progress.add_task("starting", total=self.total, eta=self._format(estimated_s))
+            self._progress.start()
+
+    @staticmethod
+    def _format(seconds: float) -> str:
+        seconds = max(0.0, seconds)
+        return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
+
+    def eta_s(self) -> float:
+        """Return the estimated time left, s."""
+        if self.done == 0:
+            return self._estimated_s
+        per_pose = (self._clock_s() - self._start) / self.done
+        return per_pose * (self.total - self.done)
+
+    def __call__(self, event) -> None:
+        if isinstance(event, events.StateChanged):
+            self._state = event.state
+            if event.index is not None:
+                self._label = str(event.index + 1)
+            if event.state in ("done", "stopped", "failed"):
+                self.close()
+                return
+        elif isinstance(event, events.PoseMeasured):
+            self.done += 1
+            self._label = event.label
+            if self._progress is None:
+                self.console.print(f"pose {self.done}/{self.total} {event.label} ({event.set_name}) measured: "
+                                   f"{event.count} samples, ETA {self._format(self.eta_s())}",
+                                   highlight=False, soft_wrap=True)
+        elif isinstance(event, events.DriftChecked) and event.warning:
+            self.console.print(f"warning: {event.warning}", style="yellow", highlight=False)
+        if self._progress is not None and self._task is not None:
+            self._progress.update(self._task, completed=self.done, description=f"{self._state} {self._label}",
+                                  eta=self._format(self.eta_s()))
+
+    def close(self) -> None:
+        """Stop the live display (safe twice)."""
+        if self._progress is not None:
+            self._progress.stop()
+            self._progress = None
+
+
+__all__ = ["ProgressListener"]

@@ -1,0 +1,207 @@
+"""The run report: ``report.md`` with PNG plots (matplotlib, Agg backend: no display needed).
+
+Sections: summary, identified parameters with 1σ (the core's text report), validation per-axis max and RMS,
+drift check, and the plots:
+
+- ``wrench_per_pose.png``: raw mean wrench per measured pose (six channels) and the compensated wrench (raw −
+  predicted gravity wrench − biases; ≈ 0 without contact);
+- ``residuals.png``: identification residual norms |F|, |T| per pose, outliers marked;
+- ``validation.png``: compensation error per V pose and axis.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ftacq import __version__
+from ftacq.fileio import atomic_write
+
+CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+UNITS = ("N", "N", "N", "N·m", "N·m", "N·m")
+SET_COLOURS = {"A": "tab:blue", "E": "tab:orange", "V": "tab:green", "D": "tab:red", "": "tab:gray"}
+FIGURE_DPI = 110
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    with atomic_write(path, mode="wb") as handle:
+        fig.savefig(handle, format="png", dpi=FIGURE_DPI)
+
+
+def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str], raw: np.ndarray,
+                         compensated: np.ndarray) -> None:
+    """Write the raw and compensated mean wrench per pose (N, 6) as a 6-panel PNG."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(6, 2, figsize=(12, 12), sharex=True)
+    x = np.arange(len(labels))
+    colours = [SET_COLOURS.get(s, "tab:gray") for s in sets]
+    for k in range(6):
+        for col, (data, title) in enumerate(((raw, "raw mean"), (compensated, "compensated"))):
+            ax = axes[k, col]
+            ax.scatter(x, data[:, k], c=colours, s=12)
+            ax.axhline(0.0, color="black", lw=0.5)
+            ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
+            if k == 0:
+                ax.set_title(f"{title} (colour = set: A blue, E orange, V green, D red)")
+    for ax in axes[-1]:
+        ax.set_xlabel("pose (execution order)")
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_residuals(path: Path, labels: Sequence[str], residuals: np.ndarray, outliers: Sequence[str]) -> None:
+    """Write the identification residual norms per pose as a PNG (outliers in red)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
+    x = np.arange(len(labels))
+    colours = ["tab:red" if label in set(outliers) else "tab:blue" for label in labels]
+    axes[0].bar(x, np.linalg.norm(residuals[:, :3], axis=1), color=colours)
+    axes[0].set_ylabel("|F residual| [N]")
+    axes[1].bar(x, np.linalg.norm(residuals[:, 3:], axis=1), color=colours)
+    axes[1].set_ylabel("|T residual| [N·m]")
+    axes[1].set_xticks(x)
+    axes[1].set_xticklabels(labels, rotation=90, fontsize=6)
+    axes[0].set_title("identification residuals (measured − predicted); red = outlier")
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray) -> None:
+    """Write the compensation error per validation pose and axis as a PNG."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    x = np.arange(len(labels))
+    width = 0.25
+    for k in range(3):
+        axes[0].bar(x + (k - 1) * width, errors[:, k], width, label=CHANNELS[k])
+        axes[1].bar(x + (k - 1) * width, errors[:, 3 + k], width, label=CHANNELS[3 + k])
+    axes[0].set_ylabel("force error [N]")
+    axes[1].set_ylabel("torque error [N·m]")
+    for ax in axes:
+        ax.set_xticks(x)
+        ax.set_xticklabels(labels, rotation=90, fontsize=7)
+        ax.axhline(0.0, color="black", lw=0.5)
+        ax.legend()
+    fig.suptitle("validation: compensated wrench at held-out poses (should be ≈ 0)")
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(row) + " |" for row in rows]
+    return out
+
+
+def format_truth_comparison(calibration, truth) -> str:
+    """Return identified parameters beside the simulation's true ones (text table, SI units)."""
+    from ftacq.report import _zyx_deg
+
+    unc = calibration.uncertainty
+
+    def vec(v, digits=4, scale=1.0):
+        return "[" + ", ".join(f"{x * scale:+.{digits}f}" for x in v) + "]"
+
+    def sig(key, digits=4, scale=1.0):
+        s = unc.get(key)
+        if s is None:
+            return ""
+        return "± [" + ", ".join(f"{x * scale:.{digits}f}" for x in np.atleast_1d(s)) + "]"
+
+    rows = [
+        ("sensor_rotation Z-Y-X (deg)", vec(_zyx_deg(calibration.sensor_rotation), 3),
+         vec(_zyx_deg(truth.sensor_rotation), 3), sig("sensor_rotation_rad", 3, 180.0 / np.pi) + " about x, y, z"
+         if unc.get("sensor_rotation_rad") is not None else ""),
+        ("force_bias (N)", vec(calibration.force_bias), vec(truth.force_bias), sig("force_bias")),
+        ("torque_bias (N·m)", vec(calibration.torque_bias, 5), vec(truth.torque_bias, 5), sig("torque_bias", 5)),
+        ("mass (kg)", f"{calibration.mass_kg:.5f}", f"{truth.mass_kg:.5f}", sig("mass_kg", 5)),
+        ("center_of_mass (mm)", vec(calibration.center_of_mass, 3, 1000), vec(truth.center_of_mass, 3, 1000),
+         sig("center_of_mass_m", 3, 1000)),
+        ("base_tilt α, β (deg)", vec(calibration.base_tilt_deg, 4), vec(truth.base_tilt_deg, 4),
+         sig("base_tilt_deg", 4)),
+    ]
+    width = max(len(r[0]) for r in rows)
+    lines = [f"{'parameter':<{width}}  {'identified':<36} {'true (simulation)':<36} 1σ"]
+    lines += [f"{name:<{width}}  {got:<36} {true:<36} {sigma}" for name, got, true, sigma in rows]
+    return "\n".join(lines)
+
+
+def write_report(folder: Path, result, plan, config: dict, *, truth=None, title: str = "ftacq calibration") -> Path:
+    """Write ``report.md`` and its PNGs into ``folder`` for a :class:`procedures.calibration.ProcedureResult`.
+
+    Returns the report's path. Plots need identification; without it the report lists what was measured.
+    """
+    from ftacq.report import format_identification_report
+
+    folder = Path(folder)
+    ident = result.identification
+    lines = [f"# {title}", "",
+             f"- created: {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')} "
+             f"(ftacq {__version__})",
+             f"- status: **{result.status}** — {result.message}",
+             f"- robot: {config.get('robot', {}).get('model', '?')} ({config.get('robot', {}).get('mount', '?')} "
+             f"mount) at {config.get('robot', {}).get('host', '?')}; sensor {config.get('sensor', {}).get('url', '?')}",
+             f"- poses measured: {len(result.measured)} of {len(plan)} planned "
+             f"(+ drift revisit); estimated duration at real time {plan.estimated_duration_s:.0f} s", ""]
+    if result.warnings:
+        lines += ["## Warnings", ""] + [f"- {w}" for w in result.warnings] + [""]
+    order = [label for label in list(plan.labels) + [f"{plan.labels[0]}-revisit"] if label in result.measured]
+    if ident is not None:
+        cal = ident.calibration
+        lines += ["## Identified parameters (value ± 1σ)", "", "```", format_identification_report(ident).rstrip(),
+                  "```", ""]
+        if truth is not None:
+            lines += ["## Against the simulation's ground truth", "", "```",
+                      format_truth_comparison(cal, truth), "```", ""]
+        raw = np.array([result.measured[label].mean for label in order])
+        poses = np.array([result.measured[label].pose for label in order])
+        from ftacq.so3 import rotation_from_rotvec
+
+        flange_R_base = np.swapaxes(rotation_from_rotvec(poses[:, 3:]), -1, -2)
+        compensated = np.asarray(cal.compensate(raw, flange_R_base)).reshape(-1, 6)
+        sets = [result.measured[label].set_name for label in order]
+        plot_wrench_per_pose(folder / "wrench_per_pose.png", order, sets, raw, compensated)
+        plot_residuals(folder / "residuals.png", list(ident.labels), np.asarray(ident.residuals), ident.outliers)
+        lines += ["## Raw and compensated wrench per pose", "", "![raw and compensated](wrench_per_pose.png)", "",
+                  "## Identification residuals", "", "![residuals](residuals.png)", ""]
+    if result.validation is not None:
+        v = result.validation
+        lines += ["## Validation on held-out poses (V)", "",
+                  f"{len(v.labels)} poses never used for identification, compensated with the calibration:", ""]
+        lines += _table(["axis", "max |error|", "RMS error", "unit"],
+                        [(CHANNELS[k], f"{v.max_abs[k]:.5f}", f"{v.rms[k]:.5f}", UNITS[k]) for k in range(6)])
+        plot_validation(folder / "validation.png", list(v.labels), np.asarray(v.errors))
+        lines += ["", "![validation](validation.png)", ""]
+    if result.drift is not None:
+        d = result.drift
+        lines += ["## Drift check", "",
+                  f"Pose {d.label} measured again after {d.elapsed_s:.0f} s: bias drift "
+                  f"F [{', '.join(f'{x:+.4f}' for x in d.drift[:3])}] N, "
+                  f"T [{', '.join(f'{x:+.5f}' for x in d.drift[3:])}] N·m"
+                  + (f". **{d.warning}**" if d.warning else " (below the warning thresholds)."), ""]
+    lines += ["## Measured poses", ""]
+    lines += _table(["label", "set", "count", *[f"{c} [{u}]" for c, u in zip(CHANNELS, UNITS)]],
+                    [(label, result.measured[label].set_name, str(result.measured[label].count),
+                      *[f"{x:+.4f}" for x in result.measured[label].mean]) for label in order])
+    path = folder / "report.md"
+    with atomic_write(path) as handle:
+        handle.write("\n".join(lines) + "\n")
+    return path
+
+
+__all__ = ["write_report", "format_truth_comparison", "plot_wrench_per_pose", "plot_residuals", "plot_validation"]

@@ -1,0 +1,167 @@
+"""Settling and averaging at a still pose.
+
+Theory of operation (as ophyd's ``StatusBase``: always under a finite timeout):
+
+1. Settle: read the sensor continuously (so the driver's buffer never holds stale samples). The pose counts as
+   settled when the robot reports steady for at least ``settle_time_s`` seconds AND the sample standard
+   deviation of every channel over the last ``window_s`` seconds is below its threshold (force in N, torque
+   in N·m). A pose that does not settle within ``timeout_s`` seconds raises :class:`PoseNotSettledError`
+   naming the channel that kept moving; a sensor that delivers nothing for ``sensor_timeout_s`` seconds
+   raises the driver's :class:`~ftacq.errors.DeviceTimeoutError`.
+2. Average: collect fresh samples for ``average_time_s`` seconds with the driver's ``average`` (mean, std,
+   count; saturated samples excluded and counted, lost samples counted).
+
+Both check a stop flag between reads, so a requested stop lands within one read.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from drivers.robot import Robot
+from drivers.sensor import ForceTorqueSensor, WrenchAverage
+from ftacq.errors import DeviceTimeoutError, FtacqError, SensorFaultError
+
+CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+READ_TIMEOUT_CAP_S = 0.25
+"""Longest single ``sensor.read`` wait, so the stop flag is checked at least this often (s)."""
+
+
+class PoseNotSettledError(DeviceTimeoutError):
+    """The robot or the sensor did not become still within the settle timeout (a fault, data kept)."""
+
+
+class StopRequested(FtacqError):
+    """A planned stop was requested while settling or averaging (the procedure stops cleanly)."""
+
+
+@dataclass(frozen=True)
+class SettleSettings:
+    """Settling and averaging parameters (the ``[sampling]`` part of CELL.toml; SI units)."""
+
+    settle_time_s: float = 0.5
+    window_s: float = 0.2
+    force_std_n: float = 0.5
+    torque_std_nm: float = 0.03
+    timeout_s: float = 10.0
+    average_time_s: float = 0.5
+    sensor_timeout_s: float = 2.0
+
+    @classmethod
+    def from_sampling(cls, sampling) -> "SettleSettings":
+        """Build from :class:`ftacq.config.SamplingConfig`."""
+        return cls(settle_time_s=sampling.settle_time_s, window_s=sampling.settle_window_s,
+                   force_std_n=sampling.settle_force_std_n, torque_std_nm=sampling.settle_torque_std_nm,
+                   timeout_s=sampling.settle_timeout_s, average_time_s=sampling.average_time_s,
+                   sensor_timeout_s=sampling.sensor_timeout_s)
+
+    @property
+    def thresholds(self) -> np.ndarray:
+        """(6,) per-channel std thresholds [N, N, N, N·m, N·m, N·m]."""
+        return np.array([self.force_std_n] * 3 + [self.torque_std_nm] * 3)
+
+
+@dataclass(frozen=True)
+class SettleResult:
+    """How settling went: ``elapsed_s`` until settled, the window's per-channel std (6,) and sample count."""
+
+    elapsed_s: float
+    window_std: np.ndarray
+    window_count: int
+
+
+def _never() -> bool:
+    return False
+
+
+def wait_until_settled(robot: Robot, sensor: ForceTorqueSensor, settings: SettleSettings,
+                       should_stop: Callable[[], bool] = _never,
+                       clock_s: Callable[[], float] = time.monotonic) -> SettleResult:
+    """Block until the robot is steady and the sensor is still (see the module docstring). Returns how long it took.
+
+    Raises:
+        PoseNotSettledError: not settled within ``settings.timeout_s`` seconds.
+        DeviceTimeoutError: no sample for ``settings.sensor_timeout_s`` seconds (from the driver).
+        StopRequested: ``should_stop()`` became true.
+    """
+    start = clock_s()
+    deadline = start + settings.timeout_s
+    steady_since: float | None = None
+    times: list[np.ndarray] = []
+    wrenches: list[np.ndarray] = []
+    thresholds = settings.thresholds
+    window_std = np.full(6, np.inf)
+    count = 0
+    last_sample = start
+    while True:
+        if should_stop():
+            raise StopRequested("stop requested while settling")
+        batch = sensor.read(timeout_s=min(settings.sensor_timeout_s, READ_TIMEOUT_CAP_S))  # raises on silence
+        now = clock_s()
+        if len(batch):
+            last_sample = now
+            good = ~batch.saturated
+            times.append(batch.time_s[good])
+            wrenches.append(batch.wrench[good])
+        elif now - last_sample > settings.sensor_timeout_s:
+            raise DeviceTimeoutError(f"the sensor sent no sample for {settings.sensor_timeout_s:g} s while settling")
+        if robot.is_steady():
+            steady_since = now if steady_since is None else steady_since
+        else:
+            steady_since = None
+            times.clear()
+            wrenches.clear()
+        if times:
+            all_t = np.concatenate(times)
+            keep_from = int(np.searchsorted(all_t, all_t[-1] - settings.window_s))
+            all_w = np.concatenate(wrenches)[keep_from:]
+            all_t = all_t[keep_from:]
+            times[:] = [all_t]
+            wrenches[:] = [all_w]
+            count = len(all_t)
+            spans_window = steady_since is not None and now - steady_since >= settings.window_s
+            if count >= 2 and spans_window:
+                window_std = all_w.std(axis=0, ddof=1)
+                if steady_since is not None and now - steady_since >= settings.settle_time_s \
+                        and np.all(window_std <= thresholds):
+                    return SettleResult(now - start, window_std, count)
+        if now >= deadline:
+            if steady_since is None:
+                why = "the robot never reported steady"
+            elif not np.all(np.isfinite(window_std)):
+                why = "too few sensor samples in the settle window"
+            else:
+                worst = int(np.argmax(window_std / thresholds))
+                unit = "N" if worst < 3 else "N·m"
+                why = (f"{CHANNELS[worst]} std {window_std[worst]:.4g} {unit} stayed above "
+                       f"{thresholds[worst]:g} {unit}")
+            raise PoseNotSettledError(f"the pose did not settle within {settings.timeout_s:g} s: {why}")
+
+
+def average_at_pose(sensor: ForceTorqueSensor, settings: SettleSettings,
+                    should_stop: Callable[[], bool] = _never) -> tuple[WrenchAverage, float, float]:
+    """Average fresh samples for ``settings.average_time_s`` seconds; return (average, t_start, t_end) in UNIX s.
+
+    Raises SensorFaultError when every sample was saturated, DeviceTimeoutError when the sensor is silent,
+    StopRequested when a stop was requested before averaging began.
+    """
+    if should_stop():
+        raise StopRequested("stop requested before averaging")
+    t_start = time.time()
+    average = sensor.average(settings.average_time_s,
+                             timeout_s=settings.average_time_s + settings.sensor_timeout_s)
+    t_end = time.time()
+    if average.count < 1:
+        raise SensorFaultError(f"no usable sample in the {settings.average_time_s:g} s averaging window "
+                               f"({average.saturated} saturated, {average.lost} lost)")
+    if not np.all(np.isfinite(average.mean)):
+        raise SensorFaultError("the averaged wrench is not finite")
+    return average, t_start, t_end
+
+
+__all__ = ["SettleSettings", "SettleResult", "PoseNotSettledError", "StopRequested", "wait_until_settled",
+           "average_at_pose"]

@@ -1,0 +1,143 @@
+"""The simulated cell: a simulated UR controller (subprocess, RTDE on its own loopback address) and a simulated
+ATI sensor (Net F/T on loopback, or a NETCANOEM board on python-can's virtual bus) whose wrench follows the
+controller's flange pose through a known ground truth (:class:`tests.fakes.world.CellTruth`).
+
+Used by the procedure's tests, ``ftacq calibrate --sim``, ``ftacq monitor --sim`` and the dashboard tests, as
+``ophyd.sim.hw()`` builds a whole simulated beamline::
+
+    with SimulatedCell(sensor="netft", time_scale=0.0) as cell:
+        robot = URRobot(cell.robot_host, MotionLimits())     # real ur-rtde client, real RTDE bytes
+        sensor = open_sensor(cell.sensor_url)                # real Net F/T or CAN driver
+        ...
+        cell.controller.inject("protective_stop", "move_fraction", 0.5, move=3)
+        cell.controller.commands()                           # every motion command the controller executed
+
+The controller publishes its flange pose into a :class:`~tests.fakes.world.SharedPose` (shared memory); the
+sensor fake, running in this process, reads it there. The CAN board's virtual bus only links buses in one
+process, so the CAN driver must run in the process that built the cell.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import uuid
+from dataclasses import replace
+
+import numpy as np
+
+from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
+
+SENSORS = ("netft", "can")
+DEFAULT_SENSOR_RATE_HZ = 1000.0
+
+
+class SimulatedCell:
+    """A running simulated cell (context manager; :meth:`close` is safe twice).
+
+    Args:
+        truth: the ground truth (sensor rotation, biases, tool, base tilt, noise). With ``mount`` other than
+            "floor" and a level truth, the truth's base tilt is set to the mount's (wall (0, 90°), ceiling (0, 180°)).
+        sensor: "netft" (UDP RDT + TCP + HTTP on 127.0.0.1) or "can" (NETCANOEM on a virtual CAN channel).
+        model: UR model of the controller. mount: "floor", "wall" or "ceiling".
+        time_scale: controller speed factor (0 = moves complete at once, 1 = real time, 10 = ten times faster).
+        rate_hz: the sensor's sample rate (Net F/T streaming rate, or CAN poll rate suggested in the URL).
+        seed: seed of the sensor noise. initial_q: start joint angles (rad); default the plan's home.
+    """
+
+    def __init__(self, truth: CellTruth | None = None, sensor: str = "netft", model: str = "UR5e",
+                 mount: str = "floor", time_scale: float = 1.0, rate_hz: float = DEFAULT_SENSOR_RATE_HZ,
+                 seed: int = 0, initial_q: np.ndarray | None = None) -> None:
+        if sensor not in SENSORS:
+            raise ValueError(f"sensor {sensor!r}: must be one of {', '.join(SENSORS)}")
+        truth = truth or CellTruth()
+        if mount != "floor" and tuple(truth.base_tilt_deg) == (0.0, 0.0):
+            truth = truth.with_mount(mount)
+        self.truth = truth
+        self.sensor_kind = sensor
+        self.model_name = model
+        self.mount = mount
+        self.time_scale = float(time_scale)
+        self.rate_hz = float(rate_hz)
+        self.seed = seed
+        if initial_q is None:
+            from procedures.plan import home_configuration_rad
+
+            initial_q = home_configuration_rad(mount)
+        self.initial_q = np.asarray(initial_q, dtype=float)
+        self.shared_pose: SharedPose | None = None
+        self.physics: SensorPhysics | None = None
+        self.controller = None
+        self.netft = None
+        self.can_board = None
+        self.sensor_url = ""
+        self._stack = contextlib.ExitStack()
+
+    @property
+    def robot_host(self) -> str:
+        """The controller's loopback address (RTDE 30004, dashboard 29999, script 30003)."""
+        return self.controller.host
+
+    def start(self) -> "SimulatedCell":
+        """Start the controller subprocess and the sensor fake; return self."""
+        from tests.fakes.ur_process import URControllerProcess
+
+        try:
+            self.shared_pose = SharedPose(name=f"ftacq-{uuid.uuid4().hex[:12]}", create=True)
+            self._stack.callback(self._close_shared_pose)
+            self.controller = URControllerProcess(model=self.model_name, time_scale=self.time_scale,
+                                                  pose_shm=self.shared_pose.name, initial_q=self.initial_q,
+                                                  mount=self.mount)
+            self.controller.start()
+            self._stack.callback(self.controller.stop)
+            self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed)
+            if self.sensor_kind == "netft":
+                from tests.fakes.netft import FakeNetFT
+
+                self.netft = FakeNetFT(self.physics, host="127.0.0.1", rate_hz=self.rate_hz)
+                self.netft.start()
+                self._stack.callback(self.netft.close)
+                self.sensor_url = self.netft.url
+            else:
+                from tests.fakes.netcanoem import FakeNetCanOem
+
+                channel = f"ftacq-sim-{uuid.uuid4().hex[:12]}"
+                self.can_board = FakeNetCanOem(channel, self.physics)
+                self._stack.callback(self.can_board.close)
+                self.sensor_url = f"can://virtual/{channel}?rate_hz={self.rate_hz:g}"
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _close_shared_pose(self) -> None:
+        # The controller subprocess attached to the block; Python < 3.13's resource tracker of that process may
+        # already have unlinked it when the process ended (bpo-39959). Nothing is left to release then.
+        name = self.shared_pose.name
+        try:
+            self.shared_pose.close()
+        except FileNotFoundError:
+            from multiprocessing import resource_tracker
+
+            with contextlib.suppress(Exception):  # this process's tracker would warn about a "leak" at exit
+                resource_tracker.unregister("/" + name.lstrip("/"), "shared_memory")
+
+    def close(self) -> None:
+        """Stop the sensor fake and the controller, release the shared memory. Safe to call twice."""
+        self._stack.close()
+
+    def __enter__(self) -> "SimulatedCell":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def set_contact(self, wrench: np.ndarray) -> None:
+        """Add a contact wrench (6,) [N, N·m] in the sensor frame to every later sample (0 to remove)."""
+        self.physics.contact_wrench = np.asarray(wrench, dtype=float).reshape(6)
+
+    def with_truth(self, **changes) -> CellTruth:
+        """Return the truth with some fields changed (for building a second cell)."""
+        return replace(self.truth, **changes)
+
+
+__all__ = ["SimulatedCell", "SENSORS"]
