@@ -17,11 +17,12 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
 - ``ping`` · ``state`` · ``commands`` (every motion command executed: kind, target, speed, acceleration, async,
   time, accepted, reason, source, move) · ``events`` · ``clear_commands``
 - ``fault KIND [now | after S | move_after S [move K] | move_fraction F [move K]]`` with KIND one of
-  ``protective_stop``, ``emergency_stop``, ``program_stop``, ``drop`` (close every client connection),
-  ``freeze`` (keep connections, stop sending data and answering: a pulled cable). K counts moves from 1 as in
+  ``protective_stop``, ``emergency_stop``, ``program_stop``, ``drop`` (close every client connection and
+  refuse new ones until ``restore``), ``freeze`` (keep connections, stop sending data and answering: a pulled
+  cable). K counts moves from 1 as in
   ``commands``' ``move`` field; default: the next move.
 - ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
-  on the dashboard, as on a real arm) · ``restore`` (end a freeze) · ``clear_faults``
+  on the dashboard, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
 - ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
 """
 
@@ -114,6 +115,8 @@ class RTDEConnection:
         self.streaming = False
         self.closed = False
         sock.settimeout(None)
+        # a send timeout only (a Python socket timeout would also apply to the reader thread's recv)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", int(SEND_TIMEOUT_S), 0))
 
     def send(self, package_type: int, payload: bytes = b"") -> bool:
         with self.send_lock:
@@ -123,7 +126,6 @@ class RTDEConnection:
         if self.closed:
             return False
         try:
-            self.sock.settimeout(SEND_TIMEOUT_S)
             self.sock.sendall(data)
             return True
         except OSError:
@@ -216,6 +218,7 @@ class ControllerServer:
         self.sim, self.host = sim, host
         self.stop_event = threading.Event()
         self.frozen = False
+        self.dropped = False
         self.lock = threading.Lock()
         self.rtde_connections: list[RTDEConnection] = []
         self.other_sockets: list[socket.socket] = []
@@ -261,6 +264,9 @@ class ControllerServer:
                 client, _ = listener.accept()
             except OSError:
                 return
+            if self.dropped and name != "control":
+                client.close()  # a dropped link: nothing reaches the controller until `restore`
+                continue
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._spawn(f"ur-fake-{name}-client", handler, client)
 
@@ -391,7 +397,7 @@ class ControllerServer:
         if command == "ping":
             return {}
         if command == "state":
-            return {"state": sim.state_view(), "frozen": self.frozen}
+            return {"state": sim.state_view(), "frozen": self.frozen, "dropped": self.dropped}
         if command == "commands":
             with sim.lock:
                 return {"commands": list(sim.commands)}
@@ -426,7 +432,7 @@ class ControllerServer:
             sim.release_emergency_stop()
             return {}
         if command == "restore":
-            self.frozen = False
+            self.frozen = self.dropped = False
             return {}
         if command == "set":
             what, values = words[1], [float(v) for v in words[2:]]
@@ -454,6 +460,7 @@ class ControllerServer:
         if kind == "freeze":
             self.frozen = True
             return
+        self.dropped = True
         self.close_clients()
 
     def close_clients(self) -> None:

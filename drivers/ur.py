@@ -1,0 +1,671 @@
+"""Universal Robots arm over ur-rtde: :class:`URRobot` (the procedure's :class:`drivers.robot.Robot`) and
+:class:`URStateReader` (receive-only, for the live monitor).
+
+ur-rtde facts this module is built around (spec ``/work/shared/specs/ur.md``):
+
+- Its constructors hold the GIL and its connect/setup has no timeout, so every port is probed with a plain
+  socket (and a deadline) first: an unreachable controller fails fast with a clear message.
+- Blocking commands can wait up to 300 s (§4.9). Moves are therefore sent asynchronously
+  (``moveJ(..., asynchronous=True)``) and this module polls the RTDE state with its own deadline; every other
+  control call runs on a named worker thread with a deadline (:data:`CALL_TIMEOUT_S`).
+- A dropped connection shows as ``isConnected() == False`` (EOF) or a controller timestamp that stops advancing
+  (silence): both are detected within :data:`CONNECTION_STALE_S` (< 3 s).
+
+The flange pose is computed from the joint angles, never read from ``actual_TCP_pose``, so a TCP offset held
+by the controller cannot leak into the calibration: :class:`URRobot` asks the controller's calibrated kinematics
+(``getForwardKinematics(q, [0]*6)``) and falls back to UR's nominal DH model; :class:`URStateReader` uses the
+nominal DH model (:func:`ftacq.kinematics.flange_pose`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import socket
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.robot import MotionLimits, RobotStatus
+from ftacq.errors import (
+    AbortedError,
+    ConfigError,
+    DeviceConnectionError,
+    DeviceTimeoutError,
+    EmergencyStopError,
+    MotionLimitError,
+    ProgramStoppedError,
+    ProtectiveStopError,
+    RobotError,
+)
+from ftacq.kinematics import UR_MODELS, URModel, flange_pose, ur_model
+from ftacq.so3 import angle_between_deg
+
+log = logging.getLogger(__name__)
+
+RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
+PROBE_TIMEOUT_S = 2.0
+"""Deadline of the plain TCP probe of each controller port before ur-rtde connects (ur-rtde has none)."""
+CONNECTION_STALE_S = 1.5
+"""No new RTDE data package for this long means the connection is lost (ur-rtde itself waits 2.5 s)."""
+POLL_INTERVAL_S = 0.005
+CALL_TIMEOUT_S = 10.0
+"""Deadline of one guarded ur-rtde control call (moves are asynchronous, so every call should take ms)."""
+DISCONNECT_TIMEOUT_S = 3.0
+SCRIPT_START_TIMEOUT_S = 8.0
+SAFETY_CLEAR_TIMEOUT_S = 5.0
+JOINT_TARGET_TOLERANCE_RAD = 1e-3
+"""A joint move has arrived when every joint is this close to its target (and the arm is steady)."""
+STEADY_JOINT_SPEED_RAD_S = 5e-3
+"""The arm is steady when every |actual_qd| is below this."""
+STALL_GRACE_S = 1.0
+"""A move that is not running, not moving and not at its target for this long has been stopped."""
+FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG = 0.05, 5.0
+"""Controller FK further than this from the nominal DH model is not trusted (wrong model or a broken reply)."""
+
+# ur-rtde's own client-side ranges (spec §4.4): limits above these could never be sent.
+UR_RTDE_MAX_JOINT_SPEED_RAD_S, UR_RTDE_MAX_JOINT_ACCELERATION_RAD_S2 = 3.14, 40.0
+UR_RTDE_MAX_TOOL_SPEED_M_S, UR_RTDE_MAX_TOOL_ACCELERATION_M_S2 = 3.0, 150.0
+
+ROBOT_MODE_RUNNING = 7
+RUNTIME_PLAYING = 2
+SAFETY_NORMAL, SAFETY_REDUCED, SAFETY_PROTECTIVE_STOP = 1, 2, 3
+SAFETY_EMERGENCY_MODES = (6, 7)  # SYSTEM_/ROBOT_EMERGENCY_STOP
+SAFETY_BIT_PROTECTIVE, SAFETY_BIT_SAFEGUARD, SAFETY_BIT_SYSTEM_ESTOP, SAFETY_BIT_ROBOT_ESTOP, SAFETY_BIT_ESTOP = 2, 4, 5, 6, 7
+ROBOT_MODE_NAMES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
+                    4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
+SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
+                     6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
+                     10: "VALIDATE_JOINT_ID", 11: "UNDEFINED", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+                     13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
+RUNTIME_STATE_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
+
+RECEIVE_VARIABLES = ["timestamp", "actual_q", "actual_qd", "target_q", "actual_TCP_pose", "robot_mode",
+                     "safety_mode", "runtime_state", "robot_status_bits", "safety_status_bits", "speed_scaling"]
+"""The receive recipe (all in ur-rtde's decode table and in every controller's default list, spec §5.2)."""
+
+_E_SERIES_DASHBOARD_NAMES = ("UR3", "UR5", "UR10", "UR16")
+
+PROTECTIVE_STOP_MESSAGE = (
+    "the robot is in a PROTECTIVE STOP (it hit something, or a joint/speed limit was exceeded). Look at the "
+    "cell and the pendant's message, remove the cause, then unlock the protective stop on the teach pendant "
+    "(or `unlock_protective_stop()`) and start again")
+EMERGENCY_STOP_MESSAGE = (
+    "an EMERGENCY STOP is active on the robot. Make the cell safe, release the e-stop button, close the safety "
+    "pop-up, power on and release the brakes on the teach pendant, then start again")
+PROGRAM_STOPPED_MESSAGE = (
+    "the control program on the robot is not running (Stop was pressed on the teach pendant, another program "
+    "was started, or the robot was powered off). Check the pendant, then start again")
+
+
+def model_from_dashboard(reply: str, major_version: int | None) -> URModel | None:
+    """Map a dashboard ``get robot model`` reply to a :class:`URModel`.
+
+    UR's dashboard answers ``UR3``/``UR5``/``UR10``/``UR16`` for both the CB3 and the e-Series arm; software
+    major version 5 (PolyScope 5) and 10 (PolyScope X) only run on e-Series (and UR20/UR30) arms, 3 on CB3.
+    Returns None for an unknown reply.
+    """
+    name = reply.strip().upper()
+    if name.endswith("E") and name[:-1] in _E_SERIES_DASHBOARD_NAMES:
+        return ur_model(name[:-1] + "e")
+    if name in _E_SERIES_DASHBOARD_NAMES:
+        e_series = major_version is None or major_version >= 5 or name == "UR16"
+        return ur_model(name + "e" if e_series else name)
+    try:
+        return ur_model(name)
+    except ValueError:
+        return None
+
+
+def _major(version: str | None) -> int | None:
+    match = re.match(r"\s*(\d+)", version or "")
+    return int(match.group(1)) if match else None
+
+
+def probe_port(host: str, port: int, timeout_s: float = PROBE_TIMEOUT_S) -> None:
+    """Open and close a TCP connection to ``host:port``; raise DeviceConnectionError naming the port if it fails."""
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s):
+            pass
+    except socket.timeout as error:
+        raise DeviceConnectionError(
+            f"robot controller {host}: no answer on port {port} within {timeout_s:.0f} s; check the IP address, "
+            "the network cable and that the robot is switched on") from error
+    except OSError as error:
+        raise DeviceConnectionError(
+            f"robot controller {host}: cannot connect to port {port} ({error.strerror or error}); check the IP "
+            "address and that the robot is switched on and booted") from error
+
+
+def _call_with_deadline(fn, *args, timeout_s: float, what: str):
+    """Run ``fn(*args)`` on a named worker thread; return its result, re-raise its error, or raise
+    DeviceTimeoutError after ``timeout_s`` (the worker is left to finish on its own; ur-rtde calls release the GIL)."""
+    box: dict = {}
+
+    def run() -> None:
+        try:
+            box["result"] = fn(*args)
+        except BaseException as error:  # noqa: BLE001 - re-raised in the caller's thread
+            box["error"] = error
+
+    worker = threading.Thread(target=run, name=f"ur-rtde-{what}", daemon=True)
+    worker.start()
+    worker.join(timeout_s)
+    if worker.is_alive():
+        raise DeviceTimeoutError(f"robot controller did not complete {what} within {timeout_s:.0f} s")
+    if "error" in box:
+        raise box["error"]
+    return box.get("result")
+
+
+@dataclass(frozen=True)
+class URControllerInfo:
+    """What the dashboard says about the controller (None where it cannot tell)."""
+
+    model_reply: str | None
+    model: URModel | None
+    software_version: str | None
+    serial_number: str | None
+    robot_mode: str | None
+    safety_status: str | None
+    program_state: str | None
+    remote_control: bool | None
+
+
+def read_controller_info(host: str, timeout_s: float = PROBE_TIMEOUT_S) -> URControllerInfo:
+    """Ask the dashboard server (port 29999) for model, software version, serial number and modes."""
+    import dashboard_client
+
+    probe_port(host, DASHBOARD_PORT, timeout_s)
+    client = dashboard_client.DashboardClient(host)
+    try:
+        try:
+            client.connect(int(timeout_s * 1000))
+        except RuntimeError as error:
+            raise DeviceConnectionError(f"robot controller {host}: dashboard server (port 29999): {error}") from error
+
+        def ask(method):
+            try:
+                return method()
+            except RuntimeError:
+                return None
+
+        version = ask(client.polyscopeVersion)
+        model_reply = ask(client.getRobotModel)
+        serial = ask(client.getSerialNumber) if (_major(version) or 0) >= 5 else None
+        remote = ask(client.isInRemoteControl) if (_major(version) or 0) >= 5 else None
+        return URControllerInfo(
+            model_reply=model_reply,
+            model=model_from_dashboard(model_reply, _major(version)) if model_reply else None,
+            software_version=version, serial_number=serial or None, robot_mode=ask(client.robotmode),
+            safety_status=ask(client.safetystatus) or ask(client.safetymode), program_state=ask(client.programState),
+            remote_control=remote)
+    finally:
+        try:
+            client.disconnect()
+        except RuntimeError:
+            pass
+
+
+def _resolve_model(model: str | URModel | None) -> URModel | None:
+    if model is None or isinstance(model, URModel):
+        return model
+    try:
+        return ur_model(model)
+    except ValueError as error:
+        raise ConfigError(f"robot model {model!r}: {error}") from error
+
+
+class URStateReader:
+    """Receive-only view of a UR controller (RTDEReceiveInterface only; never moves anything).
+
+    ``flange_pose()`` is the nominal DH forward kinematics of ``actual_q`` (TCP offset excluded). ``model`` is
+    read from the dashboard when not given (None if the dashboard cannot tell: then only ``tcp_pose()``).
+    """
+
+    def __init__(self, host: str, frequency_hz: float | None = None, model: str | URModel | None = None,
+                 connect_timeout_s: float = PROBE_TIMEOUT_S) -> None:
+        self.host = host
+        self.frequency_hz = frequency_hz
+        self.model = _resolve_model(model)
+        self.connect_timeout_s = connect_timeout_s
+        self._receive = None
+        self._last_timestamp = None
+        self._last_change_s = 0.0
+        self._closed = False
+
+    def start(self) -> "URStateReader":
+        """Connect (probe port 30004 first). Raises DeviceConnectionError when the controller is unreachable."""
+        import rtde_receive
+
+        probe_port(self.host, RTDE_PORT, self.connect_timeout_s)
+        if self.model is None:
+            try:
+                self.model = read_controller_info(self.host, self.connect_timeout_s).model
+            except DeviceConnectionError as error:
+                log.warning("cannot read the robot model from the dashboard (%s); flange pose unavailable", error)
+        try:
+            self._receive = rtde_receive.RTDEReceiveInterface(
+                self.host, float(self.frequency_hz) if self.frequency_hz else -1.0, RECEIVE_VARIABLES)
+        except RuntimeError as error:
+            raise DeviceConnectionError(f"robot controller {self.host}: RTDE (port 30004): {error}") from error
+        self._last_timestamp, self._last_change_s = self._receive.getTimestamp(), time.monotonic()
+        return self
+
+    def __enter__(self) -> "URStateReader":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _rtde(self):
+        if self._receive is None:
+            raise DeviceConnectionError(f"robot controller {self.host}: not connected (call start())")
+        return self._receive
+
+    @property
+    def connected(self) -> bool:
+        """True while data packages keep arriving (EOF and silence > CONNECTION_STALE_S both count as lost)."""
+        if self._receive is None or not self._receive.isConnected():
+            return False
+        timestamp, now = self._receive.getTimestamp(), time.monotonic()
+        if timestamp != self._last_timestamp:
+            self._last_timestamp, self._last_change_s = timestamp, now
+            return True
+        return now - self._last_change_s < CONNECTION_STALE_S
+
+    def ensure_connected(self) -> None:
+        """Raise DeviceConnectionError if the data stream is lost."""
+        if self.connected:
+            return
+        cause = ("the controller closed the connection" if self._receive is None or not self._receive.isConnected()
+                 else f"no state received for {CONNECTION_STALE_S:.1f} s")
+        raise DeviceConnectionError(
+            f"lost the connection to the robot controller {self.host}: {cause}. Check the network cable and the "
+            "robot's power; the robot may still be moving, so watch it and use the teach pendant's stop if needed")
+
+    def joint_positions(self) -> np.ndarray:
+        """The 6 actual joint angles, rad."""
+        return np.array(self._rtde().getActualQ(), dtype=float)
+
+    def joint_speeds(self) -> np.ndarray:
+        """The 6 actual joint speeds, rad/s."""
+        return np.array(self._rtde().getActualQd(), dtype=float)
+
+    def tcp_pose(self) -> np.ndarray:
+        """``actual_TCP_pose`` as reported (includes the controller's TCP offset)."""
+        return np.array(self._rtde().getActualTCPPose(), dtype=float)
+
+    def flange_pose(self) -> np.ndarray:
+        """Flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame from the nominal FK of ``actual_q``."""
+        if self.model is None:
+            raise RobotError(f"robot controller {self.host}: unknown robot model; pass model= (e.g. 'UR5e')")
+        return flange_pose(self.model, self.joint_positions())
+
+    def controller_time_s(self) -> float:
+        """The controller's timestamp (s since it started)."""
+        return float(self._rtde().getTimestamp())
+
+    def status(self, steady: bool | None = None) -> RobotStatus:
+        rtde = self._rtde()
+        bits = int(rtde.getSafetyStatusBits())
+        safety_mode = int(rtde.getSafetyMode())
+        if steady is None:
+            steady = bool(np.max(np.abs(self.joint_speeds())) < STEADY_JOINT_SPEED_RAD_S)
+        return RobotStatus(
+            robot_mode=int(rtde.getRobotMode()), safety_mode=safety_mode,
+            protective_stop=bool(bits & (1 << SAFETY_BIT_PROTECTIVE)) or safety_mode == SAFETY_PROTECTIVE_STOP,
+            emergency_stop=bool(bits & (1 << SAFETY_BIT_ESTOP)) or safety_mode in SAFETY_EMERGENCY_MODES,
+            program_running=int(rtde.getRuntimeState()) == RUNTIME_PLAYING,
+            connected=self.connected, steady=steady)
+
+    def close(self) -> None:
+        """Disconnect (≈0.5 s inside ur-rtde). Safe to call twice."""
+        receive, self._receive = self._receive, None
+        if receive is not None:
+            try:
+                _call_with_deadline(receive.disconnect, timeout_s=DISCONNECT_TIMEOUT_S, what="receive-disconnect")
+            except (RuntimeError, DeviceTimeoutError) as error:
+                log.warning("RTDE receive disconnect from %s: %s", self.host, error)
+
+
+def _check_limit(value: float, limit: float, what: str, unit: str, key: str) -> float:
+    value = float(value)
+    if not math.isfinite(value) or value <= 0.0:
+        raise MotionLimitError(f"{what} must be a positive number, got {value!r} {unit}")
+    if value > limit:
+        raise MotionLimitError(f"{what} {value:g} {unit} exceeds the configured limit {limit:g} {unit} "
+                               f"({key}); refusing the move (speeds are never clamped)")
+    return value
+
+
+def validate_limits(limits: MotionLimits) -> MotionLimits:
+    """Raise ConfigError if a limit is not positive or above what ur-rtde can send."""
+    for key, value, ceiling in (("joint_speed_rad_s", limits.joint_speed_rad_s, UR_RTDE_MAX_JOINT_SPEED_RAD_S),
+                                ("joint_acceleration_rad_s2", limits.joint_acceleration_rad_s2,
+                                 UR_RTDE_MAX_JOINT_ACCELERATION_RAD_S2),
+                                ("tool_speed_m_s", limits.tool_speed_m_s, UR_RTDE_MAX_TOOL_SPEED_M_S),
+                                ("tool_acceleration_m_s2", limits.tool_acceleration_m_s2,
+                                 UR_RTDE_MAX_TOOL_ACCELERATION_M_S2)):
+        if not (math.isfinite(value) and 0.0 < value <= ceiling):
+            raise ConfigError(f"motion limit {key} = {value!r}: must be > 0 and ≤ {ceiling:g}")
+    return limits
+
+
+class URRobot:
+    """A UR arm over ur-rtde implementing :class:`drivers.robot.Robot`.
+
+    ``URRobot(host, limits, model=None)`` then :meth:`start` (or ``with URRobot(...) as robot:``). ``model`` is
+    read from the dashboard when None. Every move is checked against ``limits`` (refused, never clamped) and the
+    model's joint limits, sent asynchronously and supervised here: protective stop, emergency stop, program
+    stopped and lost connection raise the matching :mod:`ftacq.errors` type; nothing waits without a deadline.
+    """
+
+    def __init__(self, host: str, limits: MotionLimits, model: str | URModel | None = None,
+                 connect_timeout_s: float = PROBE_TIMEOUT_S, frequency_hz: float | None = None) -> None:
+        self.host = host
+        self.limits = validate_limits(limits)
+        self.connect_timeout_s = connect_timeout_s
+        self._reader = URStateReader(host, frequency_hz, model, connect_timeout_s)
+        self._control = None
+        self._call_lock = threading.Lock()
+        self._stop_event = threading.Event()
+        self._lost: str | None = None
+        self.info: URControllerInfo | None = None
+        self._fk_warned = False
+
+    # ------------------------------------------------------------------ life cycle
+    @property
+    def model(self) -> URModel | None:
+        return self._reader.model
+
+    def start(self) -> "URRobot":
+        """Connect: dashboard (model, version), RTDE receive, RTDE control (uploads ur-rtde's control script)."""
+        import rtde_control
+
+        for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT):
+            probe_port(self.host, port, self.connect_timeout_s)
+        self.info = read_controller_info(self.host, self.connect_timeout_s)
+        if self._reader.model is None:
+            self._reader.model = self.info.model
+        if self._reader.model is None:
+            log.warning("robot %s: unknown model %r; joint limits unchecked, flange pose from the controller only",
+                        self.host, self.info.model_reply)
+        self._reader.start()
+        try:
+            self._control = rtde_control.RTDEControlInterface(self.host)
+        except RuntimeError as error:
+            self._reader.close()
+            raise DeviceConnectionError(
+                f"robot controller {self.host}: cannot start ur-rtde's control program ({error}). Check that the "
+                "robot is powered on, brakes released, in remote control, and no protective stop is active") from error
+        return self
+
+    def __enter__(self) -> "URRobot":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Disconnect the control and receive interfaces (≈0.5 s each inside ur-rtde). Safe to call twice."""
+        control, self._control = self._control, None
+        if control is not None:
+            try:
+                _call_with_deadline(control.disconnect, timeout_s=DISCONNECT_TIMEOUT_S, what="control-disconnect")
+            except (RuntimeError, DeviceTimeoutError) as error:
+                log.warning("RTDE control disconnect from %s: %s", self.host, error)
+        self._reader.close()
+
+    # ------------------------------------------------------------------ guarded calls
+    def _ctrl(self):
+        if self._lost:
+            raise DeviceConnectionError(self._lost)
+        if self._control is None:
+            raise DeviceConnectionError(f"robot controller {self.host}: not connected (call start())")
+        return self._control
+
+    def _call(self, method_name: str, *args, timeout_s: float = CALL_TIMEOUT_S):
+        control = self._ctrl()
+        if not self._call_lock.acquire(timeout=timeout_s):
+            raise DeviceTimeoutError(f"robot controller {self.host}: a previous command is still pending")
+        try:
+            return _call_with_deadline(getattr(control, method_name), *args, timeout_s=timeout_s, what=method_name)
+        except DeviceTimeoutError:
+            self._check_connection()
+            raise
+        finally:
+            self._call_lock.release()
+
+    def _check_connection(self) -> None:
+        try:
+            self._reader.ensure_connected()
+        except DeviceConnectionError as error:
+            self._lost = str(error)
+            raise
+
+    # ------------------------------------------------------------------ state
+    def joint_positions(self) -> np.ndarray:
+        self._check_connection()
+        return self._reader.joint_positions()
+
+    def tcp_pose(self) -> np.ndarray:
+        """``actual_TCP_pose`` as the controller reports it (includes its TCP offset; not used for calibration)."""
+        self._check_connection()
+        return self._reader.tcp_pose()
+
+    def flange_pose(self) -> np.ndarray:
+        """Flange pose in the base frame from ``actual_q``: the controller's calibrated FK with a zero TCP
+        (``getForwardKinematics(q, [0]*6)``), cross-checked against and falling back to the nominal DH model."""
+        q = self.joint_positions()
+        nominal = flange_pose(self.model, q) if self.model is not None else None
+        controller = None
+        status = self._reader.status(steady=True)
+        if status.program_running and not (status.protective_stop or status.emergency_stop):
+            try:
+                reply = self._call("getForwardKinematics", list(q), [0.0] * 6)
+                controller = np.array(reply, dtype=float) if reply is not None and len(reply) == 6 else None
+            except (RuntimeError, DeviceTimeoutError) as error:
+                log.debug("getForwardKinematics failed: %s", error)
+        if controller is not None and np.all(np.isfinite(controller)):
+            if nominal is None or self._close_poses(controller, nominal):
+                return controller
+            if not self._fk_warned:
+                self._fk_warned = True
+                log.warning("robot %s: the controller's forward kinematics disagrees with the %s model by more than "
+                            "%g m / %g deg; using the nominal model (is the model right?)", self.host,
+                            self.model.name, FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG)
+        if nominal is None:
+            raise RobotError(f"robot controller {self.host}: cannot compute the flange pose (unknown robot model and "
+                             "no forward kinematics from the controller); pass model=, e.g. 'UR5e'")
+        return nominal
+
+    @staticmethod
+    def _close_poses(a: np.ndarray, b: np.ndarray) -> bool:
+        from ftacq.so3 import rotation_from_rotvec
+
+        angle = float(angle_between_deg(rotation_from_rotvec(a[3:6]), rotation_from_rotvec(b[3:6])))
+        return float(np.linalg.norm(a[:3] - b[:3])) < FK_CROSS_CHECK_M and angle < FK_CROSS_CHECK_DEG
+
+    def is_steady(self) -> bool:
+        self._check_connection()
+        return bool(np.max(np.abs(self._reader.joint_speeds())) < STEADY_JOINT_SPEED_RAD_S)
+
+    def status(self) -> RobotStatus:
+        return self._reader.status()
+
+    def controller_time_s(self) -> float:
+        return self._reader.controller_time_s()
+
+    def raise_if_faulted(self) -> None:
+        """Raise the typed error for the controller's current state (connection, e-stop, protective stop,
+        safeguard stop, power, program); return quietly when it can take a move."""
+        self._check_connection()
+        status = self._reader.status(steady=True)
+        self._raise_for(status)
+
+    def _raise_for(self, status: RobotStatus) -> None:
+        host = self.host
+        if status.emergency_stop:
+            raise EmergencyStopError(f"robot {host}: {EMERGENCY_STOP_MESSAGE}")
+        if status.protective_stop:
+            raise ProtectiveStopError(f"robot {host}: {PROTECTIVE_STOP_MESSAGE}")
+        bits = int(self._reader._rtde().getSafetyStatusBits())
+        if status.safety_mode not in (SAFETY_NORMAL, SAFETY_REDUCED) or bits & (1 << SAFETY_BIT_SAFEGUARD):
+            name = SAFETY_MODE_NAMES.get(status.safety_mode, str(status.safety_mode))
+            raise RobotError(f"robot {host}: safety mode is {name} (a safeguard device, door or light curtain, or a "
+                             "safety fault). Clear it on the teach pendant, then start again")
+        if status.robot_mode != ROBOT_MODE_RUNNING:
+            name = ROBOT_MODE_NAMES.get(status.robot_mode, str(status.robot_mode))
+            raise RobotError(f"robot {host}: the arm is not running (robot mode {name}). Power it on and release "
+                             "the brakes on the teach pendant, then start again")
+        if not status.program_running:
+            raise ProgramStoppedError(f"robot {host}: {PROGRAM_STOPPED_MESSAGE}")
+
+    # ------------------------------------------------------------------ motion
+    def _check_joint_target(self, joint_target_rad) -> np.ndarray:
+        target = np.asarray(joint_target_rad, dtype=float)
+        if target.shape != (6,) or not np.all(np.isfinite(target)):
+            raise MotionLimitError(f"joint target must be 6 finite angles in rad, got {joint_target_rad!r}")
+        if self.model is not None:
+            low, high = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
+            outside = np.flatnonzero((target < low) | (target > high))
+            if outside.size:
+                j = int(outside[0])
+                raise MotionLimitError(f"joint {j + 1} target {target[j]:.4f} rad is outside the {self.model.name} "
+                                       f"joint limits [{low[j]:.4f}, {high[j]:.4f}] rad; refusing the move")
+        return target
+
+    def move_joints(self, joint_target_rad: np.ndarray, speed_rad_s: float, acceleration_rad_s2: float,
+                    timeout_s: float = 60.0) -> None:
+        """moveJ to ``joint_target_rad`` and wait until the arm is there and steady (see :class:`drivers.robot.Robot`).
+
+        Raises MotionLimitError (before anything moves) for a speed/acceleration above the limits or a target
+        outside the joint limits; ProtectiveStopError, EmergencyStopError, ProgramStoppedError, RobotError,
+        DeviceConnectionError when the controller faults; AbortedError when :meth:`stop` was called;
+        DeviceTimeoutError (after stopping the arm) when the move takes longer than ``timeout_s``.
+        """
+        target = self._check_joint_target(joint_target_rad)
+        speed = _check_limit(speed_rad_s, self.limits.joint_speed_rad_s, "joint speed", "rad/s", "joint_speed_rad_s")
+        acceleration = _check_limit(acceleration_rad_s2, self.limits.joint_acceleration_rad_s2, "joint acceleration",
+                                    "rad/s²", "joint_acceleration_rad_s2")
+        self._move("moveJ", target, speed, acceleration, timeout_s,
+                   arrived=lambda: bool(np.max(np.abs(self._reader.joint_positions() - target))
+                                        < JOINT_TARGET_TOLERANCE_RAD))
+
+    def move_linear(self, tcp_pose_target: np.ndarray, speed_m_s: float, acceleration_m_s2: float,
+                    timeout_s: float = 60.0, position_tolerance_m: float = 1e-4) -> None:
+        """moveL the controller's TCP to ``tcp_pose_target`` [x, y, z, rx, ry, rz] (base frame, the controller's
+        active TCP) and wait; bounded by the tool limits. Errors as :meth:`move_joints`."""
+        target = np.asarray(tcp_pose_target, dtype=float)
+        if target.shape != (6,) or not np.all(np.isfinite(target)):
+            raise MotionLimitError(f"pose target must be 6 finite numbers, got {tcp_pose_target!r}")
+        speed = _check_limit(speed_m_s, self.limits.tool_speed_m_s, "tool speed", "m/s", "tool_speed_m_s")
+        acceleration = _check_limit(acceleration_m_s2, self.limits.tool_acceleration_m_s2, "tool acceleration",
+                                    "m/s²", "tool_acceleration_m_s2")
+        self._move("moveL", target, speed, acceleration, timeout_s,
+                   arrived=lambda: bool(np.linalg.norm(self._reader.tcp_pose()[:3] - target[:3]) < position_tolerance_m))
+
+    def _move(self, method: str, target: np.ndarray, speed: float, acceleration: float, timeout_s: float,
+              arrived) -> None:
+        self.raise_if_faulted()
+        self._stop_event.clear()
+        deadline = time.monotonic() + timeout_s
+        accepted = self._call(method, [float(v) for v in target], speed, acceleration, True)
+        if not accepted:
+            self.raise_if_faulted()
+            raise RobotError(f"robot {self.host}: the controller refused {method} to {np.round(target, 5).tolist()}")
+        idle_since = None
+        while True:
+            if self._stop_event.is_set():
+                raise AbortedError(f"robot {self.host}: the move was stopped before reaching its target")
+            self._check_connection()
+            status = self._reader.status()
+            self._raise_for(status)
+            if status.steady and arrived() and not self._async_running():
+                return
+            now = time.monotonic()
+            if status.steady and not self._async_running():
+                idle_since = idle_since or now
+                if now - idle_since > STALL_GRACE_S:
+                    raise RobotError(f"robot {self.host}: the arm stopped before reaching the {method} target "
+                                     f"{np.round(target, 5).tolist()} (stopped from the pendant or another client?)")
+            else:
+                idle_since = None
+            if now > deadline:
+                self.stop()
+                raise DeviceTimeoutError(f"robot {self.host}: {method} did not reach its target within "
+                                         f"{timeout_s:g} s; the arm was stopped")
+            time.sleep(POLL_INTERVAL_S)
+
+    def _async_running(self) -> bool:
+        try:
+            return bool(self._ctrl().getAsyncOperationProgressEx().isAsyncOperationRunning())
+        except (RuntimeError, AttributeError):
+            return False
+
+    def stop(self) -> None:
+        """Decelerate to a stop (stopJ at the configured joint acceleration). Never raises for a faulted or
+        disconnected controller (it logs instead); interrupts a :meth:`move_joints` waiting in another thread."""
+        self._stop_event.set()
+        if self._control is None or self._lost:
+            return
+        try:
+            status = self._reader.status(steady=True)
+            if status.program_running and status.connected:
+                self._call("stopJ", float(self.limits.joint_acceleration_rad_s2), False,
+                           timeout_s=min(CALL_TIMEOUT_S, 5.0))
+        except (RuntimeError, DeviceConnectionError, DeviceTimeoutError) as error:
+            log.warning("robot %s: stop failed: %s", self.host, error)
+
+    # ------------------------------------------------------------------ recovery
+    def _dashboard(self, *lines_and_checks) -> None:
+        import dashboard_client
+
+        probe_port(self.host, DASHBOARD_PORT, self.connect_timeout_s)
+        client = dashboard_client.DashboardClient(self.host)
+        try:
+            client.connect(int(self.connect_timeout_s * 1000))
+            for method in lines_and_checks:
+                getattr(client, method)()
+        except RuntimeError as error:
+            raise RobotError(f"robot {self.host}: dashboard command failed: {error}") from error
+        finally:
+            try:
+                client.disconnect()
+            except RuntimeError:
+                pass
+
+    def _wait_until(self, predicate, timeout_s: float, what: str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            self._check_connection()
+            if time.monotonic() > deadline:
+                raise DeviceTimeoutError(f"robot {self.host}: {what} did not happen within {timeout_s:g} s")
+            time.sleep(POLL_INTERVAL_S)
+
+    def unlock_protective_stop(self, timeout_s: float = SAFETY_CLEAR_TIMEOUT_S) -> None:
+        """Unlock a protective stop through the dashboard (as the pendant's Unlock button; the controller refuses
+        it during the first 5 s after the stop), then make sure the control program runs again."""
+        self._check_connection()
+        if self._reader.status(steady=True).protective_stop:
+            self._dashboard("closeSafetyPopup", "unlockProtectiveStop")
+            self._wait_until(lambda: not self._reader.status(steady=True).protective_stop, timeout_s,
+                             "unlocking the protective stop")
+        self.restart_control_script()
+
+    def restart_control_script(self, timeout_s: float = SCRIPT_START_TIMEOUT_S) -> None:
+        """(Re)upload ur-rtde's control program if it is not running, and wait until it runs."""
+        self._check_connection()
+        if self._reader.status(steady=True).program_running:
+            return
+        self._call("reuploadScript")
+        self._wait_until(lambda: self._reader.status(steady=True).program_running, timeout_s,
+                         "starting the control program")
+
+
+__all__ = ["URRobot", "URStateReader", "URControllerInfo", "read_controller_info", "model_from_dashboard",
+           "probe_port", "validate_limits", "UR_MODELS"]
