@@ -156,8 +156,9 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
              f"- status: **{result.status}** — {result.message}",
              f"- robot: {config.get('robot', {}).get('model', '?')} ({config.get('robot', {}).get('mount', '?')} "
              f"mount) at {config.get('robot', {}).get('host', '?')}; sensor {config.get('sensor', {}).get('url', '?')}",
-             f"- poses measured: {len(result.measured)} of {len(plan)} planned "
-             f"(+ drift revisit); estimated duration at real time {plan.estimated_duration_s:.0f} s", ""]
+             f"- poses measured: {sum(1 for label in plan.labels if label in result.measured)} of {len(plan)} "
+             f"planned" + (" + the drift-check revisit" if f"{plan.labels[0]}-revisit" in result.measured else "")
+             + f"; estimated duration on a real robot {plan.estimated_duration_s:.0f} s", ""]
     if result.warnings:
         lines += ["## Warnings", ""] + [f"- {w}" for w in result.warnings] + [""]
     order = [label for label in list(plan.labels) + [f"{plan.labels[0]}-revisit"] if label in result.measured]

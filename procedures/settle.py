@@ -100,15 +100,19 @@ def wait_until_settled(robot: Robot, sensor: ForceTorqueSensor, settings: Settle
     while True:
         if should_stop():
             raise StopRequested("stop requested while settling")
-        batch = sensor.read(timeout_s=min(settings.sensor_timeout_s, READ_TIMEOUT_CAP_S))  # raises on silence
+        try:
+            batch = sensor.read(timeout_s=min(settings.sensor_timeout_s, READ_TIMEOUT_CAP_S))
+        except DeviceTimeoutError:
+            batch = None  # silence shorter than sensor_timeout_s is tolerated (checked below)
         now = clock_s()
-        if len(batch):
+        if batch is not None and len(batch):
             last_sample = now
             good = ~batch.saturated
             times.append(batch.time_s[good])
             wrenches.append(batch.wrench[good])
         elif now - last_sample > settings.sensor_timeout_s:
-            raise DeviceTimeoutError(f"the sensor sent no sample for {settings.sensor_timeout_s:g} s while settling")
+            raise DeviceTimeoutError(f"the sensor went silent: no sample for {settings.sensor_timeout_s:g} s "
+                                     "while settling")
         if robot.is_steady():
             steady_since = now if steady_since is None else steady_since
         else:

@@ -34,9 +34,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "then identify and validate the calibration. Writes RUN_DIR/poses.csv (one row per pose, "
                     "as measured), run.json, calibration.json and report.md. Ctrl-C stops the robot and keeps "
                     "the data; resume with --resume RUN_DIR.")
-    source = parser.add_mutually_exclusive_group()
-    source.add_argument("--config", type=Path, metavar="CELL.toml", help="cell configuration (ftacq config init)")
-    source.add_argument("--sim", action="store_true",
+    parser.add_argument("--config", type=Path, metavar="CELL.toml",
+                        help="cell configuration (ftacq config init); with --sim, its poses, sampling and robot "
+                             "model are simulated (robot.host and sensor.url are replaced by the simulated cell's)")
+    parser.add_argument("--sim", action="store_true",
                         help="start the simulated cell (UR controller + Net F/T or CAN sensor on loopback) and "
                              "calibrate it end to end; prints the identified parameters beside the true ones")
     parser.add_argument("--dry-run", action="store_true", help="print the checked plan and stop; move nothing")
@@ -51,9 +52,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--time-scale", type=float, default=None, metavar="X",
                      help=f"simulated time runs X times faster than real time (0 = instant moves; default "
                           f"{DEFAULT_SIM_TIME_SCALE:g}); settle and averaging times shrink by the same factor")
-    sim.add_argument("--model", default="UR5e", help="simulated UR model (default %(default)s)")
+    sim.add_argument("--model", default="UR5e", help="simulated UR model without --config (default %(default)s)")
     sim.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor",
-                     help="simulated mount (default %(default)s)")
+                     help="simulated mount without --config (default %(default)s)")
     viewer = parser.add_argument_group("live view")
     viewer.add_argument("--rerun", action="store_true",
                         help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
@@ -150,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         if sim_info and not args.sim:
             raise InputError(f"{args.resume}: this run was made with --sim; resume it with --sim --resume {args.resume}")
     elif args.sim:
-        config = _sim_config(args)
+        config = load_config(args.config) if args.config else _sim_config(args)
         plan = None
     else:
         config = load_config(args.config)

@@ -1,0 +1,136 @@
+"""The run folder: run.json, poses.csv appended one fsync'd row at a time, reopened for --resume."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ftacq.config import CellConfig
+from ftacq.errors import InputError
+from ftacq.posefile import POSE_CSV_HEADER, read_pose_csv
+from procedures import events
+from procedures.calibration import Identify, Measure, Move, Validate, calibration_steps, count_measurements
+from procedures.plan import Plan, PlanSettings
+from procedures.run_folder import RUN_JSON, RunFolder, RunFolderWriter, drift_label
+
+LABELS = ("A01", "E01", "V01", "E02")
+SETS = ("A", "E", "V", "E")
+
+
+def small_plan() -> Plan:
+    poses = np.array([[0.3 + 0.01 * i, -0.2, 0.4, np.pi, 0.1 * i, 0.0] for i in range(4)])
+    return Plan(poses=poses, joint_targets_rad=np.arange(24.0).reshape(4, 6) * 0.01, labels=LABELS, set_names=SETS,
+                rejected=(("E03", "unreachable"),), estimated_duration_s=12.5, joint_travel_rad=3.0,
+                listing_travel_rad=5.0, settings=PlanSettings(random_count=2, validation_count=1),
+                center_m=(0.3, -0.2, 0.4), branch="shoulder -, elbow +, wrist -", start_q_rad=(0.0,) * 6)
+
+
+def measured_event(i: int, label: str | None = None, set_name: str | None = None) -> events.PoseMeasured:
+    return events.PoseMeasured(
+        index=i, label=label or LABELS[i], set_name=set_name or SETS[i], pose=small_plan().poses[i],
+        joint_positions_rad=np.full(6, 0.1 * i), mean=np.array([1.0, -2.0, 3.0, 0.1, -0.2, 0.3]) * (i + 1) + 1e-13,
+        std=np.array([0.05, 0.05, 0.08, 0.002, 0.002, 0.0015]), count=500 + i, saturated=i, lost=2 * i,
+        t_start_s=1.7e9 + i, t_end_s=1.7e9 + i + 0.5)
+
+
+def test_create_writes_run_json_and_a_header_only_pose_record(tmp_path):
+    plan = small_plan()
+    folder = RunFolder.create(tmp_path, CellConfig().to_dict(), plan.to_json(), name="run1")
+    document = json.loads((tmp_path / "run1" / RUN_JSON).read_text())
+    assert document["format"] == "ftacq-run" and document["status"] == "planned"
+    assert document["software_version"]
+    assert document["labels"] == list(LABELS) and document["set_names"] == list(SETS)
+    assert document["config"]["robot"]["model"] == "UR5e"
+    assert Plan.from_json(folder.plan_json).labels == LABELS
+    assert (tmp_path / "run1" / "poses.csv").read_text() == POSE_CSV_HEADER
+    assert folder.measured() == {}
+    with pytest.raises(InputError, match="already exists"):
+        RunFolder.create(tmp_path, {}, plan.to_json(), name="run1")
+    second = RunFolder.create(tmp_path, {}, plan.to_json())  # default names are made unique
+    third = RunFolder.create(tmp_path, {}, plan.to_json())
+    assert second.path != third.path
+
+
+def test_rows_are_appended_at_once_and_read_back_exactly(tmp_path):
+    folder = RunFolder.create(tmp_path, CellConfig().to_dict(), small_plan().to_json(), name="r")
+    writer = RunFolderWriter(folder)
+    writer(events.StateChanged("moving", 0))
+    writer(measured_event(0))
+    # the row is on disk before the next event: another reader sees it now
+    record = read_pose_csv(tmp_path / "r" / "poses.csv")
+    assert record.labels == ("A01",) and record.sets == ("A",)
+    np.testing.assert_array_equal(record.wrench[0], measured_event(0).mean)  # full float64 precision
+    writer(measured_event(1))
+    writer(measured_event(2))
+    measured = RunFolder.open(tmp_path / "r").measured()
+    assert list(measured) == ["A01", "E01", "V01"]
+    assert measured["V01"].count == 502 and measured["V01"].set_name == "V"
+    np.testing.assert_array_equal(measured["E01"].pose, small_plan().poses[1])
+    np.testing.assert_array_equal(measured["E01"].std, measured_event(1).std)
+    assert measured["E01"].t_end_s == pytest.approx(1.7e9 + 1.5)
+    record = folder.read_record()
+    np.testing.assert_array_equal(record.extra["q0"], [0.0, 0.1, 0.2])
+    np.testing.assert_array_equal(record.extra["lost"], [0, 2, 4])
+    assert json.loads((tmp_path / "r" / RUN_JSON).read_text())["status"] == "running"
+
+
+def test_status_and_results_go_to_run_json(tmp_path):
+    folder = RunFolder.create(tmp_path, {}, small_plan().to_json(), name="r")
+    writer = RunFolderWriter(folder)
+    writer(events.DriftChecked("A01", np.array([0.1, 0, 0, 0, 0, 0.001]), 42.0, "too much"))
+    writer(events.Validated(("V01",), np.zeros((1, 6)), np.arange(6.0), np.ones(6)))
+    writer(events.StateChanged("failed", 2, "ProtectiveStopError at pose 3/4"))
+    document = json.loads((tmp_path / "r" / RUN_JSON).read_text())
+    assert document["status"] == "failed" and "ProtectiveStopError" in document["message"]
+    assert [h["status"] for h in document["history"]] == ["planned", "failed"]
+    assert document["drift_check"]["elapsed_s"] == 42.0 and document["drift_check"]["warning"] == "too much"
+    assert document["validation"]["max_abs"] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert RunFolder.open(tmp_path / "r").status == "failed"
+
+
+def test_a_torn_last_line_is_dropped_on_resume(tmp_path):
+    folder = RunFolder.create(tmp_path, {}, small_plan().to_json(), name="r")
+    folder.append_pose(measured_event(0))
+    folder.append_pose(measured_event(1))
+    csv_path = tmp_path / "r" / "poses.csv"
+    text = csv_path.read_text()
+    csv_path.write_text(text + "V01,V,0.31,-0.2,0.4,3.1")  # the process died in the middle of a row
+    reopened = RunFolder.open(tmp_path / "r")
+    assert list(reopened.measured()) == ["A01", "E01"]
+    assert csv_path.read_text() == text
+    reopened.append_pose(measured_event(2))
+    assert list(RunFolder.open(tmp_path / "r").measured()) == ["A01", "E01", "V01"]
+
+
+def test_open_refuses_what_is_not_a_run_folder(tmp_path):
+    with pytest.raises(InputError, match="no such folder"):
+        RunFolder.open(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="run.json: missing"):
+        RunFolder.open(tmp_path / "empty")
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / RUN_JSON).write_text("{not json")
+    with pytest.raises(InputError, match="cannot read"):
+        RunFolder.open(tmp_path / "bad")
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / RUN_JSON).write_text(json.dumps({"format": "something-else"}))
+    with pytest.raises(InputError, match="not an ftacq run file"):
+        RunFolder.open(tmp_path / "other")
+
+
+def test_steps_skip_measured_poses_and_end_with_the_drift_revisit():
+    plan = small_plan()
+    steps = list(calibration_steps(plan))
+    kinds = [type(s).__name__ for s in steps]
+    assert kinds == ["Move", "Measure"] * 5 + ["Identify", "Validate"]
+    assert [s.label for s in steps if isinstance(s, Measure)] == [*LABELS, drift_label("A01")]
+    assert steps[-4].purpose == "drift" and steps[-3].set_name == "D"
+    np.testing.assert_array_equal(steps[-4].joint_target_rad, plan.joint_targets_rad[0])
+    resumed = list(calibration_steps(plan, measured={"A01", "E01"}))
+    assert [s.label for s in resumed if isinstance(s, Move)] == ["V01", "E02", "A01"]
+    assert isinstance(resumed[-2], Identify) and isinstance(resumed[-1], Validate)
+    assert count_measurements(plan, {"A01", "E01"}) == 3
+    assert count_measurements(plan, {*LABELS, drift_label("A01")}) == 0
+    assert count_measurements(plan, (), drift_check=False) == 4
