@@ -118,3 +118,17 @@ def test_uncertainty_keys_cover_every_parameter():
     keys = set(result.calibration.uncertainty)
     assert {"sensor_rotation_rad", "force_bias", "torque_bias", "gravity_base", "mass_kg", "center_of_mass_m", "base_tilt_deg"} <= keys
     assert set(PARAMETER_SLICES) <= keys | {"center_of_mass_m"}
+
+
+def test_a_pose_with_zero_std_does_not_dominate():
+    from ftacq.posefile import PoseRecord
+
+    truth = CellTruth()
+    record = simulate_record(truth, np.concatenate([special_orientations(0.2, 1), cone_orientations(12, 40.0, 2)]), seed=6)
+    std = record.std.copy()
+    std[5] = 0.0  # e.g. a single sample, or a stuck channel
+    record = PoseRecord(pose=record.pose, wrench=record.wrench, std=std, count=record.count, labels=record.labels)
+    result = identify(record)
+    error = np.abs(parameter_vector(result.calibration) - parameter_vector(truth.calibration()))
+    assert np.all(error <= 5 * sigma_vector(result.calibration))
+    assert result.outliers == ()

@@ -51,6 +51,8 @@ INNER_ITERATIONS = 4
 """Outer iterations of the re-weighted refinement (weights and noise scales updated each time)."""
 ROBUST_WEIGHT_TOLERANCE = 1e-4
 """The re-weighted loop stops when no pose weight changes more than this (and the parameters are still)."""
+MIN_RELATIVE_STANDARD_ERROR = 1e-3
+"""A pose's std/√count below this fraction of the channel's median is replaced by the median."""
 NOISE_SCALE_TOLERANCE = 1e-3
 """... and no noise scale σ changes by more than this fraction ..."""
 PARAMETER_CHANGE_SIGMAS = 1e-4
@@ -231,6 +233,13 @@ def identify(
     standard_error = record.standard_error
     if record.std is not None and record.count is None:
         warnings.append("std_* columns without a count column: noise estimated from the residuals instead")
+    if standard_error is not None:
+        typical = np.median(standard_error, axis=0)
+        if np.any(typical <= 0.0):
+            warnings.append("std_* columns are zero for a whole channel: noise estimated from the residuals instead")
+            standard_error = None
+        else:  # a zero or implausibly small std (one sample, a stuck channel) must not dominate the fit
+            standard_error = np.where(standard_error < MIN_RELATIVE_STANDARD_ERROR * typical, typical, standard_error)
     dof_ratio = max((6.0 * n - 15.0) / (6.0 * n), 1e-3)
     floor = robust.noise_floor(wrench)
 
@@ -288,6 +297,11 @@ def identify(
             if weight_change <= ROBUST_WEIGHT_TOLERANCE and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok and result.converged:
                 converged = True
                 break
+
+    else:  # noise scale of the closed form itself, for its uncertainty
+        inlier = robust.pose_statistic(residual, sigma) <= robust.outlier_threshold(n)
+        sigma, tau = robust.channel_noise(residual, standard_error, inlier.astype(float), dof_ratio, floor, "mean")
+        pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
 
     # --- uncertainty, diagnostics, warnings (step 5) ---
     residual = wrench - predict(params, rotations)
