@@ -122,6 +122,9 @@ DEFAULT_REPLY_TIMEOUT_S = 0.1
 """Time a request waits for its reply frames, seconds (monotonic), as the SocketCAN C++ driver."""
 STARTUP_ATTEMPTS = 3
 """Tries per start-up request before the board is declared unreachable."""
+DEFAULT_STARTUP_TIMEOUT_S = 0.5
+"""Time each start-up request try waits for its reply, seconds (longer than a poll's: a loaded host may be slow
+to schedule, and start-up happens once)."""
 DEFAULT_BIAS_SAMPLES = 32
 DEFAULT_BIAS_TIMEOUT_S = 2.0
 AVERAGE_GRACE_S = 1.0
@@ -190,7 +193,8 @@ class AtiCanSensor:
         base: the board's 7-bit base ID (0x20 by default: IDs 0x200–0x20F).
         rate_hz: gage poll rate in Hz; None polls as fast as the bus answers.
         calibration_index: the calibration slot (0–15) to select at start.
-        reply_timeout_s: seconds a request waits for its reply.
+        reply_timeout_s: seconds a gage poll waits for its reply frames.
+        startup_timeout_s: seconds each try of a start-up request waits for its reply (3 tries).
         assume_unit_codes: (force, torque) unit codes for firmware older than 3.7, which cannot report them.
         bus_options: extra keyword arguments for ``can.Bus`` when the driver opens the bus (e.g. slcan's
             ``sleep_after_open`` in s, pcan's ``device_id``).
@@ -210,6 +214,7 @@ class AtiCanSensor:
         rate_hz: float | None = DEFAULT_RATE_HZ,
         calibration_index: int = 0,
         reply_timeout_s: float = DEFAULT_REPLY_TIMEOUT_S,
+        startup_timeout_s: float = DEFAULT_STARTUP_TIMEOUT_S,
         assume_unit_codes: tuple[int, int] = (2, 3),
         bus_options: dict | None = None,
     ) -> None:
@@ -219,6 +224,7 @@ class AtiCanSensor:
         if rate_hz is not None:
             _check_range("rate_hz", rate_hz, 1e-3, MAX_RATE_HZ)
         _check_range("reply_timeout_s", reply_timeout_s, 1e-4, 60.0)
+        _check_range("startup_timeout_s", startup_timeout_s, 1e-4, 60.0)
         if assume_unit_codes[0] not in FORCE_UNITS or assume_unit_codes[1] not in TORQUE_UNITS:
             raise InputError(f"assume_unit_codes {assume_unit_codes!r}: force code must be one of "
                              f"{sorted(FORCE_UNITS)}, torque code one of {sorted(TORQUE_UNITS)}")
@@ -233,6 +239,7 @@ class AtiCanSensor:
         self.rate_hz = rate_hz
         self.calibration_index = calibration_index
         self.reply_timeout_s = reply_timeout_s
+        self.startup_timeout_s = startup_timeout_s
         self.assume_unit_codes = assume_unit_codes
         self.bus_options = dict(bus_options or {})
         self.calibration: CanCalibration | None = None
@@ -547,13 +554,13 @@ class AtiCanSensor:
             except can.CanError as error:
                 raise DeviceConnectionError(
                     f"cannot send the {what} request on CAN {self.interface!r} {self.channel!r}: {error}") from error
-            replies = self._collect(reply_ops, time.monotonic() + self.reply_timeout_s, tally)
+            replies = self._collect(reply_ops, time.monotonic() + self.startup_timeout_s, tally)
             self._merge(tally)
             if len(replies) == len(reply_ops):
                 return replies
         raise DeviceTimeoutError(
             f"ATI CAN board at base {self.base:#04x} on {self.interface} channel {self.channel!r} did not answer "
-            f"the {what} request (ID {self.base << 4 | opcode:#05x}) within {self.reply_timeout_s} s, "
+            f"the {what} request (ID {self.base << 4 | opcode:#05x}) within {self.startup_timeout_s} s, "
             f"{STARTUP_ATTEMPTS} tries: check power, wiring and termination, the bit rate ({self.bitrate} bit/s) "
             f"and the base ID")
 

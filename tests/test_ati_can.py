@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
+import os
 import struct
 import time
 import uuid
@@ -36,6 +37,8 @@ from tests.fakes.world import CellTruth, SensorPhysics, SettablePose, SharedPose
 WAIT_TIMEOUT_S = 10.0
 """Deadline of every condition a test waits for, seconds (generous: CI machines are loaded)."""
 POLL_RATE_HZ = 1000.0
+POLL_TIMEOUT_S = 1.0
+"""Reply timeout of the shared fixture's polls: long, so a loaded CI machine causes no spurious timeouts."""
 FRESH_SAMPLES = 20
 
 NOISELESS = CellTruth(force_noise_n=(0.0, 0.0, 0.0), torque_noise_nm=(0.0, 0.0, 0.0))
@@ -103,7 +106,7 @@ def fake(channel, physics):
 
 @pytest.fixture
 def sensor(channel, fake):
-    driver = AtiCanSensor.from_url(f"can://virtual/{channel}?rate_hz={POLL_RATE_HZ}")
+    driver = AtiCanSensor.from_url(f"can://virtual/{channel}?rate_hz={POLL_RATE_HZ}&timeout_s={POLL_TIMEOUT_S}")
     driver.start()
     yield driver
     driver.close()
@@ -311,18 +314,20 @@ def test_average_reports_mean_std_and_count(channel, pose):
 # ---------------------------------------------------------------------------- faults
 
 
-def test_board_silent_mid_stream_is_counted_and_loop_recovers(sensor, fake):
-    fresh_samples(sensor)
-    fake.silent = True
-    wait_until(lambda: sensor.health().timeouts >= 3, "unanswered polls to be counted")
-    with pytest.raises(DeviceTimeoutError, match="no sample"):
-        while True:  # drain what arrived before the board went silent, then time out
-            sensor.read(timeout_s=0.3)
-    fake.silent = False
-    batch = fresh_samples(sensor)
-    assert len(batch) == FRESH_SAMPLES
-    health = sensor.health()
-    assert health.timeouts >= 3 and health.received > FRESH_SAMPLES
+def test_board_silent_mid_stream_is_counted_and_loop_recovers(channel, fake):
+    with AtiCanSensor.from_url(f"can://virtual/{channel}?rate_hz={POLL_RATE_HZ}&timeout_s=0.05") as sensor:
+        fresh_samples(sensor)
+        fake.silent = True
+        wait_until(lambda: sensor.health().timeouts >= 3, "unanswered polls to be counted")
+        with pytest.raises(DeviceTimeoutError, match="no sample"):
+            while True:  # drain what arrived before the board went silent, then time out
+                sensor.read(timeout_s=0.3)
+        fake.silent = False
+        batch = fresh_samples(sensor)
+        assert len(batch) >= FRESH_SAMPLES
+        health = sensor.health()
+        assert health.timeouts >= 3 and health.received > FRESH_SAMPLES
+        assert sensor._thread.is_alive()
 
 
 def test_missing_second_frame_counts_lost(sensor, fake):
@@ -330,7 +335,7 @@ def test_missing_second_frame_counts_lost(sensor, fake):
     fake.drop_reply_frames(1, opcode=0x1)
     wait_until(lambda: sensor.health().lost == 1, "a partial reply to be counted as lost")
     batch = fresh_samples(sensor)
-    assert len(batch) == FRESH_SAMPLES and sensor.health().lost == 1
+    assert len(batch) >= FRESH_SAMPLES and sensor.health().lost == 1
 
 
 def test_foreign_and_malformed_frames_are_counted_and_ignored(fake, channel, physics):
@@ -362,7 +367,7 @@ def test_own_bus_filters_other_ids_and_counts_malformed(sensor, fake, channel, p
 
 
 def test_board_that_does_not_answer_times_out_with_a_clear_message(channel):
-    sensor = AtiCanSensor.from_url(f"can://virtual/{channel}?timeout_s=0.02")
+    sensor = AtiCanSensor.from_url(f"can://virtual/{channel}", startup_timeout_s=0.02)
     with pytest.raises(DeviceTimeoutError, match=r"base 0x20 on virtual channel .* did not answer the firmware"):
         sensor.start()
     sensor.close()
@@ -371,7 +376,7 @@ def test_board_that_does_not_answer_times_out_with_a_clear_message(channel):
 def test_wrong_base_times_out(channel, physics):
     with make_fake(channel, physics, base=0x21):
         with pytest.raises(DeviceTimeoutError, match="base 0x20"):
-            AtiCanSensor.from_url(f"can://virtual/{channel}?timeout_s=0.02").start()
+            AtiCanSensor.from_url(f"can://virtual/{channel}", startup_timeout_s=0.02).start()
         with AtiCanSensor.from_url(f"can://virtual/{channel}?base=0x21") as sensor:
             assert sensor.info.serial == "FT23456"
 
@@ -428,7 +433,7 @@ def test_takes_a_bus_handed_in_and_leaves_it_open(channel, physics):
         with make_fake(channel, physics):
             sensor = AtiCanSensor(bus, rate_hz=POLL_RATE_HZ)
             with sensor:
-                assert len(fresh_samples(sensor)) == FRESH_SAMPLES
+                assert len(fresh_samples(sensor)) >= FRESH_SAMPLES
         bus.send(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False))  # still usable
     finally:
         bus.shutdown()
@@ -540,9 +545,34 @@ def test_driver_over_slcan_through_pyserial(channel, fake, physics):
 
 def test_slcan_at_the_wrong_bit_rate_times_out(channel, fake):
     with FakeSlcanAdapter(channel, bus_bitrate=250_000) as adapter:
-        sensor = AtiCanSensor.from_url(f"can://slcan/{adapter.port}?bitrate=500000&timeout_s=0.05",
-                                       bus_options={"sleep_after_open": 0.0})
+        sensor = AtiCanSensor.from_url(f"can://slcan/{adapter.port}?bitrate=500000",
+                                       bus_options={"sleep_after_open": 0.0}, startup_timeout_s=0.05)
         with pytest.raises(DeviceTimeoutError, match=r"bit rate \(500000 bit/s\)"):
             sensor.start()
         assert adapter.commands[:3] == ["C", "S6", "O"]
     assert not fake.requests()  # nothing reached the board
+
+
+class _BrokenPhysics:
+    """A wrench source that fails, to show the fake's thread error surfaces at close."""
+
+    def sample(self, n: int) -> np.ndarray:
+        raise ValueError("simulated physics failure")
+
+
+def test_fake_thread_error_is_reraised_at_close_and_driver_keeps_polling(channel):
+    board = make_fake(channel, _BrokenPhysics())
+    with AtiCanSensor.from_url(f"can://virtual/{channel}?timeout_s=0.02&rate_hz={POLL_RATE_HZ}") as sensor:
+        wait_until(lambda: sensor.health().timeouts >= 2, "polls of a dead board to time out")
+        assert sensor._thread.is_alive()
+    with pytest.raises(RuntimeError, match="simulated physics failure"):
+        board.close()
+
+
+@pytest.mark.skipif(not os.environ.get("FTACQ_CAN_SENSOR_URL"), reason="set FTACQ_CAN_SENSOR_URL to test a real board")
+def test_real_board():
+    """Opt-in hardware check (reads only; the bias is host-side, nothing is written to the board)."""
+    with open_sensor(os.environ["FTACQ_CAN_SENSOR_URL"]) as sensor:
+        assert sensor.info.serial and sensor.info.counts_per_force > 0
+        average = sensor.average(1.0)
+        assert average.count > 0 and np.all(np.isfinite(average.mean))
