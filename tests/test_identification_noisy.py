@@ -6,7 +6,13 @@ import pytest
 from ftacq.errors import IdentificationError
 from ftacq.identification import identify
 from ftacq.identification.refine import PARAMETER_SLICES
-from tests.fakes.pose_records import cone_orientations, random_orientations, simulate_record, special_orientations
+from tests.fakes.pose_records import (
+    cone_orientations,
+    gravity_down_base_R_flange,
+    random_orientations,
+    simulate_record,
+    special_orientations,
+)
 from tests.fakes.world import CellTruth
 
 VALIDATION = random_orientations(150, seed=999)
@@ -105,7 +111,8 @@ def test_no_tool_weight_is_refused():
 
 def test_heavy_tool_on_a_wall_in_a_limited_cone():
     truth = CellTruth(mass_kg=8.0, center_of_mass_m=(0.02, -0.01, 0.12)).with_mount("wall")
-    record = simulate_record(truth, cone_orientations(36, 35.0, seed=9), seed=3)
+    hanging = gravity_down_base_R_flange(truth.gravity_base)
+    record = simulate_record(truth, cone_orientations(36, 35.0, seed=9, axis_base_R_flange=hanging), seed=3)
     result = identify(record, mount="wall")
     error = np.abs(parameter_vector(result.calibration) - parameter_vector(truth.calibration()))
     assert np.all(error <= 5 * sigma_vector(result.calibration))

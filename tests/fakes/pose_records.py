@@ -63,6 +63,17 @@ def cone_orientations(count: int, half_angle_deg: float = 40.0, seed: int = 0, a
     return np.swapaxes(base_R_flange, -1, -2)
 
 
+def gravity_down_base_R_flange(gravity_base: np.ndarray) -> np.ndarray:
+    """Return a base_R_flange whose flange z axis points along gravity (the tool hanging down on any mount),
+    to use as the cone axis of :func:`cone_orientations` for wall, ceiling and tilted mounts."""
+    z = np.asarray(gravity_base, dtype=float) / np.linalg.norm(gravity_base)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    if np.linalg.norm(x) < 1e-6:
+        x = np.cross([1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
 def random_orientations(count: int, seed: int = 0) -> np.ndarray:
     """Return ``count`` uniformly random ``flange_R_base`` (count, 3, 3) (random unit quaternions)."""
     rng = np.random.default_rng(seed)
