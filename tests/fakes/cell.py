@@ -140,4 +140,72 @@ class SimulatedCell:
         return replace(self.truth, **changes)
 
 
-__all__ = ["SimulatedCell", "SENSORS"]
+__all__ = ["SimulatedCell", "SENSORS", "fast_config", "run_calibration", "motion_problems"]
+
+
+def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: int = 4, **sampling):
+    """Return a :class:`ftacq.config.CellConfig` for ``cell`` with a small pose set and short sampling windows
+    (tests: A 24 + E ``random_count`` + V ``validation_count`` poses, 0.05 s averaging, no settle delay)."""
+    from ftacq.config import config_from_dict
+
+    values = {"settle_time_s": 0.0, "settle_window_s": 0.02, "average_time_s": 0.05, "settle_timeout_s": 5.0,
+              "sensor_timeout_s": 1.0}
+    values.update(sampling)
+    return config_from_dict({
+        "robot": {"host": cell.robot_host, "model": cell.model_name, "mount": cell.mount, "move_timeout_s": 30.0},
+        "sensor": {"url": cell.sensor_url},
+        "poses": {"random_count": random_count, "validation_count": validation_count},
+        "sampling": values,
+    }, "<tests>")
+
+
+def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, plan=None):
+    """Plan from the controller's current configuration and run the procedure in this process with the real
+    UR and sensor drivers; return (plan, result). Listeners receive every event (add a RunFolderWriter to keep
+    the data)."""
+    from drivers.robot import MotionLimits
+    from drivers.sensor import open_sensor
+    from drivers.ur import URRobot
+    from procedures.calibration import CalibrationProcedure, ProcedureOptions
+    from procedures.plan import make_plan
+
+    settings = config.plan_settings()
+    limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
+                          joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
+    with contextlib.ExitStack() as stack:
+        robot = URRobot(config.robot.host, limits, model=settings.model)
+        stack.callback(robot.close)
+        robot.start()
+        sensor = open_sensor(config.sensor.url)
+        stack.callback(sensor.close)
+        sensor.start()
+        if plan is None:
+            plan = make_plan(settings, robot.joint_positions())
+        procedure = CalibrationProcedure(plan, robot, sensor, ProcedureOptions.from_config(config), listeners,
+                                         measured)
+        return plan, procedure.run()
+
+
+def motion_problems(commands: list[dict], plan, limits) -> list[str]:
+    """Return every recorded motion command that is not a moveJ to a plan target within the limits (stops are
+    allowed: they only decelerate)."""
+    targets = np.asarray(plan.joint_targets_rad)
+    problems = []
+    for command in commands:
+        kind = command["kind"]
+        if kind in ("stopj", "stopl"):
+            if command["acceleration"] > limits.joint_acceleration_rad_s2 * 1.000001 and kind == "stopj":
+                problems.append(f"command {command['index']}: stopj deceleration {command['acceleration']} above limit")
+            continue
+        if kind != "movej":
+            problems.append(f"command {command['index']}: {kind} is not part of a calibration plan")
+            continue
+        target = np.asarray(command["target"], dtype=float)
+        if not np.any(np.all(np.abs(targets - target) < 1e-9, axis=1)):
+            problems.append(f"command {command['index']}: moveJ target {target.round(5).tolist()} is not in the plan")
+        if command["speed"] > limits.joint_speed_rad_s * 1.000001:
+            problems.append(f"command {command['index']}: speed {command['speed']} above {limits.joint_speed_rad_s}")
+        if command["acceleration"] > limits.joint_acceleration_rad_s2 * 1.000001:
+            problems.append(f"command {command['index']}: acceleration {command['acceleration']} above "
+                            f"{limits.joint_acceleration_rad_s2}")
+    return problems
