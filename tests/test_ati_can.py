@@ -576,3 +576,15 @@ def test_real_board():
         assert sensor.info.serial and sensor.info.counts_per_force > 0
         average = sensor.average(1.0)
         assert average.count > 0 and np.all(np.isfinite(average.mean))
+
+
+def test_open_sensor_routes_a_virtual_can_url_to_the_fake(channel, fake, physics):
+    """The path ``ftacq sensor info can://virtual/<channel>`` takes: drivers.sensor.open_sensor → AtiCanSensor."""
+    sensor = open_sensor(f"can://virtual/{channel}?base=0x20&bitrate=250000&rate_hz={POLL_RATE_HZ}")
+    assert isinstance(sensor, AtiCanSensor)
+    with sensor:
+        assert (sensor.info.transport, sensor.info.serial, sensor.info.firmware) == ("can", "FT23456", "3.8.0")
+        assert (sensor.info.force_unit, sensor.info.torque_unit) == ("N", "N-mm")
+        assert (sensor.info.counts_per_force, sensor.info.counts_per_torque, sensor.info.rate_hz) == (
+            816_326, 1_234, POLL_RATE_HZ)
+        assert_within_one_count(fresh_samples(sensor), physics.noiseless_wrench(POSES[0]), fake.active_calibration)
