@@ -133,6 +133,8 @@ MAX_PENDING_SAMPLES = 1_000_000
 """Samples kept for ``read`` if nobody reads (oldest dropped beyond this; ~33 min at 500 Hz)."""
 RATE_WINDOW_S = 1.0
 """Window of the measured poll rate in ``SensorHealth.rate_hz``, seconds."""
+MAX_CATCH_UP_POLLS = 5
+"""A poll loop late by up to this many periods (scheduling jitter) catches up; later than that it skips."""
 ERROR_BACKOFF_S = 0.05
 """Pause after a bus error (send failed, bus closed) before the next poll, seconds."""
 CLOSE_JOIN_TIMEOUT_S = 2.0
@@ -634,8 +636,8 @@ class AtiCanSensor:
                         break
                     next_poll += period_s
                     now = time.monotonic()
-                    if next_poll < now - period_s:
-                        next_poll = now  # fell behind (silent board, slow bus): do not burst to catch up
+                    if next_poll < now - MAX_CATCH_UP_POLLS * period_s:
+                        next_poll = now  # far behind (silent board, slow bus): do not burst to catch up
                 try:
                     if self._poll_once():
                         rate_count += 1
