@@ -1,0 +1,204 @@
+"""``ftacq sensor``: look at, record and bias an ATI F/T sensor named by URL (any transport).
+
+- ``ftacq sensor info URL [--seconds S]``: serial, firmware, units, counts per unit, configured and measured rate,
+  status and the mean wrench over a short window.
+- ``ftacq sensor record URL --seconds S -o FILE.csv``: one CSV row per sample (``t,fx,fy,fz,tx,ty,tz,status``
+  then ``saturated,seq`` and raw ``count_*`` columns) in s, N and N·m; written atomically; Ctrl-C keeps what was
+  recorded; prints a summary with the stream's health counters.
+- ``ftacq sensor bias URL``: tare the sensor and print the residual mean.
+
+Sensors come from :func:`drivers.sensor.open_sensor` (``netft://…`` or ``can://…``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from ftacq.errors import DeviceError, InputError
+
+INFO_WINDOW_S = 0.5
+"""Default window over which ``info`` measures the rate, status and mean wrench, seconds."""
+BIAS_CHECK_WINDOW_S = 0.2
+"""Window averaged after a bias to show the residual, seconds."""
+READ_TIMEOUT_S = 1.0
+"""Longest single wait for samples while recording (the driver reconnects meanwhile), seconds."""
+CSV_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "status", "saturated", "seq",
+               "count_fx", "count_fy", "count_fz", "count_tx", "count_ty", "count_tz")
+CSV_FORMATS = ["%.6f"] + ["%.9g"] * 6 + ["%d"] * 9
+HEALTH_FIELDS = ("received", "lost", "duplicate", "out_of_order", "malformed", "foreign", "stalled", "saturated",
+                 "status_errors", "timeouts", "restarts", "reconnects")
+
+
+def register(subparsers) -> None:
+    """Add ``ftacq sensor {info,record,bias}``."""
+    parser = subparsers.add_parser("sensor", help="inspect, record or bias an ATI F/T sensor",
+                                   description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="sensor_command", metavar="ACTION")
+    url_help = ("sensor URL: netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R] or "
+                "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]")
+
+    info = commands.add_parser("info", help="serial, units, counts per unit, rate, status")
+    info.add_argument("url", help=url_help)
+    info.add_argument("--seconds", type=float, default=INFO_WINDOW_S, metavar="S",
+                      help="measure rate and mean wrench over S seconds (default %(default)s)")
+    info.set_defaults(func=run_info)
+
+    record = commands.add_parser("record", help="record samples to CSV (s, N, N·m)")
+    record.add_argument("url", help=url_help)
+    record.add_argument("--seconds", type=float, required=True, metavar="S", help="record for S seconds")
+    record.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.csv", help="CSV file to write")
+    record.set_defaults(func=run_record)
+
+    bias = commands.add_parser("bias", help="tare the sensor at the current load")
+    bias.add_argument("url", help=url_help)
+    bias.set_defaults(func=run_bias)
+
+    parser.set_defaults(func=lambda args: (parser.print_help(), 2)[1])
+
+
+def _open(url: str):
+    from drivers.sensor import open_sensor
+
+    sensor = open_sensor(url)
+    sensor.start()
+    return sensor
+
+
+def _positive_seconds(value: float, flag: str = "--seconds") -> float:
+    if not value > 0 or value != value or value == float("inf"):
+        raise InputError(f"{flag} {value}: must be a positive, finite number of seconds")
+    return float(value)
+
+
+def describe_status(sensor, status: int) -> str:
+    """Return ``0x…: names`` for a status word of this sensor's transport."""
+    if sensor.info.transport == "netft":
+        from drivers.netft import status_text
+
+        return f"{status:#010x} ({status_text(status, getattr(sensor, 'status_map', 'netft'))})"
+    if sensor.info.transport == "can":
+        from drivers.ati_can import decode_status
+
+        names = decode_status(status & 0xFFFF)
+        if status & 0x0002_0000:
+            names = ["gage saturated", *names]
+        return f"{status:#010x} ({', '.join(names) or 'ok'})"
+    return f"{status:#010x}"
+
+
+def health_line(health) -> str:
+    """Return the health counters as ``name n`` pairs, comma-separated."""
+    return ", ".join(f"{name} {getattr(health, name)}" for name in HEALTH_FIELDS)
+
+
+def run_info(args: argparse.Namespace) -> int:
+    """Print what the sensor says about itself and a short look at its stream."""
+    from drivers.sensor import WrenchBatch
+
+    window_s = _positive_seconds(args.seconds)
+    sensor = _open(args.url)
+    try:
+        info = sensor.info
+        batches, deadline = [], time.monotonic() + window_s
+        while time.monotonic() < deadline:
+            batches.append(sensor.read(timeout_s=max(READ_TIMEOUT_S, window_s)))
+        batch = WrenchBatch.concatenate(batches)
+        health = sensor.health()
+    finally:
+        sensor.close()
+    span_s = float(batch.time_s[-1] - batch.time_s[0]) if len(batch) > 1 else 0.0
+    measured_hz = (len(batch) - 1) / span_s if span_s > 0 else 0.0
+    lines = [
+        ("sensor", args.url),
+        ("transport", info.transport),
+        ("product", info.extra.get("product", "") or "-"),
+        ("serial", info.serial or "-"),
+        ("firmware", info.firmware or "-"),
+        ("units", f"force {info.force_unit}, torque {info.torque_unit} (reported here in N and N·m)"),
+        ("counts per unit", f"{info.counts_per_force:.10g} per {info.force_unit}, "
+                            f"{info.counts_per_torque:.10g} per {info.torque_unit}"),
+        ("rate", f"{info.rate_hz:g} Hz configured, {measured_hz:.0f} Hz measured over {len(batch)} samples"),
+        ("status", describe_status(sensor, int(batch.status[-1])) if len(batch) else "-"),
+    ]
+    if len(batch):
+        good = ~batch.saturated
+        mean = batch.wrench[good].mean(axis=0) if good.any() else batch.wrench.mean(axis=0)
+        lines.append(("mean wrench", "F [" + ", ".join(f"{v:.4g}" for v in mean[:3]) + "] N, T ["
+                      + ", ".join(f"{v:.4g}" for v in mean[3:]) + "] N·m"
+                      + ("" if good.all() else f" ({int((~good).sum())} flagged samples excluded)")))
+    lines.append(("health", health_line(health)))
+    width = max(len(name) for name, _ in lines)
+    for name, value in lines:
+        print(f"{name + ':':<{width + 1}} {value}")
+    return 0
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """Record ``--seconds`` of samples to a CSV; keep what was recorded on Ctrl-C."""
+    import numpy as np
+
+    from ftacq.errors import DeviceTimeoutError
+    from ftacq.fileio import atomic_write
+
+    seconds = _positive_seconds(args.seconds)
+    if args.output.suffix.lower() != ".csv":
+        raise InputError(f"-o {args.output}: expected a .csv file name")
+    sensor = _open(args.url)
+    samples = read_timeouts = 0
+    interrupted = False
+    first_time_s = None
+    started = time.monotonic()
+    try:
+        with atomic_write(args.output) as handle:
+            handle.write(",".join(CSV_COLUMNS) + "\n")
+            try:
+                while time.monotonic() - started < seconds:
+                    try:
+                        batch = sensor.read(timeout_s=min(READ_TIMEOUT_S, max(seconds - (time.monotonic() - started), 0.01)))
+                    except DeviceTimeoutError:
+                        read_timeouts += 1
+                        continue
+                    if first_time_s is None:
+                        first_time_s = float(batch.time_s[0])
+                    table = np.column_stack([batch.time_s - first_time_s, batch.wrench, batch.status.astype(np.int64),
+                                             batch.saturated.astype(np.int64), batch.sequence, batch.counts])
+                    np.savetxt(handle, table, fmt=CSV_FORMATS, delimiter=",")
+                    samples += len(batch)
+            except KeyboardInterrupt:
+                interrupted = True
+        health = sensor.health()
+    finally:
+        try:
+            sensor.close()
+        except DeviceError as error:
+            print(f"ftacq sensor record: warning: {error}", file=sys.stderr)
+    duration_s = time.monotonic() - started
+    rate_hz = samples / duration_s if duration_s > 0 else 0.0
+    print(f"ftacq sensor record: {samples} samples in {duration_s:.2f} s ({rate_hz:.0f} Hz) → {args.output}"
+          + ("; stopped by Ctrl-C (kept what was recorded)" if interrupted else ""))
+    print(f"health: {health_line(health)}" + (f", read timeouts {read_timeouts}" if read_timeouts else ""))
+    if interrupted:
+        return 130
+    if samples == 0:
+        print(f"ftacq sensor record: no samples received from {args.url} in {seconds:g} s", file=sys.stderr)
+        return 1
+    return 0
+
+
+def run_bias(args: argparse.Namespace) -> int:
+    """Tare the sensor and print the residual mean over a short window."""
+    sensor = _open(args.url)
+    try:
+        sensor.bias()
+        average = sensor.average(BIAS_CHECK_WINDOW_S)
+    finally:
+        sensor.close()
+    where = "on the device (kept until it is power-cycled or biased again)" if sensor.info.transport == "netft" \
+        else "on the host (lasts only while this driver runs)"
+    print(f"biased {args.url} {where}")
+    print("residual mean: F [" + ", ".join(f"{v:.4g}" for v in average.mean[:3]) + "] N, T ["
+          + ", ".join(f"{v:.4g}" for v in average.mean[3:]) + f"] N·m over {average.count} samples")
+    return 0
