@@ -159,10 +159,10 @@ def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: in
     }, "<tests>")
 
 
-def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, plan=None):
+def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, plan=None, on_procedure=None):
     """Plan from the controller's current configuration and run the procedure in this process with the real
     UR and sensor drivers; return (plan, result). Listeners receive every event (add a RunFolderWriter to keep
-    the data)."""
+    the data). ``on_procedure(procedure)`` is called before the run (e.g. to keep ``request_stop``)."""
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
@@ -183,6 +183,8 @@ def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, pl
             plan = make_plan(settings, robot.joint_positions())
         procedure = CalibrationProcedure(plan, robot, sensor, ProcedureOptions.from_config(config), listeners,
                                          measured)
+        if on_procedure is not None:
+            on_procedure(procedure)
         return plan, procedure.run()
 
 

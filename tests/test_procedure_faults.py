@@ -1,0 +1,128 @@
+"""Faults during the procedure: the robot is stopped, everything measured is kept, the run is marked and the
+controller's record shows that nothing left the plan or exceeded the limits."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+from drivers.robot import MotionLimits
+from ftacq.errors import DeviceError, ProtectiveStopError
+from procedures import events
+from procedures.run_folder import RunFolder, RunFolderWriter
+from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, run_calibration
+
+FAULT_MOVE = 4
+"""The fault happens during this motion command (1-based): three poses are measured before it."""
+
+
+def limits_of(config) -> MotionLimits:
+    return MotionLimits(joint_speed_rad_s=config.robot.joint_speed_rad_s,
+                        joint_acceleration_rad_s2=config.robot.joint_acceleration_rad_s2)
+
+
+def plan_for(cell, config):
+    from drivers.ur import URRobot
+    from procedures.plan import make_plan
+
+    with URRobot(cell.robot_host, MotionLimits(), model=cell.model_name) as robot:
+        return make_plan(config.plan_settings(), robot.joint_positions())
+
+
+def check_kept_and_stopped(tmp_path, folder, plan, result, commands, config, measured_count: int) -> None:
+    assert result.status == "failed"
+    assert len(result.measured) == measured_count
+    assert list(result.measured) == list(plan.labels[:measured_count])
+    record = folder.read_record()
+    assert record.labels == tuple(plan.labels[:measured_count])  # every pose measured is on disk
+    document = json.loads((folder.path / "run.json").read_text())
+    assert document["status"] == "failed"
+    assert f"at pose {measured_count + 1}/{len(plan)} ({plan.labels[measured_count]})" in document["message"]
+    assert motion_problems(commands, plan, limits_of(config)) == []
+    moves = [c for c in commands if c["kind"] == "movej"]
+    assert len(moves) == measured_count + 1  # nothing was commanded after the fault
+    assert any(c["kind"] == "stopj" for c in commands[len(moves):] + commands)  # the robot was told to stop
+
+
+def test_protective_stop_mid_move(tmp_path):
+    with SimulatedCell(sensor="can", time_scale=4.0) as cell:
+        config = fast_config(cell)
+        plan = plan_for(cell, config)
+        folder = RunFolder.create(tmp_path, config.to_dict(), plan.to_json())
+        cell.controller.inject("protective_stop", "move_fraction", 0.5, move=FAULT_MOVE)
+        _, result = run_calibration(cell, config, [RunFolderWriter(folder)], plan=plan)
+        commands = cell.controller.commands()
+        state = cell.controller.state()
+    assert isinstance(result.error, ProtectiveStopError), result.message
+    assert "ProtectiveStopError" in result.message
+    assert state["moving"] is False
+    target = plan.joint_targets_rad[FAULT_MOVE - 1]
+    assert np.max(np.abs(np.asarray(state["q"]) - target)) > 1e-3  # it stopped on the way, not at the target
+    moves = [c for c in commands if c["kind"] == "movej"]
+    assert len(moves) == FAULT_MOVE
+    assert motion_problems(commands, plan, limits_of(config)) == []
+    assert result.status == "failed" and len(result.measured) == FAULT_MOVE - 1
+    assert folder.read_record().labels == tuple(plan.labels[:FAULT_MOVE - 1])
+    assert json.loads((folder.path / "run.json").read_text())["status"] == "failed"
+
+
+def _silence_sensor_during(cell, plan_index: int):
+    def listener(event):
+        if isinstance(event, events.StateChanged) and event.state == "moving" and event.index == plan_index:
+            if cell.can_board is not None:
+                cell.can_board.silent = True
+            else:
+                cell.netft.go_silent()
+    return listener
+
+
+@pytest.mark.parametrize("sensor", ["can", pytest.param("netft", marks=pytest.mark.skipif(
+    importlib.util.find_spec("drivers.netft") is None, reason="the Net F/T driver has not landed"))])
+def test_sensor_going_silent_mid_move(tmp_path, sensor):
+    with SimulatedCell(sensor=sensor, time_scale=4.0) as cell:
+        config = fast_config(cell, sensor_timeout_s=0.3)
+        plan = plan_for(cell, config)
+        folder = RunFolder.create(tmp_path, config.to_dict(), plan.to_json())
+        _, result = run_calibration(cell, config, [RunFolderWriter(folder), _silence_sensor_during(cell, 2)],
+                                    plan=plan)
+        commands = cell.controller.commands()
+        state = cell.controller.state()
+    assert isinstance(result.error, DeviceError), result.message
+    assert "silent" in result.message or "no sample" in result.message
+    assert state["moving"] is False
+    check_kept_and_stopped(tmp_path, folder, plan, result, commands, config, measured_count=2)
+
+
+def test_requested_stop_keeps_the_data_and_a_critical_listener_error_fails_the_run(tmp_path):
+    with SimulatedCell(sensor="can", time_scale=0.0) as cell:
+        config = fast_config(cell)
+        plan = plan_for(cell, config)
+        holder: dict = {}
+
+        def stop_after_two(event):
+            if isinstance(event, events.PoseMeasured) and event.index == 1:
+                holder["procedure_stop"]()
+
+        folder = RunFolder.create(tmp_path, config.to_dict(), plan.to_json(), name="stopped")
+        _, stopped = run_calibration(cell, config, [RunFolderWriter(folder), stop_after_two], plan=plan,
+                                     on_procedure=lambda p: holder.update(procedure_stop=p.request_stop))
+
+        class Broken:
+            critical = True
+
+            def __call__(self, event):
+                if isinstance(event, events.PoseMeasured):
+                    raise OSError("disk full")
+
+        def flaky_viewer(event):
+            raise RuntimeError("viewer went away")  # not critical: ignored
+
+        _, failed = run_calibration(cell, config, [flaky_viewer, Broken()], plan=plan)
+    assert stopped.status == "stopped" and not stopped.interrupted
+    assert list(stopped.measured) == list(plan.labels[:2])
+    assert folder.read_record().labels == tuple(plan.labels[:2])
+    assert json.loads((folder.path / "run.json").read_text())["status"] == "stopped"
+    assert failed.status == "failed" and "disk full" in failed.message
