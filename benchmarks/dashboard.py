@@ -87,7 +87,8 @@ def sensor_url(ports: dict, rate_hz: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help=f"run {QUICK_SECONDS:.0f} s instead of {FULL_SECONDS:.0f} s")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"run {QUICK_SECONDS:.0f} s instead of {FULL_SECONDS:.0f} s")
     parser.add_argument("--seconds", type=float, help="run this many seconds (overrides --quick)")
     parser.add_argument("--rate-hz", type=float, default=RATE_HZ, help="sensor rate in Hz (default %(default)s)")
     parser.add_argument("--keep", type=Path, help="keep the .rrd at this path (default: a temporary file)")
@@ -127,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     cpu_percent = 100.0 * cpu_s / wall_s
     print(f"dashboard benchmark: {seconds:.0f} s at {args.rate_hz:.0f} Hz through the Net F/T driver, compensation "
           f"and Rerun logging to an .rrd file")
-    print(f"samples        {summary.samples} ({summary.samples / wall_s:.0f} Hz delivered by the driver)")
+    print(f"samples        {summary.samples} delivered by the driver (sensor rate {health.rate_hz:.0f} Hz as the "
+          "driver measured it)")
     print(f"lost           {lost} by the stream, {summary.viewer_dropped_samples} dropped for the viewer")
     print(f"in the .rrd    {stored.size} compensated samples read back")
     print(f"CPU            {cpu_percent:.1f} % of one core ({cpu_s:.1f} s CPU in {wall_s:.1f} s; the fake sensor's "

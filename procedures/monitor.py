@@ -65,6 +65,7 @@ class MonitorSummary:
         batches: sensor reads that returned samples.
         compensated_samples: samples compensated (0 without a calibration or a robot).
         lost: samples the sensor stream lost (driver health, since the driver started).
+        rate_hz: the sensor's sample rate as the driver measured it at the end of the run.
         timeouts: reads that timed out.
         viewer_dropped_batches, viewer_dropped_samples: dropped for the viewer only (queue full or viewer failed).
         duration_s: wall time of the run. interrupted: stopped by Ctrl-C. record_path: the CSV written, if any.
@@ -75,6 +76,7 @@ class MonitorSummary:
     batches: int = 0
     compensated_samples: int = 0
     lost: int = 0
+    rate_hz: float = 0.0
     timeouts: int = 0
     viewer_dropped_batches: int = 0
     viewer_dropped_samples: int = 0
@@ -364,7 +366,8 @@ class LiveMonitor:
             if recorder is not None:
                 recorder.close()
             try:
-                summary.lost = int(self.sensor.health().lost)
+                health = self.sensor.health()
+                summary.lost, summary.rate_hz = int(health.lost), float(health.rate_hz)
             except FtacqError:
                 log.warning("could not read the sensor's health at the end of the run", exc_info=True)
         if worker is not None and worker.error is not None and self.strict:

@@ -79,7 +79,7 @@ class FixedRobotState:
 
 
 def physics_batches(pose: np.ndarray, count: int, seed: int = 1, contact_after: int | None = None) -> list[WrenchBatch]:
-    """Return ``count`` batches of the simulated cell's sensor at ``pose``; a 5 N contact after batch ``contact_after``."""
+    """Return ``count`` batches of the simulated cell's sensor at ``pose``; a 5 N push from batch ``contact_after``."""
     truth = CellTruth()
     physics = SensorPhysics(truth, SettablePose(pose), seed=seed)
     batches = []
@@ -456,9 +456,8 @@ SIM_RATE_HZ = 2000.0
 
 @pytest.fixture
 def simulated_cell():
-    cell_module = pytest.importorskip("tests.fakes.cell")
-    pytest.importorskip("tests.fakes.netft")
-    pytest.importorskip("drivers.netft")
+    from tests.fakes import cell as cell_module
+
     with cell_module.SimulatedCell(sensor="netft", time_scale=1.0, rate_hz=SIM_RATE_HZ) as cell:
         yield cell
 
@@ -490,11 +489,11 @@ def test_monitor_run_against_the_simulated_cell_matches_ftacq_compensate(simulat
 
     rrd_path, record_path = tmp_path / "monitor.rrd", tmp_path / "monitor.csv"
     recording = new_recording(rrd_path)
+    cell.set_contact(np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.0]))  # a 4 N push on the tool all along
     with contextlib_closing(sensor) as sensor, URStateReader(cell.robot_host, model=cell.model_name) as robot:
         sensor.start()
         dashboard = dash.Dashboard(recording, strict=True)
         dashboard.set_calibration(calibration)
-        cell.set_contact(np.array([0.0, 0.0, 4.0, 0.0, 0.0, 0.0]))
         summary = LiveMonitor(sensor=CountingSensor(sensor), calibration=calibration, robot=robot,
                               dashboard=dashboard, model=ur_model(cell.model_name), record_path=record_path,
                               strict=True).run(duration_s=SIM_SECONDS)
@@ -516,16 +515,13 @@ def test_monitor_run_against_the_simulated_cell_matches_ftacq_compensate(simulat
     assert ftacq_main(["compensate", str(calibration_path), str(record_path), "-o", str(compensated_path)]) == 0
     table = np.genfromtxt(compensated_path, delimiter=",", names=True)
     assert table.size == samples
-    reference = np.column_stack([table[f"{name}_new"] for name in
+    reference = np.column_stack([table[name] for name in
                                  ("contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz")])
     np.testing.assert_allclose(np.hstack([force, torque]), reference, atol=1e-5)  # CSV keeps 9 digits
     np.testing.assert_allclose(force.mean(axis=0), [0.0, 0.0, 4.0], atol=0.1)  # gravity gone, the push remains
 
 
 def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
-    pytest.importorskip("tests.fakes.cell")
-    pytest.importorskip("tests.fakes.netft")
-    pytest.importorskip("drivers.netft")
     from ftacq.cli import main as ftacq_main
 
     rrd_path = tmp_path / "sim.rrd"

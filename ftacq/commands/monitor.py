@@ -163,8 +163,8 @@ def run(args: argparse.Namespace) -> int:
         summary = monitor.run(duration_s=args.seconds)
         dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
                            f"{summary.viewer_dropped_samples} dropped for the viewer")
-    rate_hz = summary.samples / summary.duration_s if summary.duration_s > 0 else 0.0
-    print(f"ftacq monitor: {summary.samples} samples in {summary.duration_s:.1f} s ({rate_hz:.0f} Hz), "
+    print(f"ftacq monitor: {summary.samples} samples in {summary.duration_s:.1f} s "
+          f"(sensor at {summary.rate_hz:.0f} Hz), "
           f"{summary.lost} lost, {summary.timeouts} read timeouts, "
           f"{summary.viewer_dropped_samples} dropped for the viewer"
           + (f", dashboard failed: {summary.dashboard_error}" if summary.dashboard_error else "")
