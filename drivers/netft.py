@@ -490,6 +490,11 @@ class NetFTSensor:
         snapshot.timeouts, snapshot.reconnects = self._rx.timeouts, self._rx.reconnects
         return snapshot
 
+    @property
+    def local_address(self) -> tuple | None:
+        """The (address, port) this driver receives RDT records on (None before start)."""
+        return self._sock.getsockname() if self._sock is not None and not self._closed else None
+
     # ------------------------------------------------------------------ discovery
 
     def _resolve(self) -> tuple:

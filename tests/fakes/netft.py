@@ -194,6 +194,9 @@ class FakeNetFT:
         self._status_remaining: int | None = None
         self._restart_requested = False
         self._held: list[bytes] = []
+        self.calinfo_override: tuple[int, int, int, int] | None = None
+        """(force code, torque code, CpF, CpT) READCALINFO answers instead of the configuration (a box whose
+        TCP and HTTP answers disagree)."""
         self._sample_buffer = np.empty((0, 6))
         self._last_counts = np.zeros(6, dtype=np.int64)
         # observables
@@ -432,6 +435,23 @@ class FakeNetFT:
                     raise TimeoutError(f"FakeNetFT: {count} × {source} {code!r} not received within {timeout_s} s; "
                                        f"received {seen}")
                 self._lock.wait(remaining)
+
+    @property
+    def faults_pending(self) -> bool:
+        """Whether injected faults are still waiting for records to apply to."""
+        with self._lock:
+            return bool(self._pending_faults or self._drop_remaining or self._held or self._stall_remaining
+                        or self._restart_requested or (self._status_remaining or 0) > 0)
+
+    def wait_until(self, predicate, timeout_s: float = DEFAULT_WAIT_S, what: str = "condition") -> None:
+        """Wait until ``predicate(self)`` is true (checked whenever the fake sends or receives). Raises TimeoutError."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate(self):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"FakeNetFT: {what} not reached within {timeout_s} s ({self.stats()})")
+            with self._lock:
+                self._lock.wait(min(remaining, POLL_S))
 
     def wait_for_records(self, records: int, timeout_s: float = DEFAULT_WAIT_S) -> int:
         """Wait until ``records_sent`` ≥ ``records``; return it. Raises TimeoutError at the deadline."""
@@ -729,9 +749,9 @@ class FakeNetFT:
             values = [int(np.clip(round(c / s), -INT16_MAX - 1, INT16_MAX)) for c, s in zip(counts, self.scale_factors)]
             return struct.pack(">HH6h", RDT_HEADER, status >> 16, *values)
         if code == TCP_READCALINFO:
-            return struct.pack(">HBBII6H", RDT_HEADER, FORCE_UNIT_CODES[self.force_unit],
-                               TORQUE_UNIT_CODES[self.torque_unit], self.counts_per_force, self.counts_per_torque,
-                               *self.scale_factors)
+            answer = self.calinfo_override or (FORCE_UNIT_CODES[self.force_unit], TORQUE_UNIT_CODES[self.torque_unit],
+                                               self.counts_per_force, self.counts_per_torque)
+            return struct.pack(">HBBII6H", RDT_HEADER, *answer, *self.scale_factors)
         if code in (TCP_WRITETRANSFORM, TCP_WRITETHRESHOLD):
             return struct.pack(">HBB", RDT_HEADER, code, 0)
         return b""  # no reply layout is documented for unknown commands
@@ -870,6 +890,15 @@ def main(argv: list[str] | None = None) -> int:
     from tests.fakes.world import CellTruth, SensorPhysics, SettablePose, SharedPose
 
     shared = SharedPose(args.pose_shm) if args.pose_shm else None
+    if shared is not None:
+        # The block belongs to the process that created it: keep this process's resource tracker (Python < 3.13,
+        # bpo-39959) from unlinking it when this process exits.
+        from multiprocessing import resource_tracker
+
+        try:
+            resource_tracker.unregister("/" + shared.name.lstrip("/"), "shared_memory")
+        except Exception:  # noqa: BLE001 (best effort; only matters for the owner's clean-up)
+            pass
     physics = SensorPhysics(CellTruth(), shared if shared is not None else SettablePose(), seed=args.seed)
     fake = FakeNetFT(physics, host=args.host, rdt_port=args.rdt_port, tcp_port=args.tcp_port,
                      http_port=args.http_port, rate_hz=args.rate_hz, buffer_size=args.buffer_size,
