@@ -595,19 +595,22 @@ class FakeNetFT:
                 self._target = None
             faults = bool(self._pending_faults or self._drop_remaining or self._held)
             datagrams = self._datagrams(records, per_datagram, faults)
-        sent_records = sent_datagrams = errors = 0
+            # counted before sending, so a client that saw the last record also sees the count
+            self.records_sent += sum(len(d) // RECORD_SIZE for d in datagrams if len(d) % RECORD_SIZE == 0)
+            self.datagrams_sent += len(datagrams)
+            self._lock.notify_all()
+        failed_records = failed_datagrams = 0
         for datagram in datagrams:
             try:
                 self._udp.sendto(datagram, target)
-                sent_datagrams += 1
-                sent_records += len(datagram) // RECORD_SIZE if len(datagram) % RECORD_SIZE == 0 else 0
             except OSError:
-                errors += 1
-        with self._lock:
-            self.records_sent += sent_records
-            self.datagrams_sent += sent_datagrams
-            self.send_errors += errors
-            self._lock.notify_all()
+                failed_datagrams += 1
+                failed_records += len(datagram) // RECORD_SIZE if len(datagram) % RECORD_SIZE == 0 else 0
+        if failed_datagrams:
+            with self._lock:
+                self.records_sent -= failed_records
+                self.datagrams_sent -= failed_datagrams
+                self.send_errors += failed_datagrams
 
     def _produce(self, n: int) -> np.ndarray:
         """Return n records (structured array) and advance the sequences (lock held)."""
