@@ -20,6 +20,7 @@ process, so the CAN driver must run in the process that built the cell.
 from __future__ import annotations
 
 import contextlib
+import os
 import uuid
 from dataclasses import replace
 
@@ -82,7 +83,7 @@ class SimulatedCell:
         from tests.fakes.ur_process import URControllerProcess
 
         try:
-            self.shared_pose = SharedPose(name=f"ftacq-{uuid.uuid4().hex[:12]}", create=True)
+            self.shared_pose = SharedPose(name=f"ftacq-{os.getpid()}-{uuid.uuid4().hex[:8]}", create=True)
             self._stack.callback(self._close_shared_pose)
             self.controller = URControllerProcess(model=self.model_name, time_scale=self.time_scale,
                                                   pose_shm=self.shared_pose.name, initial_q=self.initial_q,
