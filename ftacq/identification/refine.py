@@ -154,7 +154,7 @@ def _jacobian_t(params: ModelParameters, rotations_t: np.ndarray) -> np.ndarray:
     return jac
 
 
-CHUNK_POSES = 8192
+CHUNK_POSES = 2048
 """Poses per block when accumulating the normal equations (bounds the Jacobian block's memory)."""
 
 
