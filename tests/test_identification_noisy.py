@@ -139,3 +139,22 @@ def test_a_pose_with_zero_std_does_not_dominate():
     error = np.abs(parameter_vector(result.calibration) - parameter_vector(truth.calibration()))
     assert np.all(error <= 5 * sigma_vector(result.calibration))
     assert result.outliers == ()
+
+
+def test_count_without_std_weights_poses_relative_to_their_sample_count():
+    from ftacq.posefile import PoseRecord
+
+    truth = CellTruth()
+    rotations = np.concatenate([special_orientations(0.2, 1), cone_orientations(24, 40.0, 2)])
+    few = simulate_record(truth, rotations[:24], seed=3, samples_per_pose=20)
+    many = simulate_record(truth, rotations[24:], seed=4, samples_per_pose=2000)
+    record = PoseRecord(
+        pose=np.vstack([few.pose, many.pose]),
+        wrench=np.vstack([few.wrench, many.wrench]),
+        count=np.concatenate([few.count, many.count]),
+    )
+    result = identify(record)
+    assert result.calibration.metadata["noise"]["source"] == "estimated from the residuals, relative weights 1/√count"
+    np.testing.assert_allclose(result.noise[0] / result.noise[30], 10.0)  # √(2000 / 20)
+    error = np.abs(parameter_vector(result.calibration) - parameter_vector(truth.calibration()))
+    assert np.all(error <= 5 * sigma_vector(result.calibration))

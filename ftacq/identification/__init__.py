@@ -136,6 +136,25 @@ def _closed_form_weights(pose_weight: np.ndarray, sigma: np.ndarray) -> tuple[np
     return force / force.max(), torque / torque.max()
 
 
+def _relative_noise(record: PoseRecord) -> np.ndarray:
+    """Return (N, 6) relative noise per pose and channel when no standard error is known (median 1 per channel).
+
+    From ``count`` alone: 1/√count; from ``std`` alone: std; otherwise 1. The scale is estimated from the residuals.
+    """
+    n = len(record)
+    if record.std is not None and record.count is None:
+        relative = np.array(record.std, dtype=float)
+    elif record.count is not None and record.std is None:
+        relative = np.repeat((1.0 / np.sqrt(np.maximum(record.count, 1.0)))[:, None], 6, axis=1)
+    else:
+        return np.ones((n, 6))
+    typical = np.median(relative, axis=0)
+    if np.any(typical <= 0.0):
+        return np.ones((n, 6))
+    relative = relative / typical
+    return np.clip(relative, MIN_RELATIVE_STANDARD_ERROR, 1.0 / MIN_RELATIVE_STANDARD_ERROR)
+
+
 def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.ndarray:
     """Return the 15-vector from ``before`` to ``after`` (rotation as a small sensor-frame rotation vector, rad)."""
     relative = after.sensor_rotation @ before.sensor_rotation.T
@@ -231,24 +250,36 @@ def identify(
         )
 
     standard_error = record.standard_error
+    relative = _relative_noise(record)
     if record.std is not None and record.count is None:
-        warnings.append("std_* columns without a count column: noise estimated from the residuals instead")
+        warnings.append(
+            "std_* columns without a count column: std used as relative weights, the noise scale estimated from "
+            "the residuals"
+        )
     if standard_error is not None:
         typical = np.median(standard_error, axis=0)
         if np.any(typical <= 0.0):
             warnings.append("std_* columns are zero for a whole channel: noise estimated from the residuals instead")
             standard_error = None
+            relative = np.ones((n, 6))
         else:  # a zero or implausibly small std (one sample, a stuck channel) must not dominate the fit
             standard_error = np.where(standard_error < MIN_RELATIVE_STANDARD_ERROR * typical, typical, standard_error)
     dof_ratio = max((6.0 * n - 15.0) / (6.0 * n), 1e-3)
     floor = robust.noise_floor(wrench)
+
+    def channel_noise(residual: np.ndarray, pose_weight: np.ndarray, dof: float, statistic: str):
+        """σ (N, 6) and τ (6,): measured standard errors + scatter, or a scale × relative noise per pose."""
+        if standard_error is not None:
+            return robust.channel_noise(residual, standard_error, pose_weight, dof, floor, statistic)
+        scale, tau = robust.channel_noise(residual / relative, None, pose_weight, dof, floor, statistic)
+        return scale * relative, tau
 
     # --- closed form, repeated with robust weights if a pose looks disturbed (steps 2-3) ---
     params, closed_info = _closed_form(rotations, wrench, use_srom, special_index, None, None)
     pose_weight = np.ones(n)
     for _ in range(CLOSED_FORM_ROBUST_PASSES):
         residual = wrench - predict(params, rotations)
-        sigma, _ = robust.channel_noise(residual, standard_error, np.ones(n), dof_ratio, floor, "median")
+        sigma, _ = channel_noise(residual, np.ones(n), dof_ratio, "median")
         new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
         if np.all(new_weight >= 1.0) and np.all(pose_weight >= 1.0):
             break
@@ -260,7 +291,7 @@ def identify(
 
     # --- robust joint refinement (step 4) ---
     residual = closed_residual
-    sigma, tau = robust.channel_noise(residual, standard_error, np.ones(n), dof_ratio, floor, "median")
+    sigma, tau = channel_noise(residual, np.ones(n), dof_ratio, "median")
     pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
     if standard_error is not None:
         # start from the measured noise alone: the closed form's residuals overstate the noise of the
@@ -286,8 +317,8 @@ def identify(
             previous_sigma = sigma
             inlier = robust.pose_statistic(residual, sigma) <= robust.outlier_threshold(n)
             n_in = max(int(inlier.sum()), 3)
-            sigma, tau = robust.channel_noise(
-                residual, standard_error, inlier.astype(float), max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3), floor, "mean"
+            sigma, tau = channel_noise(
+                residual, inlier.astype(float), max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3), "mean"
             )
             sigma_change = float(np.max(np.abs(sigma / previous_sigma - 1.0)))
             new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
@@ -300,7 +331,7 @@ def identify(
 
     else:  # noise scale of the closed form itself, for its uncertainty
         inlier = robust.pose_statistic(residual, sigma) <= robust.outlier_threshold(n)
-        sigma, tau = robust.channel_noise(residual, standard_error, inlier.astype(float), dof_ratio, floor, "mean")
+        sigma, tau = channel_noise(residual, inlier.astype(float), dof_ratio, "mean")
         pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
 
     # --- uncertainty, diagnostics, warnings (step 5) ---
@@ -353,7 +384,14 @@ def identify(
                 f"the base is tilted {total:.1f}° from a nominal {mount} mount (nearest nominal mount: {nearest}); "
                 "is --mount right?"
             )
-    noise_text = "measured std/√count" if standard_error is not None else "estimated from the residuals"
+    if standard_error is not None:
+        noise_text = "measured std/√count"
+    elif record.count is not None and record.std is None:
+        noise_text = "estimated from the residuals, relative weights 1/√count"
+    elif record.std is not None and record.count is None:
+        noise_text = "estimated from the residuals, relative weights from std"
+    else:
+        noise_text = "estimated from the residuals"
     metadata["noise"] = {
         "source": noise_text,
         "extra_scatter": tau.tolist(),
