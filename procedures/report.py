@@ -102,6 +102,20 @@ def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray) -> No
     plt.close(fig)
 
 
+def validation_dict(validated) -> dict:
+    """Return a :class:`procedures.events.Validated` in the core's form (:func:`ftacq.report.validation_errors`)."""
+    errors = np.asarray(validated.errors, dtype=float).reshape(-1, 6)
+    return {
+        "labels": list(validated.labels),
+        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "errors": errors.tolist(),
+        "max_abs": np.asarray(validated.max_abs).tolist(),
+        "rms": np.asarray(validated.rms).tolist(),
+        "max_force_norm": float(np.linalg.norm(errors[:, :3], axis=1).max()) if len(errors) else 0.0,
+        "max_torque_norm": float(np.linalg.norm(errors[:, 3:], axis=1).max()) if len(errors) else 0.0,
+    }
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(row) + " |" for row in rows]
@@ -164,7 +178,9 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
     order = [label for label in list(plan.labels) + [f"{plan.labels[0]}-revisit"] if label in result.measured]
     if ident is not None:
         cal = ident.calibration
-        lines += ["## Identified parameters (value ± 1σ)", "", "```", format_identification_report(ident).rstrip(),
+        lines += ["## Identified parameters (value ± 1σ)", "", "```", format_identification_report(
+                      ident, validation=None if result.validation is None else validation_dict(result.validation)
+                  ).rstrip(),
                   "```", ""]
         if truth is not None:
             lines += ["## Against the simulation's ground truth", "", "```",
@@ -205,4 +221,4 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
     return path
 
 
-__all__ = ["write_report", "format_truth_comparison", "plot_wrench_per_pose", "plot_residuals", "plot_validation"]
+__all__ = ["write_report", "format_truth_comparison", "validation_dict", "plot_wrench_per_pose", "plot_residuals", "plot_validation"]

@@ -141,7 +141,8 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     (run_dir,) = list((tmp_path / "runs").iterdir())
     calibration = load_calibration(run_dir / "calibration.json")
     assert_recovers_truth(calibration, CellTruth())
-    assert calibration.metadata["validation"]["poses"]
+    assert len(calibration.metadata["validation"]["labels"]) == 4
+    assert calibration.metadata["input"]["sets"] == {"A": 24, "D": 1, "E": 6, "V": 4}
     report = (run_dir / "report.md").read_text(encoding="utf-8")
     for part in ("## Identified parameters", "## Validation on held-out poses", "## Drift check",
                  "![residuals](residuals.png)", "Against the simulation's ground truth"):

@@ -250,12 +250,22 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack):
     return DashboardListener(Dashboard(recording))
 
 
+def _input_summary(folder, result) -> dict:
+    import hashlib
+
+    poses = folder.poses_csv
+    sets = [m.set_name for m in result.measured.values()]
+    return {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(), "poses": len(sets),
+            "sets": {name: sets.count(name) for name in sorted(set(sets))}, "identified_on": ["A", "E"],
+            "has_std": True, "has_count": True}
+
+
 def _finish(args, folder, plan, config, result, cell) -> int:
     """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
     import numpy as np
 
     from ftacq.calfile import save_calibration
-    from procedures.report import format_truth_comparison, write_report
+    from procedures.report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
     truth = cell.truth.calibration() if cell is not None else None
@@ -266,9 +276,8 @@ def _finish(args, folder, plan, config, result, cell) -> int:
         metadata = dict(calibration.metadata)
         metadata["run_folder"] = str(folder.path)
         if result.validation is not None:
-            metadata["validation"] = {"poses": list(result.validation.labels),
-                                      "max_abs": np.asarray(result.validation.max_abs).tolist(),
-                                      "rms": np.asarray(result.validation.rms).tolist()}
+            metadata["validation"] = validation_dict(result.validation)
+        metadata["input"] = _input_summary(folder, result)
         if result.drift is not None:
             metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
                                        "elapsed_s": result.drift.elapsed_s}
