@@ -122,7 +122,7 @@ def format_identification_report(result, validation: dict | None = None) -> str:
         )
     if validation is not None:
         add("")
-        add(f"Validation: compensation error on {len(validation['labels'])} held-out poses (set V; ideally 0)")
+        add(f"Validation: compensation error on {len(validation['labels'])} held-out poses (sets V, D; ideally 0)")
         add("  max |e|  F " + ", ".join(f"{v:.4f}" for v in validation["max_abs"][:3]) + " N; T "
             + ", ".join(f"{v:.5f}" for v in validation["max_abs"][3:]) + " N·m")
         add("  RMS      F " + ", ".join(f"{v:.4f}" for v in validation["rms"][:3]) + " N; T "

@@ -7,8 +7,9 @@ import hashlib
 import sys
 from pathlib import Path
 
-VALIDATION_SET = "V"
-"""Poses of this set (column ``set``) are held out of the fit and used to report the compensation error."""
+HELD_OUT_SETS = ("V", "D")
+"""Poses of these sets (column ``set``: V validation, D the procedure's drift-check revisit) are held out of the
+fit, as the calibration procedure does, and used to report the compensation error."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,7 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Read a pose record CSV (flange poses + mean sensor wrenches), identify the calibration "
             "(Yu, Shi & Lou 2021 closed form, then a robust joint refinement), print a report and write the "
-            "calibration JSON. Poses of set V are held out and their compensation error is reported. "
+            "calibration JSON. Poses of sets V (validation) and D (drift-check revisit) are held out and their "
+            "compensation error is reported. "
             "Nothing is written if the input is bad."
         ),
     )
@@ -48,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--use-validation",
         action="store_true",
-        help="also fit the poses of set V (by default they are held out and their compensation error is reported)",
+        help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
     )
     parser.set_defaults(func=run)
 
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
     path = Path(args.poses)
     record = read_pose_csv(path)
-    held_out = np.array([name.strip().upper() == VALIDATION_SET for name in record.sets])
+    held_out = np.array([name.strip().upper() in HELD_OUT_SETS for name in record.sets])
     validation = None
     fit_record = record
     if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
