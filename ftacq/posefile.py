@@ -227,6 +227,16 @@ def numeric_column(
     return out
 
 
+def _unique_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
+    """Return the labels with repeats made unique by a suffix (``A01``, ``A01#2``, …) so outliers can be named."""
+    seen: dict[str, int] = {}
+    out = []
+    for label in labels:
+        seen[label] = seen.get(label, 0) + 1
+        out.append(label if seen[label] == 1 else f"{label}#{seen[label]}")
+    return tuple(out)
+
+
 def read_pose_csv(path: str | os.PathLike) -> PoseRecord:
     """Read a pose record CSV (see the module docstring). Raises InputError naming file, line, column, value, why."""
     path = Path(path)
@@ -277,13 +287,7 @@ def read_pose_csv(path: str | os.PathLike) -> PoseRecord:
     if "label" in header:
         position = header.index("label")
         labels = tuple(row[position] or f"P{k + 1}" for k, row in enumerate(rows))
-        seen: dict[str, int] = {}
-        for k, label in enumerate(labels):
-            if label in seen:
-                raise InputError(
-                    f"{path}: line {lines[k]}, column 'label': value {label!r} already used on line {lines[seen[label]]}"
-                )
-            seen[label] = k
+        labels = _unique_labels(labels)
     sets: tuple[str, ...] = ()
     if "set" in header:
         position = header.index("set")
