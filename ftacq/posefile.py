@@ -203,6 +203,8 @@ def read_csv_table(
     body: list[list[str]] = []
     line_numbers: list[int] = []
     for line, row in numbered[1:]:
+        if len(row) > len(header) and not any(c.strip() for c in row[len(header):]):
+            row = row[: len(header)]  # trailing empty cells (a trailing comma) are harmless
         if len(row) != len(header):
             raise InputError(f"{path}: line {line}: {len(row)} cells, but the header has {len(header)} columns")
         body.append([c.strip() for c in row])

@@ -68,6 +68,8 @@ def test_columns_in_any_order_and_defaults(tmp_path):
     np.testing.assert_array_equal(record.wrench[0], [1, 2, 3, 4, 5, 6])
     np.testing.assert_array_equal(record.pose[0], [0.1, 0.2, 0.3, 0.1, 0, 0])
     assert record.labels == ("P1", "P2") and record.std is None and record.count is None
+    path.write_text(",".join(POSE_COLUMNS) + "\n" + "0,0,0,0,0,0,1,2,3,4,5,6,\n" * 2)  # trailing commas
+    assert len(read_pose_csv(path)) == 2
 
 
 def test_select_by_mask_and_indices():
