@@ -335,14 +335,15 @@ class NetFTSensor:
         self._thread.start()
         try:
             self._send_start()
-            deadline = time.monotonic() + max(START_TIMEOUT_S, 3.0 / max(self.info.rate_hz, 1e-3))
+            wait_s = max(START_TIMEOUT_S, 3.0 / self.info.rate_hz) if self.info.rate_hz > 0 else START_TIMEOUT_S
+            deadline = time.monotonic() + wait_s
             with self._data_ready:
                 while self._written == 0 and time.monotonic() < deadline:
                     self._data_ready.wait(min(POLL_S, max(deadline - time.monotonic(), 0.0)))
             if self._written == 0:
                 raise DeviceTimeoutError(
                     f"Net F/T {self.host}: no RDT data on UDP port {self.rdt_port} within "
-                    f"{max(START_TIMEOUT_S, 3.0 / max(self.info.rate_hz, 1e-3)):.2g} s (HTTP and TCP answered; is RDT "
+                    f"{wait_s:.2g} s (HTTP or TCP answered; is RDT "
                     f"enabled (comrdte) and is the RDT port right?){self._rx_problems()}")
         except BaseException:
             self.close()
@@ -861,7 +862,8 @@ class NetFTSensor:
     def _track(self, rdt: np.ndarray, ft: np.ndarray, first_index: int) -> np.ndarray:
         """Classify records by sequence; return the mask of records to deliver (decode lock held)."""
         n = rdt.shape[0]
-        if self._last_rdt is not None and not self._start_events and not self._expect_restart:
+        if (self._last_rdt is not None and not self._start_events and not self._expect_restart
+                and not self._bias_discarding):
             previous = np.empty(n, dtype=np.int64)
             previous[0] = self._last_rdt
             previous[1:] = rdt[:-1]
@@ -885,30 +887,26 @@ class NetFTSensor:
                 _, is_bias = self._start_events.popleft()
                 self._expect_restart, self._expect_continuing = True, 0
                 self._bias_discarding = self._bias_discarding or is_bias
+            if self._bias_discarding:
+                if sequence > RESTART_WINDOW:
+                    continue  # sent before the device biased (only bias()'s timeout ends this)
+                keep[:i] = False  # the first post-bias record: everything before it is stale
+                self._decoded.clear()
+                self._decoded_samples = 0
+                self._bias_discarding = self._expect_restart = False
+                self._bias_done.set()
+                self._reset_tracker(sequence, ft_sequence)
+                keep[i] = True
+                continue
             if self._expect_restart:
                 if sequence <= RESTART_WINDOW:
-                    if self._bias_discarding:  # first post-bias record: everything before it is stale
-                        keep[:i] = False
-                        self._decoded.clear()
-                        self._decoded_samples = 0
-                        self._bias_discarding = False
-                        self._bias_done.set()
                     self._expect_restart = False
                     self._reset_tracker(sequence, ft_sequence)
                     keep[i] = True
                     continue
                 self._expect_continuing += 1
                 if self._expect_continuing >= EXPECT_RESTART_RECORDS:
-                    self._expect_restart = False
-                if self._bias_discarding:
-                    if not self._expect_restart:  # the device does not restart its sequence: accept from here
-                        keep[:i] = False
-                        self._decoded.clear()
-                        self._decoded_samples = 0
-                        self._bias_discarding = False
-                        self._bias_done.set()
-                    else:
-                        continue
+                    self._expect_restart = False  # the device does not restart its sequence on a start
             last = self._last_rdt
             if last is None:
                 self._reset_tracker(sequence, ft_sequence)

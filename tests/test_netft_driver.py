@@ -1,0 +1,213 @@
+"""The Net F/T driver against the fake: discovery and its cross-check, SI conversion, streaming, bias, URLs."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import struct
+
+import numpy as np
+import pytest
+
+from drivers.netft import NetFTSensor, canonical_unit, parse_flat_xml, parse_netft_url, status_text
+from drivers.sensor import ForceTorqueSensor, open_sensor
+from ftacq.errors import DeviceConnectionError, DeviceError, InputError
+from tests.fakes.netft import FakeNetFT
+from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
+
+RATE_HZ = 1000.0
+POSE = np.array([0.4, 0.1, 0.3, 2.0, -1.0, 0.5])
+NOISE_SIGMAS = 6.0
+"""A mean of n noisy samples lies within this many standard errors of the truth."""
+READ_TIMEOUT_S = 2.0
+
+
+@pytest.fixture
+def physics() -> SensorPhysics:
+    return SensorPhysics(CellTruth(), SettablePose(POSE), seed=5)
+
+
+def make_fake(physics, **options) -> FakeNetFT:
+    settings = dict(rate_hz=RATE_HZ, force_unit="N", torque_unit="N-mm", counts_per_force=1_000_000,
+                    counts_per_torque=1_000)
+    settings.update(options)
+    return FakeNetFT(physics, **settings)
+
+
+@pytest.fixture
+def fake(physics):
+    with make_fake(physics) as device:
+        yield device
+
+
+def tolerance(physics, n: int) -> np.ndarray:
+    sigma = np.array(physics.truth.force_noise_n + physics.truth.torque_noise_nm)
+    return NOISE_SIGMAS * sigma / np.sqrt(n)
+
+
+def test_driver_reads_si_from_a_box_serving_torque_in_newton_millimetres(fake, physics) -> None:
+    with NetFTSensor.from_url(fake.url) as sensor:
+        assert isinstance(sensor, ForceTorqueSensor)
+        info = sensor.info
+        assert (info.transport, info.serial, info.force_unit, info.torque_unit) == ("netft", "FT12345", "N", "N-mm")
+        assert (info.counts_per_force, info.counts_per_torque, info.rate_hz) == (1e6, 1e3, RATE_HZ)
+        batch = sensor.read(timeout_s=READ_TIMEOUT_S)
+        assert batch.wrench.shape == (len(batch), 6) and batch.counts.dtype == np.int64
+        np.testing.assert_allclose(batch.wrench[:, 3:], batch.counts[:, 3:] / 1e6)  # N-mm counts → N·m
+        np.testing.assert_allclose(batch.wrench[:, :3], batch.counts[:, :3] / 1e6)
+        average = sensor.average(0.2)
+        np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
+                                     tolerance(physics, average.count))
+        assert average.count >= 100 and average.saturated == 0 and average.lost == 0
+        np.testing.assert_allclose(average.std, np.array(physics.truth.force_noise_n + physics.truth.torque_noise_nm),
+                                   rtol=0.35)
+        health = sensor.health()
+        assert health.received > 0 and health.lost == health.duplicate == health.malformed == 0
+        assert np.all(np.diff(batch.sequence) == 1) and np.all(np.diff(batch.time_s) >= 0)
+    fake.wait_for_command(0x0000)  # stop on close
+
+
+def test_imperial_units_are_converted_once(physics) -> None:
+    with make_fake(physics, force_unit="lbf", torque_unit="lbf-in", counts_per_force=200_000,
+                   counts_per_torque=30_000) as device, NetFTSensor.from_url(device.url) as sensor:
+        average = sensor.average(0.2)
+        np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
+                                     tolerance(physics, average.count) + 1.0 / 30_000)
+
+
+def test_http_and_tcp_disagreeing_is_a_clear_error(physics) -> None:
+    with make_fake(physics) as device:
+        device.calinfo_override = (2, 3, 1_000_000, 1_000)  # TCP says N-m, HTTP says N-mm
+        with pytest.raises(DeviceError, match=r"disagree.*N-mm.*TCP READCALINFO.*N-m"):
+            NetFTSensor.from_url(device.url).start()
+        assert not any(c.source == "udp" for c in device.commands)  # never started streaming
+
+
+@pytest.mark.parametrize("missing", ["calibration_page", "tcp", "prodname"])
+def test_liberal_about_what_the_box_serves(physics, caplog, missing) -> None:
+    options = {"calibration_page": dict(serve_calibration_page=False), "tcp": dict(serve_tcp=False),
+               "prodname": dict(prodname=None)}[missing]
+    caplog.set_level(logging.WARNING, logger="drivers.netft")
+    with make_fake(physics, **options) as device:
+        url = device.url if missing != "tcp" else device.url.replace("tcp_port=0", f"tcp_port={unused_tcp_port()}")
+        with NetFTSensor.from_url(url) as sensor:
+            average = sensor.average(0.1)
+            np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
+                                         tolerance(physics, average.count))
+    if missing != "prodname":
+        assert any(("netftcalapi" in r.message or "only" in r.message) for r in caplog.records)
+
+
+def unused_tcp_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def test_url_overrides_scaling_when_the_box_offers_none(physics) -> None:
+    with make_fake(physics, serve_tcp=False) as device:
+        device.serve_calibration_page = False
+        url = (f"netft://127.0.0.1:{device.rdt_port}?tcp_port={unused_tcp_port()}&http_port={unused_tcp_port()}"
+               "&counts_per_force=1000000&counts_per_torque=1000&force_unit=N&torque_unit=N-mm")
+        with NetFTSensor.from_url(url) as sensor:
+            assert sensor.info.extra["scaling_source"] == "URL"
+            average = sensor.average(0.1)
+            np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
+                                         tolerance(physics, average.count))
+
+
+def test_rate_and_buffered_mode_from_the_url(physics) -> None:
+    with make_fake(physics) as device:
+        with NetFTSensor.from_url(device.url + "&rate_hz=500&buffered=1&buffer_size=10") as sensor:
+            assert sensor.info.rate_hz == 500.0 and device.rate_hz == 500.0 and device.buffer_size == 10
+            device.wait_until(lambda f: f.records_sent >= 200)
+            batch = sensor.read(timeout_s=READ_TIMEOUT_S)
+            assert len(batch) % 10 == 0
+            health = sensor.health()
+            assert health.lost == 0 and health.malformed == 0
+        starts = [c for c in device.commands if c.source == "udp" and c.code == 0x0003]
+        assert starts, "buffered mode streams with 0x0003"
+        cgi = [c for c in device.commands if c.source == "http" and c.code == "/comm.cgi"]
+        assert cgi and cgi[0].params == {"comrdtrate": "500", "comrdtbsiz": "10"}
+
+
+def test_bias_tares_on_the_device_and_later_samples_read_zero(fake, physics) -> None:
+    with NetFTSensor.from_url(fake.url) as sensor:
+        sensor.read(timeout_s=READ_TIMEOUT_S)
+        sensor.bias()
+        batch = sensor.read(timeout_s=READ_TIMEOUT_S)
+        assert batch.sequence[0] <= 16  # only records from the restarted (biased) stream
+        average = sensor.average(0.2)
+        sigma = np.array(physics.truth.force_noise_n + physics.truth.torque_noise_nm)
+        np.testing.assert_array_less(np.abs(average.mean), NOISE_SIGMAS * sigma)  # one noisy sample is the bias
+        assert sensor.health().restarts == 0  # our own restart is not a fault
+    codes = [c.code for c in fake.commands if c.source == "udp"]
+    assert codes[:3] == [0x0002, 0x0042, 0x0002]
+
+
+def test_datagrams_from_other_senders_are_rejected_and_counted(fake) -> None:
+    with NetFTSensor.from_url(fake.url) as sensor:
+        sensor.read(timeout_s=READ_TIMEOUT_S)
+        record = struct.pack(">III6i", 999_999, 0, 0, *([123_456_789] * 6))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as intruder:
+            for _ in range(3):
+                intruder.sendto(record, sensor.local_address)
+        deadline_batches = [sensor.read(timeout_s=READ_TIMEOUT_S) for _ in range(3)]
+        while sensor.health().foreign < 3:
+            deadline_batches.append(sensor.read(timeout_s=READ_TIMEOUT_S))
+        assert all(not np.any(b.counts == 123_456_789) for b in deadline_batches)
+        health = sensor.health()
+        assert health.foreign == 3 and health.lost == 0
+
+
+def test_unreachable_sensor_is_one_connection_error() -> None:
+    with socket.socket() as tcp, socket.socket() as http:
+        tcp.bind(("127.0.0.1", 0))
+        http.bind(("127.0.0.1", 0))  # bound, not listening: connections are refused
+        url = f"netft://127.0.0.1:9?tcp_port={tcp.getsockname()[1]}&http_port={http.getsockname()[1]}"
+        with pytest.raises(DeviceConnectionError, match="cannot reach the Net F/T at 127.0.0.1"):
+            NetFTSensor.from_url(url).start()
+
+
+def test_open_sensor_builds_the_driver_from_the_url() -> None:
+    sensor = open_sensor("netft://192.0.2.7:4000?tcp_port=4001&http_port=8080&rate_hz=1000")
+    assert isinstance(sensor, NetFTSensor)
+    assert (sensor.host, sensor.rdt_port, sensor.tcp_port, sensor.http_port) == ("192.0.2.7", 4000, 4001, 8080)
+    defaults = open_sensor("netft://192.0.2.7")
+    assert (defaults.rdt_port, defaults.tcp_port, defaults.http_port) == (49152, 49151, 80)
+
+
+@pytest.mark.parametrize("url, message", [
+    ("netft://127.0.0.1:abc", "Port could not be cast"),
+    ("netft://", "no host"),
+    ("netft://127.0.0.1?colour=red", "unknown key 'colour'"),
+    ("netft://127.0.0.1?rate_hz=fast", "rate_hz='fast'"),
+    ("netft://127.0.0.1?buffered=maybe", "buffered='maybe'"),
+    ("netft://127.0.0.1?counts_per_force=1000", "only all together"),
+    ("netft://127.0.0.1?buffer_size=99", "buffer_size = 99"),
+    ("netft://127.0.0.1/path", "unexpected path"),
+])
+def test_bad_urls_name_the_problem(url, message) -> None:
+    with pytest.raises(InputError, match=message):
+        open_sensor(url)
+
+
+def test_unit_strings_and_codes() -> None:
+    assert canonical_unit("Nm", "torque") == "N-m"
+    assert canonical_unit("Nmm", "torque") == "N-mm"
+    assert canonical_unit("4", "torque") == "N-mm"
+    assert canonical_unit("kg-cm", "torque") == "kgf-cm"
+    assert canonical_unit("lbf", "force") == "lbf"
+    with pytest.raises(DeviceError, match="unknown torque unit 'furlong'"):
+        canonical_unit("furlong", "torque")
+
+
+def test_flat_xml_parser_is_liberal() -> None:
+    assert parse_flat_xml("<netft><cfgcpf>100</cfgcpf><scfgfu>N</scfgfu></netft>") == {"cfgcpf": "100", "scfgfu": "N"}
+    assert parse_flat_xml("<netft><cfgcpf>100</cfgcpf><broken>")["cfgcpf"] == "100"  # tag scan fallback
+
+
+def test_status_text_names_bits_of_both_maps() -> None:
+    assert status_text(0x8002_0000) == "error summary, transducer saturation or A/D error"
+    assert status_text(0x0000_0008, "axia") == "busy"
+    assert status_text(0) == "ok"
