@@ -51,6 +51,8 @@ INNER_ITERATIONS = 4
 """Outer iterations of the re-weighted refinement (weights and noise scales updated each time)."""
 ROBUST_WEIGHT_TOLERANCE = 1e-4
 """The re-weighted loop stops when no pose weight changes more than this (and the parameters are still)."""
+PARTIAL_SPECIAL_WARN = 12
+"""Warn about missing special orientations when at least this many of the 24 are present (a meant-SROM set)."""
 MIN_RELATIVE_STANDARD_ERROR = 1e-3
 """A pose's std/√count below this fraction of the channel's median is replaced by the median."""
 NOISE_SCALE_TOLERANCE = 1e-3
@@ -243,7 +245,7 @@ def identify(
             f"missing paper number(s) {', '.join(map(str, missing))}"
         )
     use_srom = method == "srom" or (method == "auto" and not missing)
-    if method == "auto" and 0 < 24 - len(missing) < 24:
+    if method == "auto" and PARTIAL_SPECIAL_WARN <= 24 - len(missing) < 24:
         warnings.append(
             f"{24 - len(missing)} of the 24 special orientations present (missing {', '.join(map(str, missing))}): "
             "gravity_base started from LROM"

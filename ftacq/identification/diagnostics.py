@@ -17,8 +17,11 @@ MIN_POSES = 6
 """Fewest poses accepted: 6 × 6 = 36 equations for 15 parameters (LROM alone needs ≥ 5)."""
 ONE_ORIENTATION_DEG = 2.0
 """If every pose is within this angle of the first, the set has one orientation."""
-ONE_AXIS_SPREAD_DEG = 1.0
-"""RMS rotation off the dominant axis (deg) below which the set turns about one axis only."""
+ONE_AXIS_RELATIVE_SPREAD = 0.01
+"""The set turns about one axis only if its RMS rotation off the dominant axis is below this fraction of the
+RMS rotation about it ..."""
+ONE_AXIS_MIN_SPREAD_DEG = 0.05
+"""... or below this absolute RMS angle (deg). A small cone is not refused here: the Fisher conditioning judges it."""
 SINGULAR_CONDITION = 1e13
 """Scaled condition number of JᵀWJ above which a parameter is unidentifiable: refuse."""
 WEAK_CONDITION = 1e6
@@ -77,22 +80,20 @@ def check_pose_set(flange_R_base: np.ndarray) -> dict:
             f"degenerate pose set: all {n} poses share one orientation (largest rotation between them "
             f"{max_angle:.2f}°); the weight cannot be separated from the bias"
         )
-    axes = relative_rotation_axes(rotations)
-    singular = np.linalg.svd(axes, compute_uv=False)
-    off_axis_rms_deg = float(np.degrees(np.arcsin(min(1.0, np.sqrt((singular[1] ** 2 + singular[2] ** 2) / n)))))
-    # also check relative to a second reference (poses at 180° from the first have zero sin-axis)
+    # RMS rotation along the dominant axis and off it, from two reference poses (a pose at 180° from a
+    # reference has a zero sin-axis vector, so one reference alone can miss it)
     far = int(np.argmax(angles))
-    other = relative_rotation_axes(np.concatenate([rotations[far : far + 1], rotations]))
-    singular_other = np.linalg.svd(other, compute_uv=False)
-    off_axis_rms_deg = max(
-        off_axis_rms_deg,
-        float(np.degrees(np.arcsin(min(1.0, np.sqrt((singular_other[1] ** 2 + singular_other[2] ** 2) / n))))),
-    )
-    if off_axis_rms_deg < ONE_AXIS_SPREAD_DEG:
+    main_rms_deg, off_axis_rms_deg = 0.0, 0.0
+    for reference in (rotations, np.concatenate([rotations[far : far + 1], rotations])):
+        singular = np.linalg.svd(relative_rotation_axes(reference), compute_uv=False)
+        main_rms_deg = max(main_rms_deg, float(np.degrees(np.arcsin(min(1.0, singular[0] / np.sqrt(n))))))
+        off = np.sqrt((singular[1] ** 2 + singular[2] ** 2) / n)
+        off_axis_rms_deg = max(off_axis_rms_deg, float(np.degrees(np.arcsin(min(1.0, off)))))
+    if off_axis_rms_deg < max(ONE_AXIS_RELATIVE_SPREAD * main_rms_deg, ONE_AXIS_MIN_SPREAD_DEG):
         raise IdentificationError(
             f"degenerate pose set: all {n} poses turn about one axis only (off-axis spread "
-            f"{off_axis_rms_deg:.2f}° RMS); the weight's component along that axis cannot be separated from "
-            "the force bias: tilt the tool about a second axis"
+            f"{off_axis_rms_deg:.2f}° RMS against {main_rms_deg:.1f}° about the axis); the weight's component along "
+            "that axis cannot be separated from the force bias: tilt the tool about a second axis"
         )
     return {"max_rotation_deg": max_angle, "off_axis_rms_deg": off_axis_rms_deg}
 
