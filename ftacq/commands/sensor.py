@@ -13,6 +13,7 @@ Sensors come from :func:`drivers.sensor.open_sensor` (``netft://…`` or ``can:/
 from __future__ import annotations
 
 import argparse
+import io
 import sys
 import time
 from pathlib import Path
@@ -165,7 +166,9 @@ def run_record(args: argparse.Namespace) -> int:
                         first_time_s = float(batch.time_s[0])
                     table = np.column_stack([batch.time_s - first_time_s, batch.wrench, batch.status.astype(np.int64),
                                              batch.saturated.astype(np.int64), batch.sequence, batch.counts])
-                    np.savetxt(handle, table, fmt=CSV_FORMATS, delimiter=",")
+                    text = io.StringIO()
+                    np.savetxt(text, table, fmt=CSV_FORMATS, delimiter=",")
+                    handle.write(text.getvalue())  # one write: Ctrl-C cannot leave half a row
                     samples += len(batch)
             except KeyboardInterrupt:
                 interrupted = True

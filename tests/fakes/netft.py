@@ -168,7 +168,8 @@ class FakeNetFT:
             [self.counts_per_force / NEWTONS_PER_FORCE_UNIT[force_unit]] * 3
             + [self.counts_per_torque / NEWTON_METRES_PER_TORQUE_UNIT[torque_unit]] * 3)
         cp = np.array([self.counts_per_force] * 3 + [self.counts_per_torque] * 3, dtype=float)
-        self.scale_factors = tuple(int(max(1, math.ceil(m * c / INT16_MAX))) for m, c in zip(self.max_rating, cp))
+        self.scale_factors = tuple(int(min(max(1, math.ceil(m * c / INT16_MAX)), 0xFFFF)) for m, c in zip(self.max_rating, cp))
+        """READFT scale factors (u16): ⌈max rating × counts per unit / 32767⌉, at most 65535 (values saturate)."""
 
         self._lock = threading.Condition()
         self._settings = {"comrdtrate": 0.0, "comrdtbsiz": int(buffer_size), "comrdte": 1, "setuserfilter": 0,

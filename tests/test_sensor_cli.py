@@ -1,0 +1,142 @@
+"""``ftacq sensor info | record | bias`` against the fake Net F/T (and the error paths a technician meets)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ftacq.cli import main
+from tests.fakes.netft import FakeNetFT
+from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
+
+ROOT = Path(__file__).resolve().parents[1]
+POSE = np.array([0.4, 0.1, 0.3, 2.0, -1.0, 0.5])
+RATE_HZ = 1000.0
+NOISE_SIGMAS = 6.0
+SUBPROCESS_TIMEOUT_S = 60.0
+
+
+@pytest.fixture
+def physics() -> SensorPhysics:
+    return SensorPhysics(CellTruth(), SettablePose(POSE), seed=7)
+
+
+@pytest.fixture
+def fake(physics):
+    with FakeNetFT(physics, rate_hz=RATE_HZ, torque_unit="N-mm", counts_per_torque=1_000,
+                   counts_per_force=2_000_000, serial="FT98765") as device:
+        yield device
+
+
+def test_info_prints_identity_units_rate_and_status(fake, capsys) -> None:
+    assert main(["sensor", "info", fake.url, "--seconds", "0.2"]) == 0
+    out = capsys.readouterr().out
+    assert "FT98765" in out and "2.2.59" in out
+    assert "force N, torque N-mm" in out
+    assert "2000000 per N, 1000 per N-mm" in out
+    assert "1000 Hz configured" in out
+    assert "0x00000000 (ok)" in out
+    assert "lost 0" in out
+
+
+def test_record_writes_si_csv_and_prints_health(fake, physics, tmp_path, capsys) -> None:
+    path = tmp_path / "wrench.csv"
+    assert main(["sensor", "record", fake.url, "--seconds", "0.4", "-o", str(path)]) == 0
+    with path.open() as handle:
+        rows = list(csv.reader(handle))
+    assert rows[0][:8] == ["t", "fx", "fy", "fz", "tx", "ty", "tz", "status"]
+    table = np.array(rows[1:], dtype=float)
+    assert len(table) > 100
+    assert table[0, 0] == 0.0 and np.all(np.diff(table[:, 0]) >= 0)
+    sigma = np.array(physics.truth.force_noise_n + physics.truth.torque_noise_nm)
+    np.testing.assert_array_less(np.abs(table[:, 1:7].mean(axis=0) - physics.noiseless_wrench(POSE)),
+                                 NOISE_SIGMAS * sigma / np.sqrt(len(table)))  # torque in N·m, not N-mm
+    assert np.all(table[:, 7] == 0)
+    out = capsys.readouterr().out
+    assert f"{len(table)} samples" in out and "health: received" in out and "lost 0" in out
+
+
+def test_record_saturated_samples_are_marked(fake, tmp_path, capsys) -> None:
+    fake.saturate(None)
+    path = tmp_path / "saturated.csv"
+    assert main(["sensor", "record", fake.url, "--seconds", "0.2", "-o", str(path)]) == 0
+    with path.open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert rows and all(int(row["status"]) == 0x8002_0000 and row["saturated"] == "1" for row in rows)
+    saturated = int(re.search(r"saturated (\d+)", capsys.readouterr().out).group(1))
+    assert saturated >= len(rows)  # the summary counts every flagged record the stream delivered
+
+
+def test_bias_tares_the_device(fake, capsys) -> None:
+    assert main(["sensor", "bias", fake.url]) == 0
+    out = capsys.readouterr().out
+    assert "biased" in out and "residual mean" in out
+    assert 0x0042 in [c.code for c in fake.commands if c.source == "udp"]
+    assert np.abs(fake.bias_counts).max() > 0
+
+
+def test_bad_url_is_one_message_and_exit_2(tmp_path, capsys) -> None:
+    assert main(["sensor", "info", "netft://127.0.0.1:notaport"]) == 2
+    assert main(["sensor", "info", "ftp://somewhere"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith("ftacq: error: sensor URL") for line in err)
+
+
+def test_unreachable_sensor_is_one_message_and_exit_1(capsys) -> None:
+    with socket.socket() as tcp, socket.socket() as http:
+        tcp.bind(("127.0.0.1", 0))
+        http.bind(("127.0.0.1", 0))  # bound but not listening: refused
+        url = f"netft://127.0.0.1:9?tcp_port={tcp.getsockname()[1]}&http_port={http.getsockname()[1]}"
+        assert main(["sensor", "info", url]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach the Net F/T at 127.0.0.1" in err[0]
+
+
+def test_record_rejects_bad_seconds_without_writing(fake, tmp_path, capsys) -> None:
+    path = tmp_path / "never.csv"
+    assert main(["sensor", "record", fake.url, "--seconds", "-1", "-o", str(path)]) == 2
+    assert not path.exists()
+    assert "--seconds -1" in capsys.readouterr().err
+
+
+def test_ctrl_c_keeps_what_was_recorded(tmp_path) -> None:
+    """Run the real ``ftacq`` entry point against the fake in its own process; interrupt it mid-recording."""
+    fake_process = subprocess.Popen([sys.executable, "-m", "tests.fakes.netft", "--rate-hz", "500"], cwd=ROOT,
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        url = json.loads(fake_process.stdout.readline())["url"]
+        path = tmp_path / "interrupted.csv"
+        recorder = subprocess.Popen([sys.executable, "-m", "ftacq.cli", "sensor", "record", url, "--seconds", "60",
+                                     "-o", str(path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                    text=True)
+        deadline = time.monotonic() + SUBPROCESS_TIMEOUT_S
+        while not any(p.stat().st_size > 4096 for p in tmp_path.glob(".interrupted.csv.*")):
+            assert time.monotonic() < deadline and recorder.poll() is None, recorder.communicate()
+            time.sleep(0.05)  # polling a file another process writes; bounded by the deadline above
+        recorder.send_signal(signal.SIGINT)
+        out, err = recorder.communicate(timeout=SUBPROCESS_TIMEOUT_S)
+        assert recorder.returncode == 130, err
+        assert "stopped by Ctrl-C" in out
+        with path.open() as handle:
+            rows = list(csv.reader(handle))
+        assert rows[0][0] == "t" and len(rows) > 50
+        assert all(len(row) == len(rows[0]) for row in rows)  # no half-written row
+        assert not list(tmp_path.glob(".interrupted.csv.*"))
+    finally:
+        fake_process.stdin.close()
+        fake_process.wait(timeout=SUBPROCESS_TIMEOUT_S)
+
+
+def test_sensor_without_action_prints_help(capsys) -> None:
+    assert main(["sensor"]) == 2
+    assert "info" in capsys.readouterr().out
