@@ -51,10 +51,13 @@ def format_identification_report(result, validation: dict | None = None) -> str:
     add = lines.append
     add(f"ftacq identification — {n} poses, method {result.method_used}")
     add(f"  {meta.get('method_detail', '')}")
+    if "refine" in result.method_used:
+        refinement = f"refinement {'converged' if result.converged else 'NOT converged'} ({result.iterations} iterations)"
+    else:
+        refinement = "no refinement (the paper's closed form)"
     add(
         f"  special orientations found: {diag.get('special_orientations_present', 0)} of 24; "
-        f"outliers: {len(result.outliers)}; refinement {'converged' if result.converged else 'NOT converged'}"
-        f" ({result.iterations} iterations)"
+        f"outliers: {len(result.outliers)}; {refinement}"
     )
     add("")
     add("Calibration (value ± 1σ)")

@@ -35,7 +35,8 @@ def test_identify_prints_the_report_and_writes_the_calibration(tmp_path, poses_c
 def test_identify_options_method_and_no_refine(tmp_path, poses_csv, capsys):
     out = tmp_path / "cal.json"
     assert main(["identify", str(poses_csv), "-o", str(out), "--method", "lrom", "--no-refine"]) == 0
-    assert "method lrom\n" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "method lrom\n" in text and "no refinement" in text
     assert load_calibration(out).metadata["method"] == "lrom"
 
 
