@@ -169,3 +169,17 @@ def test_compensate_reads_a_monitor_style_record(tmp_path, capsys):
         assert float(row["contact_fx"]) == pytest.approx(1.0, abs=1e-9)
         assert float(row["contact_tz"]) == pytest.approx(0.0, abs=1e-9)
     assert rows[3]["contact_fx"] == "" and rows[3]["sequence"] == "3"
+
+
+def test_compensate_bad_pose_file_exit_2_and_no_output(tmp_path, capsys):
+    from ftacq.calfile import save_calibration
+
+    cal = tmp_path / "cal.json"
+    save_calibration(cal, CellTruth().calibration())
+    path = tmp_path / "poses.csv"
+    path.write_text("rx,ry,rz,fx,fy,fz,tx,ty,tz\n0,0,0,1,2,3,4,5,6\n0,0,0,1,2,inf,4,5,6\n")
+    out = tmp_path / "out.csv"
+    assert main(["compensate", str(cal), str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "line 3, column 'fz': value 'inf' is not finite" in err and str(path) in err
+    assert not out.exists()
