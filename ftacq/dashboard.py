@@ -114,6 +114,9 @@ FRAME_AXIS_LENGTH_M = 0.08
 PLAN_AXIS_LENGTH_M = 0.04
 WRENCH_WINDOW_S = 10.0
 """The wrench plots follow the time cursor over the last this-many seconds."""
+EYE_POSITION_M = (1.3, -1.8, 1.1)
+EYE_TARGET_M = (0.05, -0.3, 0.3)
+"""Initial camera of the 3-D view (base frame, m): in front of and above a floor-mounted arm."""
 
 DEFAULT_VIEWER_PORT = 9876
 DEFAULT_WEB_PORT = 9090
@@ -151,7 +154,8 @@ def blueprint():
                 plot(COMPENSATED_TORQUE, "compensated torque [N·m]"),
             ),
             rrb.Vertical(
-                rrb.Spatial3DView(origin=WORLD, name="robot (base frame)"),
+                rrb.Spatial3DView(origin=WORLD, name="robot (base frame)", eye_controls=rrb.EyeControls3D(
+                    position=EYE_POSITION_M, look_target=EYE_TARGET_M, eye_up=(0.0, 0.0, 1.0))),
                 rrb.Tabs(
                     rrb.TextLogView(origin=LOG, name="log"),
                     rrb.TimeSeriesView(origin=HEALTH, name="sensor health"),
@@ -165,7 +169,7 @@ def blueprint():
             ),
             column_shares=[1, 1],
         ),
-        rrb.TimePanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=SENSOR_TIMELINE, play_state="following"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.BlueprintPanel(state="collapsed"),
     )
