@@ -16,6 +16,7 @@ Both check a stop flag between reads, so a requested stop lands within one read.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -26,9 +27,17 @@ from drivers.robot import Robot
 from drivers.sensor import ForceTorqueSensor, WrenchAverage
 from ftacq.errors import DeviceTimeoutError, FtacqError, SensorFaultError
 
+log = logging.getLogger(__name__)
+
 CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 READ_TIMEOUT_CAP_S = 0.25
 """Longest single ``sensor.read`` wait, so the stop flag is checked at least this often (s)."""
+MIN_SAMPLE_FRACTION = 0.5
+"""An averaging window with fewer than this fraction of the samples the sensor's rate promises is taken again."""
+MAX_AVERAGE_ATTEMPTS = 3
+"""Averaging windows tried at one pose before accepting a short one (with a warning) or failing."""
+MIN_SAMPLES = 2
+"""Fewest samples of an accepted average (a standard deviation needs two)."""
 
 
 class PoseNotSettledError(DeviceTimeoutError):
@@ -153,15 +162,25 @@ def average_at_pose(sensor: ForceTorqueSensor, settings: SettleSettings,
     Raises SensorFaultError when every sample was saturated, DeviceTimeoutError when the sensor is silent,
     StopRequested when a stop was requested before averaging began.
     """
-    if should_stop():
-        raise StopRequested("stop requested before averaging")
-    t_start = time.time()
-    average = sensor.average(settings.average_time_s,
-                             timeout_s=settings.average_time_s + settings.sensor_timeout_s)
-    t_end = time.time()
-    if average.count < 1:
-        raise SensorFaultError(f"no usable sample in the {settings.average_time_s:g} s averaging window "
-                               f"({average.saturated} saturated, {average.lost} lost)")
+    info = getattr(sensor, "info", None)
+    rate_hz = float(getattr(info, "rate_hz", 0.0) or 0.0)
+    minimum = max(MIN_SAMPLES, int(MIN_SAMPLE_FRACTION * rate_hz * settings.average_time_s))
+    for attempt in range(MAX_AVERAGE_ATTEMPTS):
+        if should_stop():
+            raise StopRequested("stop requested before averaging")
+        t_start = time.time()
+        average = sensor.average(settings.average_time_s,
+                                 timeout_s=settings.average_time_s + settings.sensor_timeout_s)
+        t_end = time.time()
+        if average.count >= minimum:
+            break
+        log.warning("averaging window %d/%d: %d samples in %.3g s, expected at least %d (%.0f Hz); %s",
+                    attempt + 1, MAX_AVERAGE_ATTEMPTS, average.count, settings.average_time_s, minimum, rate_hz,
+                    "averaging again" if attempt + 1 < MAX_AVERAGE_ATTEMPTS else "keeping it")
+    if average.count < MIN_SAMPLES:
+        raise SensorFaultError(f"only {average.count} usable sample(s) in the {settings.average_time_s:g} s "
+                               f"averaging window after {MAX_AVERAGE_ATTEMPTS} tries ({average.saturated} "
+                               f"saturated, {average.lost} lost)")
     if not np.all(np.isfinite(average.mean)):
         raise SensorFaultError("the averaged wrench is not finite")
     return average, t_start, t_end
