@@ -10,6 +10,9 @@ would remove part of a contact torque):
 
     g_s = sensor_rotation @ flange_R_base @ gravity_base
     F_contact = F − g_s − force_bias,   T_contact = T − center_of_mass × g_s − torque_bias
+
+``Calibration.compensate`` handles batches (one (N, 9) @ (9, 6) product per block of samples, in place when
+given ``out``); ``Calibration.compensate_sample`` is the plain-Python path for one sample (a few µs).
 """
 
 from __future__ import annotations
