@@ -287,7 +287,7 @@ def _finish(args, folder, plan, config, result, cell) -> int:
                           title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration")
     resume = f"ftacq calibrate {'--sim ' if cell is not None else ''}--resume {folder.path}"
     if result.status != "done":
-        kept = len(result.measured)
+        kept = len(folder.measured())  # what is on disk (a pose may be written just as the interrupt came)
         text = (f"calibration {result.status}: {result.message}\n"
                 f"the robot was stopped; {kept} measured poses are kept in {folder.path / 'poses.csv'}\n"
                 f"resume with: {resume}")
