@@ -13,8 +13,9 @@ ur-rtde facts this module is built around (spec ``/work/shared/specs/ur.md``):
 
 The flange pose is computed from the joint angles, never read from ``actual_TCP_pose``, so a TCP offset held
 by the controller cannot leak into the calibration: :class:`URRobot` asks the controller's calibrated kinematics
-(``getForwardKinematics(q, [0]*6)``) and falls back to UR's nominal DH model; :class:`URStateReader` uses the
-nominal DH model (:func:`ftacq.kinematics.flange_pose`).
+(``getForwardKinematics(q, probe_tcp)`` with the probe removed again: ur-rtde 1.6.5 treats a zero TCP argument as
+"use the active TCP") and falls back to UR's nominal DH model; :class:`URStateReader` uses the nominal DH model
+(:func:`ftacq.kinematics.flange_pose`).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from ftacq.errors import (
     RobotError,
 )
 from ftacq.kinematics import UR_MODELS, URModel, flange_pose, ur_model
-from ftacq.so3 import angle_between_deg
+from ftacq.so3 import angle_between_deg, rotation_from_rotvec, rotvec_from_rotation
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +66,8 @@ STALL_GRACE_S = 1.0
 """A move that is not running, not moving and not at its target for this long has been stopped."""
 FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG = 0.05, 5.0
 """Controller FK further than this from the nominal DH model is not trusted (wrong model or a broken reply)."""
+FK_PROBE_TCP = (0.0, 0.0, 0.2, 0.0, 0.0, 0.0)
+"""A non-zero TCP passed to ``getForwardKinematics`` and removed again (a zero one means 'use the active TCP')."""
 
 # ur-rtde's own client-side ranges (spec §4.4): limits above these could never be sent.
 UR_RTDE_MAX_JOINT_SPEED_RAD_S, UR_RTDE_MAX_JOINT_ACCELERATION_RAD_S2 = 3.14, 40.0
@@ -332,6 +335,14 @@ class URStateReader:
                 log.warning("RTDE receive disconnect from %s: %s", self.host, error)
 
 
+def _pose_matrix(pose: np.ndarray) -> np.ndarray:
+    """4×4 transform of a pose [x, y, z, rx, ry, rz]."""
+    matrix = np.eye(4)
+    matrix[:3, :3] = rotation_from_rotvec(pose[3:6])
+    matrix[:3, 3] = pose[:3]
+    return matrix
+
+
 def _check_limit(value: float, limit: float, what: str, unit: str, key: str) -> float:
     value = float(value)
     if not math.isfinite(value) or value <= 0.0:
@@ -458,19 +469,18 @@ class URRobot:
         return self._reader.tcp_pose()
 
     def flange_pose(self) -> np.ndarray:
-        """Flange pose in the base frame from ``actual_q``: the controller's calibrated FK with a zero TCP
-        (``getForwardKinematics(q, [0]*6)``), cross-checked against and falling back to the nominal DH model."""
+        """Flange pose in the base frame from ``actual_q`` (TCP offset excluded, whatever TCP the controller holds).
+
+        Uses the controller's calibrated kinematics when it answers: ``getForwardKinematics(q, probe)`` with a
+        non-zero probe TCP (:data:`FK_PROBE_TCP`), composed with the probe's inverse. A zero TCP cannot be asked
+        for: ur-rtde 1.6.5 treats ``tcp_offset=[0]*6`` as "not given" and the controller then applies its active
+        TCP. The result is cross-checked against UR's nominal DH model, which is also the fallback (faults,
+        program not running, or a reply further than FK_CROSS_CHECK_M / FK_CROSS_CHECK_DEG away).
+        """
         q = self.joint_positions()
         nominal = flange_pose(self.model, q) if self.model is not None else None
-        controller = None
-        status = self._reader.status(steady=True)
-        if status.program_running and not (status.protective_stop or status.emergency_stop):
-            try:
-                reply = self._call("getForwardKinematics", list(q), [0.0] * 6)
-                controller = np.array(reply, dtype=float) if reply is not None and len(reply) == 6 else None
-            except (RuntimeError, DeviceTimeoutError) as error:
-                log.debug("getForwardKinematics failed: %s", error)
-        if controller is not None and np.all(np.isfinite(controller)):
+        controller = self._controller_flange_pose(q)
+        if controller is not None:
             if nominal is None or self._close_poses(controller, nominal):
                 return controller
             if not self._fk_warned:
@@ -483,10 +493,23 @@ class URRobot:
                              "no forward kinematics from the controller); pass model=, e.g. 'UR5e'")
         return nominal
 
+    def _controller_flange_pose(self, q: np.ndarray) -> np.ndarray | None:
+        status = self._reader.status(steady=True)
+        if not status.program_running or status.protective_stop or status.emergency_stop:
+            return None
+        try:
+            reply = self._call("getForwardKinematics", [float(v) for v in q], list(FK_PROBE_TCP))
+        except (RuntimeError, DeviceTimeoutError) as error:
+            log.debug("getForwardKinematics failed: %s", error)
+            return None
+        if reply is None or len(reply) != 6 or not np.all(np.isfinite(reply)):
+            return None
+        base_T_probe = _pose_matrix(np.asarray(reply, dtype=float))
+        base_T_flange = base_T_probe @ np.linalg.inv(_pose_matrix(np.asarray(FK_PROBE_TCP)))
+        return np.concatenate([base_T_flange[:3, 3], rotvec_from_rotation(base_T_flange[:3, :3])])
+
     @staticmethod
     def _close_poses(a: np.ndarray, b: np.ndarray) -> bool:
-        from ftacq.so3 import rotation_from_rotvec
-
         angle = float(angle_between_deg(rotation_from_rotvec(a[3:6]), rotation_from_rotvec(b[3:6])))
         return float(np.linalg.norm(a[:3] - b[:3])) < FK_CROSS_CHECK_M and angle < FK_CROSS_CHECK_DEG
 

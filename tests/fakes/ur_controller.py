@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import os
 import signal
 import socket
 import struct
@@ -47,6 +48,8 @@ from tests.fakes.ur_simulator import Fault, URSimulator
 
 RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
 TICK_HZ = 500.0
+IDLE_TICK_S = 0.01
+"""Tick period while no client streams and nothing moves (keeps an idle controller CPU-light)."""
 MAX_STREAM_HZ = 500.0
 SEND_TIMEOUT_S = 1.0
 BIND_ERROR_EXIT = 3
@@ -112,6 +115,7 @@ class RTDEConnection:
         self.inputs: dict[int, rp.Recipe] = {}
         self.period_s = 1.0 / MAX_STREAM_HZ
         self.next_send_s = 0.0
+        self.last_sent_seq = 0
         self.streaming = False
         self.closed = False
         sock.settimeout(None)
@@ -195,6 +199,7 @@ class RTDEConnection:
             with self.send_lock:
                 ok = self._send_locked(rp.frame(rp.CONTROL_PACKAGE_START, bytes([1 if self.outputs else 0])))
                 if ok and self.outputs is not None:
+                    self.last_sent_seq = self.server.sim.tick_seq
                     self.streaming = True
                     self.next_send_s = time.monotonic()
             self.server.update_stream_period()
@@ -226,8 +231,13 @@ class ControllerServer:
         self.listeners: dict[str, socket.socket] = {}
         self.shared_pose = None
         if pose_shm:
+            from multiprocessing import resource_tracker
+
             from tests.fakes.world import SharedPose
             self.shared_pose = SharedPose(pose_shm)
+            # attaching registers the block with this process's resource tracker, which would unlink it when
+            # this process exits; the creator owns it
+            resource_tracker.unregister(self.shared_pose._shm._name, "shared_memory")
         sim.on_network_fault = self._network_fault
 
     # -------------------------------------------------------------- setup
@@ -295,18 +305,26 @@ class ControllerServer:
         while not self.stop_event.is_set():
             now = time.monotonic()
             snap = self.sim.step(now)
+            connections = []
             if self.shared_pose is not None:
                 self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"])
             if not self.frozen:
                 with self.lock:
-                    connections = [c for c in self.rtde_connections if c.streaming]
+                    # receive-only clients first: a client must never see 'done' on its control connection
+                    # before its other connections have the final state
+                    connections = sorted((c for c in self.rtde_connections if c.streaming), key=lambda c: bool(c.inputs))
                 for connection in connections:
                     if now >= connection.next_send_s:
                         connection.send_data(snap)
+                        connection.last_sent_seq = snap["seq"]
                         connection.next_send_s += connection.period_s
                         if connection.next_send_s < now:
                             connection.next_send_s = now + connection.period_s
-            next_tick += period
+                published = min((c.last_sent_seq for c in connections), default=snap["seq"])
+                with self.sim.lock:
+                    self.sim.published_seq = published
+            idle = not connections if not self.frozen else True
+            next_tick += IDLE_TICK_S if idle and self.sim.motion is None else period
             delay = next_tick - time.monotonic()
             if delay > 0:
                 self.stop_event.wait(delay)
@@ -528,9 +546,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, lambda *_: server.stop_event.set())
     server.start()
     print("READY " + json.dumps(server.ready_info()), flush=True)
+    parent = os.getppid()
     try:
         while not server.stop_event.wait(0.5):
-            pass
+            if os.getppid() != parent:  # the test process died: do not linger as an orphan
+                break
     finally:
         server.close()
     return 0

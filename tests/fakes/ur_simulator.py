@@ -148,12 +148,17 @@ class URSimulator:
         self._motion_finished_s = self.start_s
         self._path_queue: list[tuple[str, np.ndarray, float, float, float]] = []
         self._path_total = 0
+        self.tick_seq = 0
+        self.published_seq = 0  # the newest tick every streaming client has been sent (set by the server)
+        self._final_state_seq = 0
         self.move_count = 0
         self.commands: list[dict] = []
         self.faults: list[Fault] = []
         self.events: list[dict] = []
         self.stream_period_s = 0.002  # longest period among streaming clients; set by the server
         self.on_network_fault = None  # callable(kind) installed by the server
+        self._pose_cache_key: tuple[bytes, bytes] | None = None
+        self._pose_cache: tuple[np.ndarray, np.ndarray] = (np.zeros(6), np.zeros(6))
         self._tcp_pose_prev = self.tcp_pose()
         self.tcp_speed = np.zeros(6)
 
@@ -212,7 +217,9 @@ class URSimulator:
                     self.in_bits[0] = int(value)
                 elif name == "input_bit_registers32_to_63":
                     self.in_bits[1] = int(value)
-            self.last_input_double_count = double_count
+            if any(name in values for name in ("input_int_register_0", "input_int_register_24")):
+                self.last_input_double_count = double_count  # the recipe that carried the command
+                self._event("command_package", cmd=int(values.get("input_int_register_0", values.get("input_int_register_24", -1))), doubles=double_count)
             self.input_seq += 1
 
     # ------------------------------------------------------------------ scripts
@@ -436,10 +443,12 @@ class URSimulator:
             kind, until = self._job
             if kind == "motion" and self.motion is None and not self._path_queue:
                 self._job = ("until", now + self._settle_s())
-            elif kind == "until" and now >= until:
+                self._final_state_seq = self.tick_seq  # this tick's snapshot holds the final state
+            elif kind == "until" and now >= until and self.published_seq >= self._final_state_seq + 1:
                 self._job = None
                 self._executing = True
                 self.out_int[off] = 2
+                self._event("done", q=self.q.tolist())
             return
         cmd = self.in_int[off]
         if cmd == CMD_CLEAR:
@@ -463,7 +472,9 @@ class URSimulator:
             self._executing = True
             return
         wait_for_motion = self._command(cmd, off)
-        if wait_for_motion:
+        if wait_for_motion is None:  # refused with a safety stop: no 'done'; the client sees the stop bits
+            self._executing = True
+        elif wait_for_motion:
             self._job = ("motion", 0.0)
         else:
             self._executing = True
@@ -477,8 +488,9 @@ class URSimulator:
             self._record(REALTIME_NAMES[cmd], values[:6], values[6] if len(values) > 6 else 0.0,
                          values[7] if len(values) > 7 else 0.0, True, False, "not simulated")
 
-    def _command(self, cmd: int, off: int) -> bool:
-        """Execute one regular command; return True when 'done' must wait for the arm to come to rest."""
+    def _command(self, cmd: int, off: int) -> bool | None:
+        """Execute one regular command; return True when 'done' must wait for the arm to come to rest, False when
+        it is done now, None when a move was refused with a safety stop (no 'done' is signalled)."""
         d = self.in_dbl
         asynchronous = bool(self.in_int[off + 1])
         if cmd in (CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK):
@@ -493,6 +505,8 @@ class URSimulator:
             started = self._start_move(kind, target, speed, acceleration, asynchronous)
             if started:
                 self._write_async(running=True, progress=0, new_operation=True)
+            elif not self.can_move():
+                return None
             return started and not asynchronous
         if cmd == CMD_MOVE_PATH:
             asynchronous = bool(self.in_int[off + 1])
@@ -533,6 +547,7 @@ class URSimulator:
         """Advance the simulation to ``now`` and return the snapshot of output fields."""
         now = time.monotonic() if now is None else now
         with self.lock:
+            self.tick_seq += 1
             dt = max(now - self._last_step_s, 0.0)
             self._last_step_s = now
             if self._pending_script is not None and now >= self._pending_script[0]:
@@ -547,9 +562,17 @@ class URSimulator:
             self._run_script(now)
             return self.snapshot(now, dt)
 
+    def _poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """(flange pose, TCP pose) of the current q, cached while q and the TCP offset do not change."""
+        key = (self.q.tobytes(), self.tcp_offset.tobytes())
+        if self._pose_cache_key != key:
+            self._pose_cache_key = key
+            self._pose_cache = (self.flange_pose(), self.tcp_pose())
+        return self._pose_cache
+
     def snapshot(self, now: float, dt: float) -> dict:
-        tcp = self.tcp_pose()
-        if dt > 0:
+        flange, tcp = self._poses()
+        if dt > 0 and (self.motion is not None or np.any(self.tcp_speed)):
             self.tcp_speed = np.concatenate([(tcp[:3] - self._tcp_pose_prev[:3]) / dt,
                                              rotvec_from_rotation(rotation_from_rotvec(tcp[3:6])
                                                                   @ rotation_from_rotvec(self._tcp_pose_prev[3:6]).T) / dt])
@@ -579,12 +602,12 @@ class URSimulator:
             "runtime_state": int(self.runtime_state), "robot_status_bits": self.robot_status_bits(),
             "safety_status_bits": self.safety_status_bits(),
             "payload": float(self.payload_kg), "payload_cog": tuple(self.payload_cog.tolist()),
-            "target_gravity": gravity, "elbow_position": tuple(forward_kinematics(self.model, self.q)[:3, 3].tolist()),
+            "target_gravity": gravity,
         }
-        return {"fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
+        return {"seq": self.tick_seq, "fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
                 "in_int": list(self.in_int), "in_dbl": list(self.in_dbl),
                 "out_bits": list(self.out_bits), "in_bits": list(self.in_bits),
-                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": self.flange_pose()}
+                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": flange}
 
     # ------------------------------------------------------------------ control channel views
     def state_view(self) -> dict:
