@@ -330,6 +330,14 @@ class Dashboard:
                     colors=[GRAVITY_COLOR], labels=["tool weight"], radii=[0.004]))
             self._columns(JOINT_ANGLES, np.array([time_s]), q_rad[None, :])
 
+    def log_flange(self, time_s: float, flange_pose: np.ndarray) -> None:
+        """Log only the flange frame at ``time_s`` from ``flange_pose`` [x, y, z (m), rx, ry, rz (rad)] (no model)."""
+        rr = self._rr
+        flange_pose = np.asarray(flange_pose, dtype=np.float64)
+        with self._lock:
+            self._at(time_s, FLANGE, rr.Transform3D(translation=flange_pose[:3],
+                                                    mat3x3=rotation_from_rotvec(flange_pose[3:6])))
+
     def log_health(self, time_s: float, health, viewer_dropped: int = 0) -> None:
         """Log a :class:`drivers.sensor.SensorHealth` snapshot at ``time_s`` (s, sensor clock): receive rate [Hz],
         lost / saturated / status-error counts, the last status word, and batches the viewer dropped."""
@@ -416,12 +424,15 @@ class DashboardListener:
     """A :data:`procedures.events.Listener` that draws the calibration procedure on a :class:`Dashboard`.
 
     Plan → every pose as a frame coloured by set; state changes → the current pose and a log line; each
-    measured pose → its averaged wrench; identification → residuals per pose; validation → errors per V pose.
-    It never raises into the procedure unless the dashboard is strict (tests).
+    measured pose → its averaged wrench and the arm where it was measured (the flange frame only without
+    ``model``, a :class:`ftacq.kinematics.URModel`); identification → residuals per pose; validation → errors per
+    V pose. It never raises into the procedure unless the dashboard is strict (tests).
     """
 
-    def __init__(self, dashboard: Dashboard, clock_s: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, dashboard: Dashboard, model: URModel | None = None,
+                 clock_s: Callable[[], float] = time.monotonic) -> None:
         self.dashboard = dashboard
+        self.model = model
         self._clock_s = clock_s
         self._poses: np.ndarray | None = None
         self._labels: tuple[str, ...] = ()
@@ -459,6 +470,10 @@ class DashboardListener:
             dash.log_text(f"{event.state}{where}{message}", level=level, time_s=now, path=CALIBRATION_LOG)
         elif isinstance(event, events.PoseMeasured):
             dash.log_pose_measured(now, event.index, event.mean)
+            if self.model is not None:
+                dash.log_robot(now, event.joint_positions_rad, event.pose, self.model)
+            else:
+                dash.log_flange(now, event.pose)
             if event.saturated or event.lost:
                 dash.log_text(f"pose {event.index} {event.label}: {event.saturated} saturated, {event.lost} lost",
                               level="WARN", time_s=now, path=CALIBRATION_LOG)

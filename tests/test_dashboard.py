@@ -167,7 +167,7 @@ def test_listener_draws_plan_measurements_and_residuals(tmp_path):
     recording = new_recording(path)
     dashboard = dash.Dashboard(recording, strict=True)
     clock = iter(np.arange(100.0, 200.0, 0.5))
-    listener = dash.DashboardListener(dashboard, clock_s=lambda: float(next(clock)))
+    listener = dash.DashboardListener(dashboard, model=MODEL, clock_s=lambda: float(next(clock)))
     rng = np.random.default_rng(5)
     qs = Q_HOME_RAD + 0.3 * rng.normal(size=(6, 6))
     poses = np.array([flange_pose(MODEL, q) for q in qs])
@@ -188,7 +188,8 @@ def test_listener_draws_plan_measurements_and_residuals(tmp_path):
 
     paths = dash.entity_paths(path)
     for expected in (f"{dash.PLAN}/A", f"{dash.PLAN}/E", f"{dash.PLAN}/V", dash.CURRENT_POSE,
-                     dash.RESIDUAL_FORCE_NORM, dash.VALIDATION_FORCE_NORM, dash.CALIBRATION_LOG, dash.SENSOR):
+                     dash.RESIDUAL_FORCE_NORM, dash.VALIDATION_FORCE_NORM, dash.CALIBRATION_LOG, dash.SENSOR,
+                     dash.ROBOT_LINKS, dash.FLANGE):
         assert expected in paths, expected
     _, measured_force = dash.read_scalars(path, dash.MEASURED_FORCE)
     np.testing.assert_allclose(measured_force, means[:, :3], atol=VALUE_TOLERANCE)
