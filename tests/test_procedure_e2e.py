@@ -159,3 +159,20 @@ def _fast_toml(tmp_path):
                     "[sampling]\nsettle_time_s = 0.0\nsettle_window_s = 0.02\naverage_time_s = 0.05\n",
                     encoding="utf-8")
     return path
+
+
+def test_drift_check_warns_about_a_drifting_sensor(tmp_path):
+    from dataclasses import replace
+
+    drifting = replace(CellTruth(), drift_n_per_s=(0.05, 0.0, 0.05))
+    with SimulatedCell(truth=drifting, sensor="can", time_scale=0.0) as cell:
+        config = fast_config(cell, random_count=0, validation_count=2, drift_warn_force_n=0.05)
+        plan, result = run_calibration(cell, config)
+    assert result.status == "done", result.message
+    drift = result.drift
+    elapsed = drift.elapsed_s
+    assert elapsed > 0
+    # the revisit differs from the first measurement by the drift rate × the time between them
+    np.testing.assert_allclose(drift.drift[[0, 2]], [0.05 * elapsed] * 2, rtol=0.25, atol=0.05)
+    assert drift.warning and "warm up" in drift.warning
+    assert drift.warning in result.warnings

@@ -126,3 +126,20 @@ def test_requested_stop_keeps_the_data_and_a_critical_listener_error_fails_the_r
     assert folder.read_record().labels == tuple(plan.labels[:2])
     assert json.loads((folder.path / "run.json").read_text())["status"] == "stopped"
     assert failed.status == "failed" and "disk full" in failed.message
+
+
+def test_a_pose_that_never_settles_fails_naming_the_channel(tmp_path):
+    from dataclasses import replace
+
+    from procedures.settle import PoseNotSettledError
+    from tests.fakes.world import CellTruth
+
+    shaky = replace(CellTruth(), force_noise_n=(0.05, 0.05, 3.0))  # Fz far above the 0.5 N stillness threshold
+    with SimulatedCell(truth=shaky, sensor="can", time_scale=0.0) as cell:
+        config = fast_config(cell, settle_timeout_s=0.3)
+        _, result = run_calibration(cell, config)
+        commands = cell.controller.commands()
+    assert isinstance(result.error, PoseNotSettledError)
+    assert "did not settle within 0.3 s" in result.message and "Fz std" in result.message
+    assert result.status == "failed" and result.measured == {}
+    assert len([c for c in commands if c["kind"] == "movej"]) == 1

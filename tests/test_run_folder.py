@@ -134,3 +134,30 @@ def test_steps_skip_measured_poses_and_end_with_the_drift_revisit():
     assert count_measurements(plan, {"A01", "E01"}) == 3
     assert count_measurements(plan, {*LABELS, drift_label("A01")}) == 0
     assert count_measurements(plan, (), drift_check=False) == 4
+
+
+def test_progress_lines_without_a_terminal():
+    import io
+
+    from procedures.progress import ProgressListener
+
+    clock = iter([0.0, 10.0, 20.0, 20.0, 20.0, 20.0])
+    stream = io.StringIO()
+    progress = ProgressListener(total=4, estimated_s=100.0, stream=stream, clock_s=lambda: next(clock),
+                                force_terminal=False)
+    assert progress.eta_s() == 100.0  # before the first pose: the plan's estimate
+    progress(events.StateChanged("moving", 0))
+    progress(measured_event(0))
+    progress(measured_event(1))
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("pose 1/4 A01 (A) measured: 500 samples, ETA 0:30")  # 10 s per pose, 3 left
+    assert lines[1].startswith("pose 2/4 E01 (E) measured: 501 samples, ETA 0:20")
+    progress(events.StateChanged("failed", 1, "x"))
+    progress.close()  # safe twice
+
+
+def test_calibrate_needs_a_source(capsys):
+    from ftacq.cli import main
+
+    assert main(["calibrate"]) == 2
+    assert "--config CELL.toml, --sim, or --resume RUN_DIR" in capsys.readouterr().err
