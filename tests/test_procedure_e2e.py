@@ -135,9 +135,15 @@ def test_without_yes_and_without_a_terminal_the_robot_does_not_move(tmp_path, ca
 
 def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     status = main(["calibrate", "--sim", "--sensor", "can", "--time-scale", "0", "--yes",
-                   "--config", str(_fast_toml(tmp_path)), "--out", str(tmp_path / "runs")])
+                   "--config", str(_fast_toml(tmp_path)), "--out", str(tmp_path / "runs"),
+                   "--save", str(tmp_path / "view.rrd")])
     out = capsys.readouterr().out
     assert status == 0
+    from ftacq.dashboard import entity_paths
+
+    paths = entity_paths(tmp_path / "view.rrd")  # the dashboard listener was attached and drew the run
+    assert {"world/plan/A", "calibration/measured/force", "calibration/residuals/force",
+            "calibration/validation_norm/force"} <= paths
     (run_dir,) = list((tmp_path / "runs").iterdir())
     calibration = load_calibration(run_dir / "calibration.json")
     assert_recovers_truth(calibration, CellTruth())
