@@ -53,9 +53,11 @@ PROBE_TIMEOUT_S = 2.0
 CONNECTION_STALE_S = 1.5
 """No new RTDE data package for this long means the connection is lost (ur-rtde itself waits 2.5 s)."""
 POLL_INTERVAL_S = 0.005
+WATCHDOG_INTERVAL_S = 0.05
 CALL_TIMEOUT_S = 10.0
 """Deadline of one guarded ur-rtde control call (moves are asynchronous, so every call should take ms)."""
 DISCONNECT_TIMEOUT_S = 3.0
+LOST_DISCONNECT_TIMEOUT_S = 1.0
 SCRIPT_START_TIMEOUT_S = 8.0
 SAFETY_CLEAR_TIMEOUT_S = 5.0
 JOINT_TARGET_TOLERANCE_RAD = 1e-3
@@ -143,9 +145,12 @@ def probe_port(host: str, port: int, timeout_s: float = PROBE_TIMEOUT_S) -> None
             "address and that the robot is switched on and booted") from error
 
 
-def _call_with_deadline(fn, *args, timeout_s: float, what: str):
+def _call_with_deadline(fn, *args, timeout_s: float, what: str, watchdog=None):
     """Run ``fn(*args)`` on a named worker thread; return its result, re-raise its error, or raise
-    DeviceTimeoutError after ``timeout_s`` (the worker is left to finish on its own; ur-rtde calls release the GIL)."""
+    DeviceTimeoutError after ``timeout_s`` (the worker is left to finish on its own; ur-rtde calls release the GIL).
+
+    ``watchdog()`` is called every :data:`WATCHDOG_INTERVAL_S` while waiting; it raises to abandon the call early
+    (e.g. when the connection is lost: ur-rtde would keep waiting for a reply that never comes)."""
     box: dict = {}
 
     def run() -> None:
@@ -156,7 +161,11 @@ def _call_with_deadline(fn, *args, timeout_s: float, what: str):
 
     worker = threading.Thread(target=run, name=f"ur-rtde-{what}", daemon=True)
     worker.start()
-    worker.join(timeout_s)
+    deadline = time.monotonic() + timeout_s
+    while worker.is_alive() and time.monotonic() < deadline:
+        worker.join(min(WATCHDOG_INTERVAL_S, max(deadline - time.monotonic(), 0.0)))
+        if worker.is_alive() and watchdog is not None:
+            watchdog()
     if worker.is_alive():
         raise DeviceTimeoutError(f"robot controller did not complete {what} within {timeout_s:.0f} s")
     if "error" in box:
@@ -425,8 +434,10 @@ class URRobot:
         """Disconnect the control and receive interfaces (≈0.5 s each inside ur-rtde). Safe to call twice."""
         control, self._control = self._control, None
         if control is not None:
+            # after a lost connection a ur-rtde call may still be blocked inside the client: do not wait long
+            timeout_s = LOST_DISCONNECT_TIMEOUT_S if self._lost else DISCONNECT_TIMEOUT_S
             try:
-                _call_with_deadline(control.disconnect, timeout_s=DISCONNECT_TIMEOUT_S, what="control-disconnect")
+                _call_with_deadline(control.disconnect, timeout_s=timeout_s, what="control-disconnect")
             except (RuntimeError, DeviceTimeoutError) as error:
                 log.warning("RTDE control disconnect from %s: %s", self.host, error)
         self._reader.close()
@@ -444,7 +455,8 @@ class URRobot:
         if not self._call_lock.acquire(timeout=timeout_s):
             raise DeviceTimeoutError(f"robot controller {self.host}: a previous command is still pending")
         try:
-            return _call_with_deadline(getattr(control, method_name), *args, timeout_s=timeout_s, what=method_name)
+            return _call_with_deadline(getattr(control, method_name), *args, timeout_s=timeout_s, what=method_name,
+                                       watchdog=self._check_connection)
         except DeviceTimeoutError:
             self._check_connection()
             raise

@@ -495,6 +495,10 @@ class ControllerServer:
     def close_listeners(self) -> None:
         for listener in self.listeners.values():
             try:
+                listener.shutdown(socket.SHUT_RDWR)  # wakes the thread blocked in accept()
+            except OSError:
+                pass
+            try:
                 listener.close()
             except OSError:
                 pass
