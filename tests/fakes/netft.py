@@ -474,7 +474,7 @@ class FakeNetFT:
                     "streams_started": self.streams_started, "rate_hz": self.rate_hz,
                     "buffer_size": self.buffer_size, "streaming": self._target is not None,
                     "rdt_sequence": self._rdt_sequence, "ft_sequence": self._ft_sequence,
-                    "commands": len(self.commands)}
+                    "commands": len(self.commands), "stream_t0_s": self._stream_t0}
 
     def _record(self, command: ReceivedCommand) -> None:
         with self._lock:
