@@ -13,11 +13,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import signal
 import sys
 from pathlib import Path
 
 from ftacq.errors import AbortedError, InputError
+
+log = logging.getLogger(__name__)
 
 DEFAULT_SIM_TIME_SCALE = 10.0
 """--sim runs the simulated controller this many times faster than real time (the plan shows real time)."""
@@ -121,7 +124,19 @@ def _err(text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``ftacq calibrate``; return the exit status (raises FtacqError subclasses for the CLI to report)."""
+    """Run ``ftacq calibrate``; return the exit status (raises FtacqError subclasses for the CLI to report).
+
+    SIGTERM is handled as Ctrl-C for the whole command, so the simulated cell and the drivers are always closed.
+    """
+    previous = _install_sigterm()
+    try:
+        return _run(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.config import config_from_dict, load_config
@@ -226,12 +241,7 @@ def run(args: argparse.Namespace) -> int:
         if _wants_dashboard(args):
             listeners.append(_dashboard_listener(args, stack))
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
-        previous = _install_sigterm()
-        try:
-            result = procedure.run()
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+        result = procedure.run()
         progress.close()
         return _finish(args, folder, plan, config, result, cell)
 
@@ -283,8 +293,13 @@ def _finish(args, folder, plan, config, result, cell) -> int:
                                        "elapsed_s": result.drift.elapsed_s}
         calibration = replace(calibration, metadata=metadata)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
-    report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
-                          title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration")
+    try:
+        report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
+                              title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration")
+    except Exception:
+        if result.status == "done":
+            raise
+        log.warning("could not write the report of the %s run", result.status, exc_info=True)
     resume = f"ftacq calibrate {'--sim ' if cell is not None else ''}--resume {folder.path}"
     if result.status != "done":
         kept = len(folder.measured())  # what is on disk (a pose may be written just as the interrupt came)
