@@ -511,7 +511,8 @@ def add_sink_args(parser: argparse.ArgumentParser) -> None:
     sinks.add_argument("--connect", nargs="?", const=f"rerun+http://{LOCALHOST}:{DEFAULT_VIEWER_PORT}/proxy",
                        metavar="URL", help="stream to a running viewer (default URL rerun+http://127.0.0.1:9876/proxy)")
     sinks.add_argument("--serve", action="store_true",
-                       help=f"serve the web viewer on http://{LOCALHOST}:WEB_PORT (data on gRPC, also localhost only)")
+                       help=f"serve the web viewer on http://{LOCALHOST}:WEB_PORT and the data on gRPC (--viewer-port), "
+                            "both localhost only; keeps serving after the run until Ctrl-C")
     sinks.add_argument("--save", metavar="FILE.rrd", type=Path, help="write the recording to an .rrd file")
     group.add_argument("--viewer-port", type=int, default=DEFAULT_VIEWER_PORT, metavar="PORT",
                        help="gRPC port of the spawned viewer or of the --serve server (default %(default)s)")
@@ -539,6 +540,7 @@ class SinkChoice:
     kind: str
     target: str
     message: str
+    web_url: str = ""
 
 
 def _port_open(host: str, port: int) -> bool:
@@ -547,20 +549,65 @@ def _port_open(host: str, port: int) -> bool:
         return probe.connect_ex((host, port)) == 0
 
 
-def _spawn_viewer(port: int) -> None:
-    """Start ``rerun --bind 127.0.0.1 --port PORT`` detached (unless one already listens there) and wait for it."""
-    if _port_open(LOCALHOST, port):
-        return
+def _rerun_executable() -> str:
     executable = Path(sys.executable).with_name("rerun")
-    command = [str(executable) if executable.exists() else "rerun", "--bind", LOCALHOST, "--port", str(port)]
-    subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                     start_new_session=True, env={**os.environ, "RERUN_APP_ONLY": "true"})
+    return str(executable) if executable.exists() else "rerun"
+
+
+def _wait_for_port(port: int, process: subprocess.Popen | None = None) -> bool:
+    """Wait until 127.0.0.1:``port`` accepts connections (at most VIEWER_START_TIMEOUT_S); False if it never does."""
     deadline = time.monotonic() + VIEWER_START_TIMEOUT_S
     while time.monotonic() < deadline:
         if _port_open(LOCALHOST, port):
-            return
+            return True
+        if process is not None and process.poll() is not None:
+            return False
         time.sleep(0.05)
-    log.warning("the Rerun viewer did not open port %d within %.0f s; streaming anyway", port, VIEWER_START_TIMEOUT_S)
+    return False
+
+
+def _spawn_viewer(port: int) -> None:
+    """Start ``rerun --bind 127.0.0.1 --port PORT`` detached (unless one already listens there) and wait for it.
+
+    Detached like ``rerun.spawn``: the window stays open after ftacq exits. Bound to localhost, unlike
+    ``rerun.spawn`` (whose viewer listens on every interface).
+    """
+    if _port_open(LOCALHOST, port):
+        return
+    process = subprocess.Popen([_rerun_executable(), "--bind", LOCALHOST, "--port", str(port)],
+                               stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True, env={**os.environ, "RERUN_APP_ONLY": "true"})
+    if not _wait_for_port(port, process):
+        log.warning("the Rerun viewer did not open port %d within %.0f s; streaming anyway", port,
+                    VIEWER_START_TIMEOUT_S)
+
+
+_WEB_SERVERS: dict[int, tuple[subprocess.Popen, str]] = {}
+"""Web-viewer servers started by :func:`open_recording` (``--serve``), keyed by ``id(recording)``; stopped by
+:func:`close_recording`."""
+
+
+def _serve_web(grpc_port: int, web_port: int):
+    """Start ``rerun --serve-web`` bound to 127.0.0.1 (gRPC on ``grpc_port``, HTTP on ``web_port``); return it.
+
+    Rerun's in-process ``serve_web_viewer`` listens on every interface; the CLI honours ``--bind``. Raises
+    DeviceConnectionError when the server does not come up (e.g. a port is taken).
+    """
+    from ftacq.errors import DeviceConnectionError
+
+    process = subprocess.Popen(
+        [_rerun_executable(), "--serve-web", "--bind", LOCALHOST, "--port", str(grpc_port),
+         "--web-viewer-port", str(web_port)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        start_new_session=True,  # Ctrl-C stops ftacq first; close_recording then stops the server
+        env={**os.environ, "RERUN_APP_ONLY": "true"})
+    if not (_wait_for_port(grpc_port, process) and _wait_for_port(web_port, process)):
+        process.kill()
+        process.wait()
+        raise DeviceConnectionError(f"rerun --serve-web did not start on 127.0.0.1 ports {grpc_port} (gRPC) and "
+                                    f"{web_port} (HTTP) within {VIEWER_START_TIMEOUT_S:.0f} s: are they taken? "
+                                    "Pick others with --viewer-port / --web-port")
+    return process
 
 
 def open_recording(args: argparse.Namespace, app_id: str = APP_ID, *,
@@ -586,9 +633,13 @@ def open_recording(args: argparse.Namespace, app_id: str = APP_ID, *,
         _spawn_viewer(args.viewer_port)
         recording.connect_grpc(choice.target)
     elif choice.kind == "serve":
-        server = rr.GrpcServerSink(bind_ip=LOCALHOST, port=args.viewer_port)
-        recording.set_sinks(server)
-        rr.serve_web_viewer(web_port=args.web_port, open_browser=not args.no_browser, connect_to=server.uri)
+        process = _serve_web(args.viewer_port, args.web_port)
+        _WEB_SERVERS[id(recording)] = (process, choice.web_url)
+        recording.connect_grpc(choice.target)
+        if not args.no_browser:
+            import webbrowser
+
+            webbrowser.open(choice.web_url)
     announce(choice.message)
     return recording
 
@@ -604,9 +655,8 @@ def _choose_sink(args: argparse.Namespace, app_id: str) -> SinkChoice:
         from urllib.parse import quote
 
         grpc_url = f"rerun+http://{LOCALHOST}:{port}/proxy"
-        web_port = getattr(args, "web_port", DEFAULT_WEB_PORT)
-        return SinkChoice("serve", grpc_url, f"rerun: web viewer at http://{LOCALHOST}:{web_port}/?url="
-                                             f"{quote(grpc_url, safe='')} (native: rerun {grpc_url})")
+        web_url = f"http://{LOCALHOST}:{getattr(args, 'web_port', DEFAULT_WEB_PORT)}/?url={quote(grpc_url, safe='')}"
+        return SinkChoice("serve", grpc_url, f"rerun: web viewer at {web_url} (native: rerun {grpc_url})", web_url)
     if getattr(args, "spawn", False) or has_display():
         url = f"rerun+http://{LOCALHOST}:{port}/proxy"
         return SinkChoice("spawn", url, f"rerun: streaming to a native viewer on {url}")
@@ -615,13 +665,34 @@ def _choose_sink(args: argparse.Namespace, app_id: str) -> SinkChoice:
                                          "(or pass --serve / --connect URL)")
 
 
-def close_recording(recording, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S) -> None:
-    """Flush (at most ``timeout_s`` seconds) and close the recording's sinks, finishing an .rrd file."""
+def close_recording(recording, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S, *,
+                    wait_while_serving: bool = True) -> None:
+    """Flush (at most ``timeout_s`` seconds) and close the recording's sinks, finishing an .rrd file.
+
+    A web viewer started by ``--serve`` keeps the data only while it runs: like Rerun's ``script_teardown``,
+    this keeps serving until Ctrl-C (unless ``wait_while_serving`` is False), then stops the server.
+    """
     try:
         recording.flush(timeout_sec=timeout_s)
     except Exception:  # noqa: BLE001 - a viewer that went away must not fail the caller's shutdown
         log.warning("rerun: flush did not finish within %.1f s", timeout_s, exc_info=True)
     recording.disconnect()
+    served = _WEB_SERVERS.pop(id(recording), None)
+    if served is not None:
+        process, web_url = served
+        try:
+            if wait_while_serving and process.poll() is None:
+                print(f"rerun: still serving the recording at {web_url}; Ctrl-C to stop", file=sys.stderr)
+                process.wait()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            process.terminate()
+            try:
+                process.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -532,3 +532,21 @@ def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
     assert {dash.RAW_FORCE, dash.COMPENSATED_FORCE, dash.ROBOT_LINKS, dash.MONITOR_LOG} <= paths
     time_s, _ = dash.read_scalars(rrd_path, dash.RAW_FORCE)
     assert time_s.size > 1000
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from Linux /proc")
+def test_serve_hosts_the_web_viewer_on_localhost_only_and_stops_it():
+    grpc_port, web_port = free_port(), free_port()
+    lines = []
+    recording = dash.open_recording(
+        sink_args(["--serve", "--no-browser", "--viewer-port", str(grpc_port), "--web-port", str(web_port)]),
+        announce=lines.append)
+    process, web_url = dash._WEB_SERVERS[id(recording)]
+    dash.Dashboard(recording, strict=True).log_text("hello")
+    ports = (f":{grpc_port:04X}", f":{web_port:04X}")
+    listening = {fields[1] for fields in (line.split() for line in Path("/proc/net/tcp").read_text().splitlines()[1:])
+                 if fields[3] == "0A" and fields[1].endswith(ports)}  # state 0A = LISTEN
+    assert listening == {f"0100007F{port}" for port in ports}  # 127.0.0.1 only, not 0.0.0.0
+    assert lines == [f"rerun: web viewer at {web_url} (native: rerun rerun+http://127.0.0.1:{grpc_port}/proxy)"]
+    dash.close_recording(recording, wait_while_serving=False)
+    assert process.poll() is not None and id(recording) not in dash._WEB_SERVERS
