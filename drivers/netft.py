@@ -123,8 +123,8 @@ POLL_S = 0.05
 DEFAULT_TIMEOUT_S = 0.25
 """Silence after which the stream counts a timeout and re-sends its start command, seconds (at least 10 periods)."""
 BACKOFF_INITIAL_S, BACKOFF_MAX_S = 0.25, 5.0
-DEFAULT_HTTP_TIMEOUT_S = 1.0
-DEFAULT_TCP_TIMEOUT_S = 1.0
+DEFAULT_HTTP_TIMEOUT_S = 2.0
+DEFAULT_TCP_TIMEOUT_S = 2.0
 START_TIMEOUT_S = 1.0
 """How long start() waits for the first record (at least 3 periods), seconds."""
 RESTART_WINDOW = 16

@@ -318,3 +318,16 @@ def test_close_joins_threads_and_reraises_their_errors(physics) -> None:
         warnings.simplefilter("ignore")
         with pytest.raises(RuntimeError, match="physics exploded"):
             device.close()
+
+
+def test_monitor_condition_latches_until_reset(fake, client) -> None:
+    # condition 0: Fz counts > 0 (the default pose's Fz is ≈ +11 N); enable monitoring
+    urllib.request.urlopen(f"http://127.0.0.1:{fake.http_port}/moncon.cgi?mce0=1&mcx0=2&mcc0=1&mcv0=0&setmce=1").read()
+    client.send(command(0x0002))
+    fake.wait_until(lambda f: f.status_word() == 0x8001_0000, what="latch")
+    records = receive_records(client, 50)
+    assert records["status"][-1] == 0x8001_0000
+    urllib.request.urlopen(f"http://127.0.0.1:{fake.http_port}/moncon.cgi?setmce=0").read()
+    client.send(command(0x0041))
+    fake.wait_for_command(0x0041)
+    assert fake.status_word() == 0

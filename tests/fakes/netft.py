@@ -629,6 +629,8 @@ class FakeNetFT:
         self._rdt_sequence, self._ft_sequence = int(rdt[-1]), int(ft[-1])
         counts = self._raw_counts(self._draw(n)) - self._bias_counts
         self._last_counts = counts[-1] + self._bias_counts
+        if self._settings["setmce"] and not self._latched and self._monitor_breached(counts):
+            self._latched = True  # the status of these records already went out without the latch: next ones
         status = np.full(n, self._status_now(), dtype=np.int64)
         if self._status_remaining is not None and self._status_remaining > 0:
             flagged = min(self._status_remaining, n)
@@ -638,6 +640,24 @@ class FakeNetFT:
         records["counts"] = np.clip(counts, INT32_MIN, INT32_MAX)
         self.records_produced += n
         return records
+
+    def _monitor_breached(self, counts: np.ndarray) -> bool:
+        """Whether any enabled monitor condition (moncon.cgi mce/mcx/mcc/mcv, counts) is breached (lock held)."""
+        monitor = self._settings["monitor"]
+        for index in range(16):
+            try:
+                if not int(float(monitor.get(f"mce{index}", 0))):
+                    continue
+                axis, comparison = int(float(monitor[f"mcx{index}"])), int(float(monitor[f"mcc{index}"]))
+                value = float(monitor[f"mcv{index}"])
+            except (KeyError, ValueError):
+                continue
+            if not 0 <= axis < 6:
+                continue
+            column = counts[:, axis]
+            if (comparison > 0 and np.any(column > value)) or (comparison < 0 and np.any(column < value)):
+                return True
+        return False
 
     def _datagrams(self, records: np.ndarray, per_datagram: int, faults: bool) -> list[bytes]:
         """Split records into datagrams, applying pending faults (lock held)."""
