@@ -99,6 +99,12 @@ def physics_batches(pose: np.ndarray, count: int, seed: int = 1, contact_after: 
     return batches
 
 
+def read_record(path: Path) -> np.ndarray:
+    """Read a monitor record CSV (``#`` comment lines, then a header) as a structured array."""
+    lines = [line for line in Path(path).read_text().splitlines() if not line.startswith("#")]
+    return np.genfromtxt(lines, delimiter=",", names=True)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # Dashboard
 # ----------------------------------------------------------------------------------------------------------------
@@ -294,7 +300,7 @@ def test_monitor_logs_every_sample_and_compensates_like_the_core(tmp_path):
     assert np.abs(before.mean(axis=0)).max() < 0.05
     np.testing.assert_allclose(after.mean(axis=0), [0.0, 0.0, 5.0], atol=0.05)
 
-    record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
+    record = read_record(tmp_path / "run.csv")
     assert record.dtype.names == RECORD_COLUMNS and record.size == summary.samples
     np.testing.assert_allclose(record["contact_fz"], expected[:, 2], atol=1e-6)
 
@@ -373,7 +379,7 @@ def test_a_stalled_viewer_drops_batches_for_the_viewer_only(tmp_path):
     assert summary.samples == 30 * BATCH_SAMPLES
     assert summary.viewer_dropped_batches == 30 - 1 - 4  # 1 in the stalled call, 4 in the queue
     assert summary.viewer_dropped_samples == summary.viewer_dropped_batches * BATCH_SAMPLES
-    record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
+    record = read_record(tmp_path / "run.csv")
     assert record.size == summary.samples  # the record never drops
 
 
@@ -442,7 +448,7 @@ def test_ctrl_c_stops_cleanly_and_keeps_the_record(tmp_path):
                           record_path=tmp_path / "run.csv", batch_period_s=0.0)
     summary = monitor.run()
     assert summary.interrupted and summary.samples == 5 * BATCH_SAMPLES
-    record = np.genfromtxt(tmp_path / "run.csv", delimiter=",", names=True, comments="#")
+    record = read_record(tmp_path / "run.csv")
     assert record.size == 5 * BATCH_SAMPLES
     assert not list(tmp_path.glob(".run.csv.*"))  # no temporary file left behind
 
@@ -514,7 +520,7 @@ def test_monitor_run_against_the_simulated_cell_matches_ftacq_compensate(simulat
     save_calibration(calibration_path, calibration)
     compensated_path = tmp_path / "compensated.csv"
     assert ftacq_main(["compensate", str(calibration_path), str(record_path), "-o", str(compensated_path)]) == 0
-    table = np.genfromtxt(compensated_path, delimiter=",", names=True)
+    table = read_record(compensated_path)
     assert table.size == samples
     reference = np.column_stack([table[name] for name in
                                  ("contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz")])
@@ -550,3 +556,39 @@ def test_serve_hosts_the_web_viewer_on_localhost_only_and_stops_it():
     assert lines == [f"rerun: web viewer at {web_url} (native: rerun rerun+http://127.0.0.1:{grpc_port}/proxy)"]
     dash.close_recording(recording, wait_while_serving=False)
     assert process.poll() is not None and id(recording) not in dash._WEB_SERVERS
+
+
+def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
+    """SIGINT to a live `ftacq monitor --sim`: exit 0, the .rrd and the record are complete and agree."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rrd_path, record_path = tmp_path / "live.rrd", tmp_path / "live.csv"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "ftacq.cli", "monitor", "--sim", "--sim-still", "--save", str(rrd_path),
+         "--record", str(record_path)],
+        cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline and process.poll() is None:  # wait until samples are being recorded
+            partial = list(tmp_path.glob(f".{record_path.name}.*"))
+            if partial and partial[0].stat().st_size > 10_000:
+                break
+            time.sleep(0.05)
+        assert process.poll() is None, process.communicate()
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60.0)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    assert process.returncode == 0, err
+    assert "stopped by Ctrl-C" in out
+    record = read_record(record_path)
+    time_s, _ = dash.read_scalars(rrd_path, dash.COMPENSATED_FORCE)
+    assert record.size > 100 and time_s.size == record.size
+    np.testing.assert_allclose(time_s, record["time_s"], atol=1e-6)
