@@ -201,6 +201,7 @@ class CalibrationProcedure:
         self.measured: dict[str, MeasuredPose] = dict(measured or {})
         self.state = "idle"
         self._stop = threading.Event()
+        self._abort_reason: str | None = None
         self._index: int | None = None
         self._label = ""
         self._result_parts: dict = {"warnings": []}
@@ -213,7 +214,14 @@ class CalibrationProcedure:
         self.listeners.append(listener)
 
     def request_stop(self) -> None:
-        """Ask for a planned stop: the run ends at the next checkpoint (between reads), robot stopped, data kept."""
+        """Ask for a planned stop: the run ends at the next checkpoint (between reads), robot stopped, data kept,
+        status "stopped". Safe from any thread (a UI button, a listener)."""
+        self._stop.set()
+
+    def request_abort(self, reason: str) -> None:
+        """Abort for a fault seen outside the procedure (e.g. a watchdog): like :meth:`request_stop`, but the run
+        ends with status "failed" and ``reason`` in its message."""
+        self._abort_reason = reason
         self._stop.set()
 
     def _should_stop(self) -> bool:
@@ -247,7 +255,10 @@ class CalibrationProcedure:
             self.execute()
             status, message = "done", "calibration finished"
         except StopRequested as exc:
-            status, message, error = "stopped", f"stopped on request {self._where()}", exc
+            if self._abort_reason is not None:
+                status, message, error = "failed", f"aborted {self._where()}: {self._abort_reason}", exc
+            else:
+                status, message, error = "stopped", f"stopped on request {self._where()}", exc
         except KeyboardInterrupt as exc:
             status, message, error, interrupted = "stopped", f"interrupted {self._where()}", exc, True
         except FtacqError as exc:

@@ -121,11 +121,20 @@ def test_requested_stop_keeps_the_data_and_a_critical_listener_error_fails_the_r
             raise RuntimeError("viewer went away")  # not critical: ignored
 
         _, failed = run_calibration(cell, config, [flaky_viewer, Broken()], plan=plan)
+
+        def abort_after_one(event):
+            if isinstance(event, events.PoseMeasured):
+                holder["procedure"].request_abort("watchdog: cell door opened")
+
+        _, aborted = run_calibration(cell, config, [abort_after_one], plan=plan,
+                                     on_procedure=lambda p: holder.update(procedure=p))
     assert stopped.status == "stopped" and not stopped.interrupted
     assert list(stopped.measured) == list(plan.labels[:2])
     assert folder.read_record().labels == tuple(plan.labels[:2])
     assert json.loads((folder.path / "run.json").read_text())["status"] == "stopped"
     assert failed.status == "failed" and "disk full" in failed.message
+    assert aborted.status == "failed" and "cell door opened" in aborted.message
+    assert list(aborted.measured) == list(plan.labels[:1])
 
 
 def test_a_pose_that_never_settles_fails_naming_the_channel(tmp_path):
