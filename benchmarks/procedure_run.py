@@ -57,8 +57,6 @@ def main() -> int:
     if scale <= 0:
         parser.error("--time-scale must be > 0 (motion time is measured)")
 
-    from dataclasses import replace
-
     from drivers.robot import MotionLimits
     from drivers.ur import URRobot
     from ftacq.commands.calibrate import sim_sampling
