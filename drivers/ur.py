@@ -26,7 +26,7 @@ import re
 import socket
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -64,10 +64,13 @@ JOINT_TARGET_TOLERANCE_RAD = 1e-3
 """A joint move has arrived when every joint is this close to its target (and the arm is steady)."""
 STEADY_JOINT_SPEED_RAD_S = 5e-3
 """The arm is steady when every |actual_qd| is below this."""
+ARRIVAL_CONFIRM_S = 0.25
+"""At the target and steady this long counts as arrived even while the async progress word still says running."""
 STALL_GRACE_S = 1.0
 """A move that is not running, not moving and not at its target for this long has been stopped."""
 FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG = 0.05, 5.0
 """Controller FK further than this from the nominal DH model is not trusted (wrong model or a broken reply)."""
+FK_CALL_TIMEOUT_S = 2.0
 FK_PROBE_TCP = (0.0, 0.0, 0.2, 0.0, 0.0, 0.0)
 """A non-zero TCP passed to ``getForwardKinematics`` and removed again (a zero one means 'use the active TCP')."""
 
@@ -247,7 +250,7 @@ class URStateReader:
         self._receive = None
         self._last_timestamp = None
         self._last_change_s = 0.0
-        self._closed = False
+        self._timestamps_advance = False
 
     def start(self) -> "URStateReader":
         """Connect (probe port 30004 first). Raises DeviceConnectionError when the controller is unreachable."""
@@ -285,9 +288,11 @@ class URStateReader:
             return False
         timestamp, now = self._receive.getTimestamp(), time.monotonic()
         if timestamp != self._last_timestamp:
+            self._timestamps_advance = True
             self._last_timestamp, self._last_change_s = timestamp, now
             return True
-        return now - self._last_change_s < CONNECTION_STALE_S
+        # a controller whose timestamp never moves: rely on ur-rtde's own 2.5 s receive timeout
+        return not self._timestamps_advance or now - self._last_change_s < CONNECTION_STALE_S
 
     def ensure_connected(self) -> None:
         """Raise DeviceConnectionError if the data stream is lost."""
@@ -396,6 +401,7 @@ class URRobot:
         self._lost: str | None = None
         self.info: URControllerInfo | None = None
         self._fk_warned = False
+        self._controller_fk_usable = True
 
     # ------------------------------------------------------------------ life cycle
     @property
@@ -506,13 +512,18 @@ class URRobot:
         return nominal
 
     def _controller_flange_pose(self, q: np.ndarray) -> np.ndarray | None:
-        status = self._reader.status(steady=True)
+        status = self._status(steady=True)
         if not status.program_running or status.protective_stop or status.emergency_stop:
             return None
+        if not self._controller_fk_usable:
+            return None
         try:
-            reply = self._call("getForwardKinematics", [float(v) for v in q], list(FK_PROBE_TCP))
+            reply = self._call("getForwardKinematics", [float(v) for v in q], list(FK_PROBE_TCP),
+                               timeout_s=FK_CALL_TIMEOUT_S)
         except (RuntimeError, DeviceTimeoutError) as error:
-            log.debug("getForwardKinematics failed: %s", error)
+            self._controller_fk_usable = False
+            log.warning("robot %s: getForwardKinematics failed (%s); using the nominal model from now on",
+                        self.host, error)
             return None
         if reply is None or len(reply) != 6 or not np.all(np.isfinite(reply)):
             return None
@@ -530,7 +541,21 @@ class URRobot:
         return bool(np.max(np.abs(self._reader.joint_speeds())) < STEADY_JOINT_SPEED_RAD_S)
 
     def status(self) -> RobotStatus:
-        return self._reader.status()
+        return self._status()
+
+    def _status(self, steady: bool | None = None) -> RobotStatus:
+        """The reader's status, with ``program_running`` as ur-rtde's control interface sees it (the state it
+        uses itself to decide whether it can send a command)."""
+        status = self._reader.status(steady=steady)
+        control = self._control
+        if control is not None and not self._lost:
+            try:
+                running = bool(control.isProgramRunning())
+            except RuntimeError:
+                running = status.program_running
+            if running != status.program_running:
+                status = replace(status, program_running=running)
+        return status
 
     def controller_time_s(self) -> float:
         return self._reader.controller_time_s()
@@ -539,7 +564,7 @@ class URRobot:
         """Raise the typed error for the controller's current state (connection, e-stop, protective stop,
         safeguard stop, power, program); return quietly when it can take a move."""
         self._check_connection()
-        status = self._reader.status(steady=True)
+        status = self._status(steady=True)
         self._raise_for(status)
 
     def _raise_for(self, status: RobotStatus) -> None:
@@ -613,16 +638,21 @@ class URRobot:
         if not accepted:
             self.raise_if_faulted()
             raise RobotError(f"robot {self.host}: the controller refused {method} to {np.round(target, 5).tolist()}")
-        idle_since = None
+        idle_since = arrived_since = None
         while True:
             if self._stop_event.is_set():
                 raise AbortedError(f"robot {self.host}: the move was stopped before reaching its target")
             self._check_connection()
-            status = self._reader.status()
+            status = self._status()
             self._raise_for(status)
-            if status.steady and arrived() and not self._async_running():
-                return
             now = time.monotonic()
+            if status.steady and arrived():
+                arrived_since = arrived_since or now
+                # the async word says the move is over; a controller without it: still there after a while
+                if not self._async_running() or now - arrived_since > ARRIVAL_CONFIRM_S:
+                    return
+            else:
+                arrived_since = None
             if status.steady and not self._async_running():
                 idle_since = idle_since or now
                 if now - idle_since > STALL_GRACE_S:
@@ -649,7 +679,7 @@ class URRobot:
         if self._control is None or self._lost:
             return
         try:
-            status = self._reader.status(steady=True)
+            status = self._status(steady=True)
             if status.program_running and status.connected:
                 self._call("stopJ", float(self.limits.joint_acceleration_rad_s2), False,
                            timeout_s=min(CALL_TIMEOUT_S, 5.0))
@@ -686,19 +716,19 @@ class URRobot:
         """Unlock a protective stop through the dashboard (as the pendant's Unlock button; the controller refuses
         it during the first 5 s after the stop), then make sure the control program runs again."""
         self._check_connection()
-        if self._reader.status(steady=True).protective_stop:
+        if self._status(steady=True).protective_stop:
             self._dashboard("closeSafetyPopup", "unlockProtectiveStop")
-            self._wait_until(lambda: not self._reader.status(steady=True).protective_stop, timeout_s,
+            self._wait_until(lambda: not self._status(steady=True).protective_stop, timeout_s,
                              "unlocking the protective stop")
         self.restart_control_script()
 
     def restart_control_script(self, timeout_s: float = SCRIPT_START_TIMEOUT_S) -> None:
         """(Re)upload ur-rtde's control program if it is not running, and wait until it runs."""
         self._check_connection()
-        if self._reader.status(steady=True).program_running:
+        if self._status(steady=True).program_running:
             return
         self._call("reuploadScript")
-        self._wait_until(lambda: self._reader.status(steady=True).program_running, timeout_s,
+        self._wait_until(lambda: self._status(steady=True).program_running, timeout_s,
                          "starting the control program")
 
 

@@ -171,6 +171,7 @@ def test_protective_stop_mid_move_raises_and_unlock_lets_moves_work_again(fake, 
     with pytest.raises(ProtectiveStopError, match="PROTECTIVE STOP"):
         ready.move_joints(target, 0.5, 1.0, timeout_s=10.0)
     np.testing.assert_allclose(ready.joint_positions()[0], 0.2, atol=1e-9)  # halted halfway
+    assert_same_pose(ready.flange_pose(), flange_pose(UR5E, ready.joint_positions()))  # nominal FK while stopped
     with pytest.raises(ProtectiveStopError):
         ready.move_joints(target, 0.5, 1.0)
     ready.unlock_protective_stop()
@@ -270,6 +271,20 @@ def test_a_lost_connection_is_reported_within_3_s(fault):
                 robot.joint_positions()
         finally:
             robot.close()
+
+
+@pytest.mark.parametrize("version, model", [("3.15.7.106331", "UR5"), ("5.23.0.0", "UR10e")])
+def test_driver_works_with_other_controller_versions(version, model):
+    with URControllerProcess(time_scale=0.0, version=version, model=model, initial_q=HOME_Q) as process:
+        with URRobot(process.host, LIMITS) as robot:
+            assert robot.model.name == model
+            assert robot.info.serial_number == (None if version.startswith("3.") else "20235500123")
+            target = HOME_Q + np.array([0.1, -0.1, 0.1, 0.0, 0.2, 0.3])
+            robot.move_joints(target, 0.5, 1.0)
+            assert_same_pose(robot.flange_pose(), flange_pose(ur_model(model), target))
+            process.inject("protective_stop", "move_fraction", 0.5)
+            with pytest.raises(ProtectiveStopError):
+                robot.move_joints(HOME_Q, 0.5, 1.0)
 
 
 def test_unreachable_controller_fails_fast_with_a_clear_message():
