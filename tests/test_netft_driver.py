@@ -211,3 +211,18 @@ def test_status_text_names_bits_of_both_maps() -> None:
     assert status_text(0x8002_0000) == "error summary, transducer saturation or A/D error"
     assert status_text(0x0000_0008, "axia") == "busy"
     assert status_text(0) == "ok"
+
+
+def test_units_changed_on_the_box_are_followed(physics) -> None:
+    """config.cgi cfgfu=1 (lbf), cfgtu=2 (lbf-ft): counts per unit change with them; the driver still gives SI."""
+    with make_fake(physics) as device:
+        import urllib.request
+
+        urllib.request.urlopen(f"http://127.0.0.1:{device.http_port}/config.cgi?cfgid=0&cfgfu=1&cfgtu=2").read()
+        assert (device.force_unit, device.torque_unit) == ("lbf", "lbf-ft")
+        assert device.counts_per_force == round(1e6 * 4.4482216152605)
+        with NetFTSensor.from_url(device.url) as sensor:
+            assert (sensor.info.force_unit, sensor.info.torque_unit) == ("lbf", "lbf-ft")
+            average = sensor.average(0.2)
+            np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
+                                         tolerance(physics, average.count))

@@ -163,13 +163,7 @@ class FakeNetFT:
                 + (60.0 / NEWTON_METRES_PER_TORQUE_UNIT[torque_unit],) * 3
         self.max_rating = tuple(float(v) for v in max_rating)
         self._rng = np.random.default_rng(seed)
-        # device-unit conversion of the physics' SI wrench, then counts
-        self._si_to_counts = np.array(
-            [self.counts_per_force / NEWTONS_PER_FORCE_UNIT[force_unit]] * 3
-            + [self.counts_per_torque / NEWTON_METRES_PER_TORQUE_UNIT[torque_unit]] * 3)
-        cp = np.array([self.counts_per_force] * 3 + [self.counts_per_torque] * 3, dtype=float)
-        self.scale_factors = tuple(int(min(max(1, math.ceil(m * c / INT16_MAX)), 0xFFFF)) for m, c in zip(self.max_rating, cp))
-        """READFT scale factors (u16): ⌈max rating × counts per unit / 32767⌉, at most 65535 (values saturate)."""
+        self._update_scaling()
 
         self._lock = threading.Condition()
         self._settings = {"comrdtrate": 0.0, "comrdtbsiz": int(buffer_size), "comrdte": 1, "setuserfilter": 0,
@@ -218,6 +212,32 @@ class FakeNetFT:
         self._stop = threading.Event()
         self.rdt_port = self.tcp_port = self.http_port = 0
         self._started = self._closed = False
+
+    def _update_scaling(self) -> None:
+        """Recompute the SI → counts factors and the READFT scale factors from units and counts per unit."""
+        self._si_to_counts = np.array(
+            [self.counts_per_force / NEWTONS_PER_FORCE_UNIT[self.force_unit]] * 3
+            + [self.counts_per_torque / NEWTON_METRES_PER_TORQUE_UNIT[self.torque_unit]] * 3)
+        cp = np.array([self.counts_per_force] * 3 + [self.counts_per_torque] * 3, dtype=float)
+        self.scale_factors = tuple(int(min(max(1, math.ceil(m * c / INT16_MAX)), 0xFFFF))
+                                   for m, c in zip(self.max_rating, cp))
+        """READFT scale factors (u16): ⌈max rating × counts per unit / 32767⌉, at most 65535 (values saturate)."""
+
+    def set_units(self, force_unit: str | None = None, torque_unit: str | None = None) -> None:
+        """Change the configured units as config.cgi ``cfgfu`` / ``cfgtu`` does: counts per unit and max ratings
+        follow, so the counts per newton (newton-metre) stay the same."""
+        with self._lock:
+            if force_unit is not None:
+                ratio = NEWTONS_PER_FORCE_UNIT[force_unit] / NEWTONS_PER_FORCE_UNIT[self.force_unit]
+                self.counts_per_force = int(round(self.counts_per_force * ratio))
+                self.max_rating = tuple(v / ratio for v in self.max_rating[:3]) + self.max_rating[3:]
+                self.force_unit = force_unit
+            if torque_unit is not None:
+                ratio = NEWTON_METRES_PER_TORQUE_UNIT[torque_unit] / NEWTON_METRES_PER_TORQUE_UNIT[self.torque_unit]
+                self.counts_per_torque = max(1, int(round(self.counts_per_torque * ratio)))
+                self.max_rating = self.max_rating[:3] + tuple(v / ratio for v in self.max_rating[3:])
+                self.torque_unit = torque_unit
+            self._update_scaling()
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -828,13 +848,18 @@ class FakeNetFT:
                 elif key.startswith("setbias") and key[7:].isdigit():
                     with self._lock:
                         self._bias_counts[int(key[7:]) % 6] = int(float(value))
+                elif key == "cfgfu":
+                    self.set_units(force_unit={v: k for k, v in FORCE_UNIT_CODES.items()}[int(float(value))])
+                elif key == "cfgtu":
+                    names = {1: "lbf-in", 2: "lbf-ft", 3: "Nm", 4: "N-mm", 5: "kgf-cm", 6: "kN-m"}
+                    self.set_units(torque_unit=names[int(float(value))])
                 elif key == "cfgnam":
                     with self._lock:
                         self._settings["cfgnam"] = value
                 else:
                     with self._lock:
                         self._settings["monitor"][key] = value
-            except ValueError:
+            except (ValueError, KeyError):
                 continue  # the box ignores what it cannot parse
 
 
