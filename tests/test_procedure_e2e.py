@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 
 import numpy as np
 import pytest
@@ -110,6 +111,8 @@ def test_dry_run_prints_the_plan_and_moves_nothing(tmp_path, capsys):
     assert status == 0
     assert "Pose plan for UR5e" in out and "A 24/24, E 6/6, V 4/4" in out
     assert "estimated duration" in out and "dry run: the robot did not move" in out
+    total = int(re.search(r"\(total (\d+)\)", out)[1])
+    assert f"path check: {total + 1} moves checked" in out  # every pose and the drift revisit
     assert [c for c in commands if c["kind"] not in ()] == []  # the controller recorded no motion command
     np.testing.assert_array_equal(before, after)
     assert not (tmp_path / "runs").exists()  # nothing measured, no run folder

@@ -140,7 +140,7 @@ def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.config import config_from_dict, load_config
-    from procedures.calibration import CalibrationProcedure, ProcedureOptions, calibration_steps, \
+    from procedures.calibration import CalibrationProcedure, Move, ProcedureOptions, calibration_steps, \
         check_steps, count_measurements
     from procedures.plan import Plan, format_plan, make_plan
     from procedures.progress import ProgressListener
@@ -218,7 +218,7 @@ def _run(args: argparse.Namespace) -> int:
 
             raise PlanError("the plan's moves from the robot's current configuration are not clear:\n  "
                             + "\n  ".join(problems))
-        print(f"  path check: {sum(1 for _ in calibration_steps(plan, measured, drift_check)) // 2} moves "
+        print(f"  path check: {sum(isinstance(s, Move) for s in calibration_steps(plan, measured, drift_check))} moves "
               "checked for collisions and joint limits from the current configuration: clear", flush=True)
         if args.dry_run:
             print("dry run: the robot did not move", flush=True)
