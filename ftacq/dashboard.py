@@ -587,6 +587,26 @@ _WEB_SERVERS: dict[int, tuple[subprocess.Popen, str]] = {}
 :func:`close_recording`."""
 
 
+def _stop_process_group(process: subprocess.Popen, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S) -> None:
+    """Stop a process started with ``start_new_session=True`` and its children (``.venv/bin/rerun`` is a Python
+    wrapper around the ``rerun_cli`` binary: terminating only the wrapper would leave the server running)."""
+    import signal
+
+    def signal_group(signum: int) -> None:
+        try:
+            os.killpg(process.pid, signum)
+        except (AttributeError, ProcessLookupError, PermissionError):  # no process groups, or already gone
+            if process.poll() is None:
+                process.send_signal(signum)
+
+    signal_group(signal.SIGTERM)
+    try:
+        process.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        signal_group(getattr(signal, "SIGKILL", signal.SIGTERM))
+        process.wait()
+
+
 def _serve_web(grpc_port: int, web_port: int):
     """Start ``rerun --serve-web`` bound to 127.0.0.1 (gRPC on ``grpc_port``, HTTP on ``web_port``); return it.
 
@@ -602,8 +622,7 @@ def _serve_web(grpc_port: int, web_port: int):
         start_new_session=True,  # Ctrl-C stops ftacq first; close_recording then stops the server
         env={**os.environ, "RERUN_APP_ONLY": "true"})
     if not (_wait_for_port(grpc_port, process) and _wait_for_port(web_port, process)):
-        process.kill()
-        process.wait()
+        _stop_process_group(process)
         raise DeviceConnectionError(f"rerun --serve-web did not start on 127.0.0.1 ports {grpc_port} (gRPC) and "
                                     f"{web_port} (HTTP) within {VIEWER_START_TIMEOUT_S:.0f} s: are they taken? "
                                     "Pick others with --viewer-port / --web-port")
@@ -687,12 +706,7 @@ def close_recording(recording, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S, *,
         except KeyboardInterrupt:
             pass
         finally:
-            process.terminate()
-            try:
-                process.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+            _stop_process_group(process, timeout_s)
 
 
 # ----------------------------------------------------------------------------------------------------------------

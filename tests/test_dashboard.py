@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import socket
+import time
 from contextlib import closing as contextlib_closing
 import threading
 import uuid
@@ -550,12 +551,19 @@ def test_serve_hosts_the_web_viewer_on_localhost_only_and_stops_it():
     process, web_url = dash._WEB_SERVERS[id(recording)]
     dash.Dashboard(recording, strict=True).log_text("hello")
     ports = (f":{grpc_port:04X}", f":{web_port:04X}")
-    listening = {fields[1] for fields in (line.split() for line in Path("/proc/net/tcp").read_text().splitlines()[1:])
-                 if fields[3] == "0A" and fields[1].endswith(ports)}  # state 0A = LISTEN
-    assert listening == {f"0100007F{port}" for port in ports}  # 127.0.0.1 only, not 0.0.0.0
+
+    def listening() -> set[str]:
+        rows = (line.split() for line in Path("/proc/net/tcp").read_text().splitlines()[1:])
+        return {fields[1] for fields in rows if fields[3] == "0A" and fields[1].endswith(ports)}  # 0A = LISTEN
+
+    assert listening() == {f"0100007F{port}" for port in ports}  # 127.0.0.1 only, not 0.0.0.0
     assert lines == [f"rerun: web viewer at {web_url} (native: rerun rerun+http://127.0.0.1:{grpc_port}/proxy)"]
     dash.close_recording(recording, wait_while_serving=False)
     assert process.poll() is not None and id(recording) not in dash._WEB_SERVERS
+    deadline = time.monotonic() + 10.0  # the server binary (the wrapper's child) is gone too
+    while listening() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not listening()
 
 
 def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
@@ -564,7 +572,6 @@ def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
     import signal
     import subprocess
     import sys
-    import time
 
     rrd_path, record_path = tmp_path / "live.rrd", tmp_path / "live.csv"
     process = subprocess.Popen(
