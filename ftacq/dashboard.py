@@ -511,8 +511,8 @@ def add_sink_args(parser: argparse.ArgumentParser) -> None:
     sinks.add_argument("--connect", nargs="?", const=f"rerun+http://{LOCALHOST}:{DEFAULT_VIEWER_PORT}/proxy",
                        metavar="URL", help="stream to a running viewer (default URL rerun+http://127.0.0.1:9876/proxy)")
     sinks.add_argument("--serve", action="store_true",
-                       help=f"serve the web viewer on http://{LOCALHOST}:WEB_PORT and the data on gRPC (--viewer-port), "
-                            "both localhost only; keeps serving after the run until Ctrl-C")
+                       help=f"serve the web viewer on http://{LOCALHOST}:WEB_PORT and the data on gRPC "
+                            "(--viewer-port), both localhost only; keeps serving after the run until Ctrl-C")
     sinks.add_argument("--save", metavar="FILE.rrd", type=Path, help="write the recording to an .rrd file")
     group.add_argument("--viewer-port", type=int, default=DEFAULT_VIEWER_PORT, metavar="PORT",
                        help="gRPC port of the spawned viewer or of the --serve server (default %(default)s)")
