@@ -32,6 +32,8 @@ log = logging.getLogger(__name__)
 CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 READ_TIMEOUT_CAP_S = 0.25
 """Longest single ``sensor.read`` wait, so the stop flag is checked at least this often (s)."""
+SETTLE_POLL_PERIOD_S = 0.005
+"""The settle loop checks the robot and the sensor at most this often (no busy loop on a fast sensor)."""
 MIN_SAMPLE_FRACTION = 0.5
 """An averaging window with fewer than this fraction of the samples the sensor's rate promises is taken again."""
 MAX_AVERAGE_ATTEMPTS = 3
@@ -107,6 +109,7 @@ def wait_until_settled(robot: Robot, sensor: ForceTorqueSensor, settings: Settle
     count = 0
     last_sample = start
     while True:
+        loop_start = time.monotonic()
         if should_stop():
             raise StopRequested("stop requested while settling")
         try:
@@ -153,6 +156,9 @@ def wait_until_settled(robot: Robot, sensor: ForceTorqueSensor, settings: Settle
                 why = (f"{CHANNELS[worst]} std {window_std[worst]:.4g} {unit} stayed above "
                        f"{thresholds[worst]:g} {unit}")
             raise PoseNotSettledError(f"the pose did not settle within {settings.timeout_s:g} s: {why}")
+        pause = SETTLE_POLL_PERIOD_S - (time.monotonic() - loop_start)
+        if pause > 0:
+            time.sleep(pause)
 
 
 def average_at_pose(sensor: ForceTorqueSensor, settings: SettleSettings,
