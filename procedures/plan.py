@@ -40,6 +40,11 @@ DEFAULT_CENTER_FRACTION: dict[str, tuple[float, float, float]] = {
 """Default pose-set centre per mount, as a fraction of the arm's reach |a2| + |a3| (UR5e floor: (−0.245, −0.368,
 0.368) m). Chosen so that all 24 cube rotations and the 40° cone are reachable without collision, with the wrist
 clear of singularities, for every model in the table with a 0.05 × 0.1 m tool."""
+MODEL_CENTER_FRACTION: dict[tuple[str, str], tuple[float, float, float]] = {
+    ("UR3e", "floor"): (-0.30, -0.45, 0.55),
+    ("UR3", "floor"): (-0.30, -0.45, 0.50),
+}
+"""Overrides of DEFAULT_CENTER_FRACTION for (model, mount): the small arms need the centre a little higher."""
 ALTERNATIVE_CENTER_FRACTIONS: tuple[tuple[float, float, float], ...] = (
     (-0.30, -0.45, 0.50), (-0.30, -0.50, 0.45), (-0.25, -0.45, 0.45), (-0.40, -0.50, 0.30), (-0.20, -0.35, 0.75),
     (-0.10, -0.35, 0.75), (-0.30, -0.45, 0.40), (-0.40, -0.50, 0.45), (-0.30, -0.35, 0.60), (-0.20, -0.55, 0.45),
@@ -52,7 +57,14 @@ MIN_IDENTIFICATION_POSES = 12
 """Fewest identification poses (A + E) a plan may proceed with."""
 COLLIDING_EDGE_PENALTY_RAD = 1e3
 """Cost added to a joint move that failed the path check, so the 2-opt avoids it."""
-MAX_REORDER_ROUNDS = 40
+PLANNING_HYSTERESIS_M = 0.002
+"""Extra clearance the planner keeps over the executor's re-check (more than the 0.5 mm tolerance of the certified
+path check), so that a move planned clear is still clear when the executor re-checks it from the robot's actual,
+slightly different, configuration."""
+MAX_REORDER_ROUNDS = 20
+"""Re-orderings tried (each avoiding the moves found colliding so far) before a pose is dropped."""
+MAX_CENTERS_PLANNED = 3
+"""When no centre is given: how many candidate centres (best static reachability first) are ordered and checked."""
 MAX_2OPT_PASSES = 50
 
 
@@ -292,10 +304,14 @@ def reach_m(model: URModel) -> float:
     return abs(model.a[1]) + abs(model.a[2])
 
 
+def _default_fraction(model: URModel, mount: str) -> tuple[float, float, float]:
+    return MODEL_CENTER_FRACTION.get((model.name, mount), DEFAULT_CENTER_FRACTION[mount])
+
+
 def default_center_m(model: URModel | str, mount: str = "floor") -> np.ndarray:
     """Return the default centre (3,) of the pose sets for a model and mount, m (see DEFAULT_CENTER_FRACTION)."""
     model = ur_model(model) if isinstance(model, str) else model
-    return reach_m(model) * np.array(DEFAULT_CENTER_FRACTION[mount])
+    return reach_m(model) * np.array(_default_fraction(model, mount))
 
 
 def home_configuration_rad(mount: str = "floor") -> np.ndarray:
@@ -395,10 +411,16 @@ def _checker(model: str, tool_radius_m: float, tool_length_m: float, mount: str,
     return CollisionChecker(ur_model(model), tool_radius_m, tool_length_m, mount, table_margin_m, clearance_m)
 
 
-def collision_checker(settings: PlanSettings) -> CollisionChecker:
-    """Return the (cached) collision checker for the settings' arm, tool and mount."""
+def collision_checker(settings: PlanSettings, planning: bool = False) -> CollisionChecker:
+    """Return the (cached) collision checker for the settings' arm, tool and mount.
+
+    ``planning=True``: the planner's checker, with :data:`PLANNING_HYSTERESIS_M` more clearance and table margin
+    than the executor's :func:`check_path`, so that a move planned clear stays clear when the executor re-checks
+    it from the robot's actual (slightly different) configuration.
+    """
+    extra = PLANNING_HYSTERESIS_M if planning else 0.0
     return _checker(settings.model, settings.tool_radius_m, settings.tool_length_m, settings.mount,
-                    settings.table_margin_m, settings.clearance_m)
+                    settings.table_margin_m + extra, settings.clearance_m + extra)
 
 
 def check_path(settings: PlanSettings, q_from: np.ndarray, q_to: np.ndarray) -> list[str]:
@@ -447,7 +469,7 @@ class _Candidate:
 def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -> _Candidate:
     """Solve and statically check every pose in all branches; return the best branch's outcome."""
     model = settings.ur
-    checker = collision_checker(settings)
+    checker = collision_checker(settings, planning=True)
     poses = build_pose_set(settings, center)
     per_branch: dict[Branch, tuple[list, list]] = {b: ([], []) for b in Branch.all()}
     for pose in poses.poses:
@@ -519,7 +541,7 @@ class _MoveGraph:
 
     def __init__(self, settings: PlanSettings, start_q: np.ndarray, q: np.ndarray) -> None:
         self.model = settings.ur
-        self.checker = collision_checker(settings)
+        self.checker = collision_checker(settings, planning=True)
         self.weights = joint_weights(self.model)
         self.lower, self.upper = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
         self.nodes = np.vstack([start_q[None, :], q])
@@ -654,8 +676,8 @@ def _candidate_centers(settings: PlanSettings) -> list[np.ndarray]:
     if settings.center_m is not None:
         return [np.array(settings.center_m)]
     reach = reach_m(settings.ur)
-    fractions = [DEFAULT_CENTER_FRACTION[settings.mount]] + [
-        f for f in ALTERNATIVE_CENTER_FRACTIONS if f != DEFAULT_CENTER_FRACTION[settings.mount]]
+    default = _default_fraction(settings.ur, settings.mount)
+    fractions = [default] + [f for f in ALTERNATIVE_CENTER_FRACTIONS if f != default]
     return [reach * np.array(f) for f in fractions]
 
 
@@ -677,17 +699,18 @@ def make_plan(settings: PlanSettings, start_q_rad: np.ndarray) -> Plan:
                         + "; ".join(start_problems) + "): jog it clear (e.g. to the home configuration) and plan again")
     best_plan: Plan | None = None
     first_error = ""
+    planned = 0
     for center in _candidate_centers(settings):
-        candidate = _evaluate(settings, center, start_q)
+        candidate = _evaluate(settings, center, start_q)  # static checks only: cheap
         if best_plan is not None and candidate.ok_count <= len(best_plan):
             continue  # cannot beat the best plan so far
-        plan, error = _plan_from(settings, candidate, start_q)
+        plan, error = _plan_from(settings, candidate, start_q)  # ordering and path checks: the costly part
+        planned += 1
         if plan is None:
             first_error = first_error or error
-            continue
-        if best_plan is None or len(plan) > len(best_plan):
+        elif best_plan is None or len(plan) > len(best_plan):
             best_plan = plan
-        if not plan.rejected:
+        if (best_plan is not None and not best_plan.rejected) or planned >= MAX_CENTERS_PLANNED:
             break
     if best_plan is None:
         raise PlanError(first_error)
@@ -715,7 +738,7 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
     chosen = [kept[i] for i in order]
     warnings = []
     if settings.drift_check and len(q_exec) > 1:
-        problems = collision_checker(settings).problems_along(q_exec[-1], q_exec[0])
+        problems = collision_checker(settings, planning=True).problems_along(q_exec[-1], q_exec[0])
         if problems:
             warnings.append(f"the drift-check revisit of {poses.labels[chosen[0]]} is blocked: {problems[0]}")
     weights = joint_weights(model)

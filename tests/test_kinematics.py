@@ -64,3 +64,16 @@ def test_urdf_loader_reads_a_simple_chain(tmp_path):
     model = pinocchio_model_from_urdf(str(urdf))
     assert model.nq == 1
     assert model.upperPositionLimit[0] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("name", ["UR3e", "UR10"])
+def test_batched_dh_equals_pinocchio(name):
+    from ftacq.kinematics import dh_transforms_batch
+
+    model = UR_MODELS[name]
+    pin_model = pinocchio_model(model)
+    data = pin_model.createData()
+    q = np.random.default_rng(5).uniform(-2 * np.pi, 2 * np.pi, (40, 6))
+    batch = dh_transforms_batch(model, q)
+    for k in range(len(q)):
+        np.testing.assert_allclose(batch[k], pinocchio_dh_frames(pin_model, data, q[k]), atol=FK_TOLERANCE, rtol=0)
