@@ -161,3 +161,21 @@ def test_calibrate_needs_a_source(capsys):
 
     assert main(["calibrate"]) == 2
     assert "--config CELL.toml, --sim, or --resume RUN_DIR" in capsys.readouterr().err
+
+
+def test_report_of_a_failed_run_lists_what_was_measured(tmp_path):
+    from procedures.calibration import ProcedureResult
+    from procedures.report import write_report
+
+    folder = RunFolder.create(tmp_path, CellConfig().to_dict(), small_plan().to_json(), name="r")
+    folder.append_pose(measured_event(0))
+    folder.append_pose(measured_event(1))
+    result = ProcedureResult(status="failed", message="ProtectiveStopError at pose 3/4 (V01) while moving: stop",
+                             measured=folder.measured(), warnings=["something to know"])
+    path = write_report(folder.path, result, small_plan(), CellConfig().to_dict())
+    text = path.read_text(encoding="utf-8")
+    assert "status: **failed** — ProtectiveStopError at pose 3/4" in text
+    assert "poses measured: 2 of 4 planned" in text
+    assert "- something to know" in text
+    assert "| A01 | A | 500 |" in text and "| E01 | E | 501 |" in text
+    assert "## Identified parameters" not in text and not list(folder.path.glob("*.png"))
