@@ -131,7 +131,8 @@ RESTART_WINDOW = 16
 """An rdt_sequence at or below this after a backward jump is a stream restart."""
 EXPECT_RESTART_RECORDS = 256
 """After sending a start, records that continue the old sequence before a restart shows (device does not reset)."""
-BIAS_SETTLE_TIMEOUT_S = 0.5
+BIAS_SETTLE_TIMEOUT_S = 1.0
+"""How long bias() waits for the restarted (biased) stream before it accepts whatever comes, seconds."""
 MAX_TRACKED_MISSING = 4096
 """Missing sequence numbers remembered, so a late record is counted out of order rather than lost."""
 MAX_PENDING_SAMPLES = 1_000_000
@@ -469,8 +470,8 @@ class NetFTSensor:
                            "samples received so far", self.host, timeout_s)
             with self._decode_lock:
                 self._decode()
-                self._bias_discarding = self._expect_restart = False
-                self._start_events.clear()
+                self._bias_discarding = False  # a late restart still counts as ours (expect_restart stays)
+                self._start_events = collections.deque((index, False) for index, _ in self._start_events)
                 self._decoded.clear()
                 self._decoded_samples = 0
 
@@ -717,7 +718,7 @@ class NetFTSensor:
             try:
                 events = poller.poll((NOTIFY_INTERVAL_S if notify_pending else POLL_S) * 1000.0)
                 written = self._written
-                got = False
+                got = arrived = False
                 while events:
                     if written - self._consumed > RING_RECORDS - room_needed:
                         try:
@@ -727,7 +728,8 @@ class NetFTSensor:
                         except OSError:
                             self.socket_errors += 1
                             break
-                        self.overflowed += 1
+                        self.overflowed += 1  # the reader fell behind: a gap the decoder counts as lost
+                        arrived = True
                         continue
                     position = written & capacity_mask
                     try:
@@ -757,18 +759,18 @@ class NetFTSensor:
                     self._written = written
                     got = True
                 now = monotonic()
-                if got:
+                if got or arrived:  # the box is streaming (even if the ring is full)
                     last_data_s = now
                     next_retry_s = now + self.timeout_s
                     backoff_s = BACKOFF_INITIAL_S
-                    notify_pending = True
+                    notify_pending = notify_pending or got
                 if notify_pending and now - last_notify_s >= NOTIFY_INTERVAL_S:
                     notify_pending = False
                     last_notify_s = now
                     if self._waiters:
                         with self._data_ready:
                             self._data_ready.notify_all()
-                if not got and now >= next_retry_s:
+                if not (got or arrived) and now >= next_retry_s:
                     rx.timeouts += 1
                     rx.reconnects += 1
                     logger.info("Net F/T %s: no data for %.2f s; re-sending start (retry in %.2f s)",
