@@ -54,12 +54,16 @@ CONNECTION_STALE_S = 1.5
 """No new RTDE data package for this long means the connection is lost (ur-rtde itself waits 2.5 s)."""
 POLL_INTERVAL_S = 0.005
 WATCHDOG_INTERVAL_S = 0.05
+STREAM_CATCH_UP_S = 0.25
+"""How long the receive stream may lag the control stream (separate connections, separate client threads)."""
 CALL_TIMEOUT_S = 10.0
 """Deadline of one guarded ur-rtde control call (moves are asynchronous, so every call should take ms)."""
 DISCONNECT_TIMEOUT_S = 3.0
 LOST_DISCONNECT_TIMEOUT_S = 1.0
 SCRIPT_START_TIMEOUT_S = 8.0
-SAFETY_CLEAR_TIMEOUT_S = 5.0
+SAFETY_CLEAR_TIMEOUT_S = 8.0
+"""Long enough for UR's rule that a protective stop can be unlocked only 5 s after it happened."""
+UNLOCK_RETRY_S = 0.5
 JOINT_TARGET_TOLERANCE_RAD = 1e-3
 """A joint move has arrived when every joint is this close to its target (and the arm is steady)."""
 STEADY_JOINT_SPEED_RAD_S = 5e-3
@@ -548,14 +552,23 @@ class URRobot:
         uses itself to decide whether it can send a command)."""
         status = self._reader.status(steady=steady)
         control = self._control
-        if control is not None and not self._lost:
-            try:
-                running = bool(control.isProgramRunning())
-            except RuntimeError:
-                running = status.program_running
-            if running != status.program_running:
-                status = replace(status, program_running=running)
-        return status
+        if control is None or self._lost:
+            return status
+        try:
+            running = bool(control.isProgramRunning())
+        except RuntimeError:
+            return status
+        if running == status.program_running:
+            return status
+        # the two connections are separate streams: let the receive stream catch up, so that the program state
+        # and the safety state it is judged with (e-stop stops the program) come from the same package
+        deadline = time.monotonic() + STREAM_CATCH_UP_S
+        while time.monotonic() < deadline:
+            time.sleep(POLL_INTERVAL_S)
+            status = self._reader.status(steady=steady)
+            if status.program_running == running:
+                return status
+        return replace(status, program_running=running)
 
     def controller_time_s(self) -> float:
         return self._reader.controller_time_s()
@@ -636,7 +649,10 @@ class URRobot:
         deadline = time.monotonic() + timeout_s
         accepted = self._call(method, [float(v) for v in target], speed, acceleration, True)
         if not accepted:
-            self.raise_if_faulted()
+            deadline_fault = time.monotonic() + STREAM_CATCH_UP_S  # the refusal may be ahead of the receive stream
+            while time.monotonic() < deadline_fault:
+                self.raise_if_faulted()
+                time.sleep(POLL_INTERVAL_S)
             raise RobotError(f"robot {self.host}: the controller refused {method} to {np.round(target, 5).tolist()}")
         idle_since = arrived_since = None
         while True:
@@ -713,13 +729,22 @@ class URRobot:
             time.sleep(POLL_INTERVAL_S)
 
     def unlock_protective_stop(self, timeout_s: float = SAFETY_CLEAR_TIMEOUT_S) -> None:
-        """Unlock a protective stop through the dashboard (as the pendant's Unlock button; the controller refuses
-        it during the first 5 s after the stop), then make sure the control program runs again."""
+        """Unlock a protective stop through the dashboard (as the pendant's Unlock button), then make sure the
+        control program runs again. A real controller refuses the unlock during the first 5 s after the stop:
+        the request is repeated until ``timeout_s``."""
         self._check_connection()
         if self._status(steady=True).protective_stop:
-            self._dashboard("closeSafetyPopup", "unlockProtectiveStop")
-            self._wait_until(lambda: not self._status(steady=True).protective_stop, timeout_s,
-                             "unlocking the protective stop")
+            deadline = time.monotonic() + timeout_s
+            while True:
+                try:
+                    self._dashboard("closeSafetyPopup", "unlockProtectiveStop")
+                    break
+                except RobotError:
+                    if time.monotonic() > deadline:
+                        raise
+                    time.sleep(UNLOCK_RETRY_S)
+            self._wait_until(lambda: not self._status(steady=True).protective_stop,
+                             max(deadline - time.monotonic(), 1.0), "unlocking the protective stop")
         self.restart_control_script()
 
     def restart_control_script(self, timeout_s: float = SCRIPT_START_TIMEOUT_S) -> None:

@@ -47,6 +47,13 @@ def assert_same_pose(actual, expected, tol: float = POSE_TOLERANCE) -> None:
     np.testing.assert_allclose(rotation_from_rotvec(actual[3:6]), rotation_from_rotvec(expected[3:6]), atol=tol, rtol=0)
 
 
+def wait_for_joints(receive, q, atol: float = 1e-12) -> None:
+    """Wait (bounded) until the receive stream shows ``q``: it is a separate connection read by its own client
+    thread, so on a loaded machine it may trail the control connection by a few packages."""
+    wait_until(lambda: np.allclose(receive.getActualQ(), q, atol=atol, rtol=0), timeout_s=2.0,
+               what=f"actual_q = {q}")
+
+
 @pytest.fixture(scope="module")
 def fake():
     with URControllerProcess(time_scale=0.0, initial_q=HOME_Q) as process:
@@ -73,6 +80,7 @@ def at_home(fake, clients):
         dashboard.disconnect()
         wait_until(lambda: not receive.isProtectiveStopped(), what="unlock")
     assert control.moveJ(HOME_Q, 1.0, 1.0)
+    wait_for_joints(receive, HOME_Q)
     return receive, control
 
 
@@ -90,7 +98,7 @@ def test_movej_reaches_target_and_pose_matches_forward_kinematics(fake, at_home)
     receive, control = at_home
     target = [0.3, -1.2, 1.3, -1.7, -1.4, 0.5]
     assert control.moveJ(target, 1.0, 1.2)
-    np.testing.assert_allclose(receive.getActualQ(), target, atol=1e-12)
+    wait_for_joints(receive, target)
     assert_same_pose(receive.getActualTCPPose(), flange_pose(UR5E, np.array(target)))
     assert_same_pose(receive.getTargetTCPPose(), flange_pose(UR5E, np.array(target)))
     last = fake.commands()[-1]
@@ -103,6 +111,8 @@ def test_movel_moves_the_flange_in_a_straight_line_to_the_pose(fake, at_home):
     start = np.array(receive.getActualTCPPose())
     goal = start + np.array([0.03, -0.02, -0.05, 0.0, 0.0, 0.0])
     assert control.moveL(list(goal), 0.2, 1.0)
+    wait_until(lambda: np.allclose(receive.getActualTCPPose()[:3], goal[:3], atol=1e-9, rtol=0), timeout_s=2.0,
+               what="the TCP at the goal")
     assert_same_pose(receive.getActualTCPPose(), goal)
     # the joint angles the controller reports put the flange exactly there (IK consistent with FK)
     assert_same_pose(flange_pose(UR5E, np.array(receive.getActualQ())), goal)
@@ -142,7 +152,7 @@ def test_path_move_runs_every_waypoint_in_order(fake, at_home):
     first, second = [0.2, -1.5, 1.5, -1.5, -1.5, 0.1], [0.25, -1.45, 1.45, -1.6, -1.5, 0.2]
     before = len(fake.commands())
     assert control.moveJ([first + [0.8, 1.1, 0.0], second + [0.7, 1.0, 0.0]])
-    np.testing.assert_allclose(receive.getActualQ(), second, atol=1e-6)  # path lines carry 6 significant digits
+    wait_for_joints(receive, second, atol=1e-6)  # path lines carry 6 significant digits
     path = fake.commands()[before:]
     assert [c["source"] for c in path] == ["path", "path"]
     assert [(c["speed"], c["acceleration"]) for c in path] == [(0.8, 1.1), (0.7, 1.0)]
@@ -175,7 +185,7 @@ def test_protective_stop_mid_move_refuses_commands_until_unlocked(fake, at_home)
     target = [0.4, -1.3, 1.4, -1.6, -1.5, 0.4]
     fake.inject("protective_stop", "move_fraction", 0.5)
     assert control.moveJ(target, 1.0, 1.0) is False
-    assert receive.isProtectiveStopped()
+    wait_until(receive.isProtectiveStopped, what="the receive stream showing the stop")
     halfway = np.array(HOME_Q) + 0.5 * (np.array(target) - np.array(HOME_Q))
     np.testing.assert_allclose(receive.getActualQ(), halfway, atol=1e-9)  # stopped where the fault hit
     assert control.moveJ(target, 1.0, 1.0) is False  # refused while stopped
@@ -185,14 +195,14 @@ def test_protective_stop_mid_move_refuses_commands_until_unlocked(fake, at_home)
     dashboard.disconnect()
     wait_until(lambda: not receive.isProtectiveStopped(), what="protective stop cleared")
     assert control.moveJ(target, 1.0, 1.0) is True
-    np.testing.assert_allclose(receive.getActualQ(), target, atol=1e-12)
+    wait_for_joints(receive, target)
 
 
 def test_joint_limit_target_is_refused_with_a_protective_stop(fake, at_home):
     receive, control = at_home
     beyond_elbow_limit = [0.0, -1.5708, 3.3, -1.5708, -1.5708, 0.0]
     assert control.moveJ(beyond_elbow_limit, 1.0, 1.0) is False
-    assert receive.isProtectiveStopped()
+    wait_until(receive.isProtectiveStopped, what="the receive stream showing the stop")
     rejected = fake.commands()[-1]
     assert rejected["accepted"] is False and "joint position limit" in rejected["reason"]
     np.testing.assert_allclose(receive.getActualQ(), HOME_Q, atol=1e-12)
@@ -240,6 +250,7 @@ def test_other_controller_versions_work_with_ur_rtde(version, model):
         try:
             target = [0.1, -1.5, 1.5, -1.5, -1.5, 0.1]
             assert control.moveJ(target, 1.0, 1.0)
+            wait_for_joints(receive, target)
             assert_same_pose(receive.getActualTCPPose(), flange_pose(ur_model(model), np.array(target)))
         finally:
             control.disconnect()

@@ -312,7 +312,7 @@ def test_ftacq_robot_info_prints_identity_joints_and_flange_pose(fake, ready, ca
     assert (data["robot_mode"], data["safety_mode"]) == ("RUNNING", "NORMAL")
     assert ftacq_main(["robot", "info", fake.host]) == 0
     table = capsys.readouterr().out
-    assert "UR5e" in table and "20235500123" in table and "flange pose" in table
+    assert "UR5e" in table and "20235500123" in table and "flange pose [m, rotvec rad]" in table
 
 
 def test_ftacq_robot_info_on_an_unreachable_host_exits_1(capsys):

@@ -86,6 +86,7 @@ def run_info(args: argparse.Namespace) -> int:
         return 0
     from rich.console import Console
     from rich.table import Table
+    from rich.text import Text
 
     table = Table(title=f"UR controller {args.host}", show_header=False)
     table.add_column("item", style="bold")
@@ -104,6 +105,6 @@ def run_info(args: argparse.Namespace) -> int:
         ("remote control", {True: "yes", False: "no", None: "n/a"}[data["remote_control"]]),
     ]
     for name, value in rows:
-        table.add_row(name, str(value))
+        table.add_row(Text(name), Text(str(value)))  # Text: "[m, rad]" is not markup
     Console(width=120).print(table)
     return 0
