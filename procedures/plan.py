@@ -63,6 +63,8 @@ path check), so that a move planned clear is still clear when the executor re-ch
 slightly different, configuration."""
 MAX_REORDER_ROUNDS = 20
 """Re-orderings tried (each avoiding the moves found colliding so far) before a pose is dropped."""
+MAX_REVISIT_ROTATIONS = 24
+"""Rotations of the tour tried to clear a blocked drift-check revisit move."""
 MAX_CENTERS_PLANNED = 3
 """When no centre is given: how many candidate centres (best static reachability first) are ordered and checked."""
 MAX_2OPT_PASSES = 50
@@ -640,6 +642,8 @@ def _order_and_check(settings: PlanSettings, start_q: np.ndarray, q: np.ndarray,
             path = [sub[t] for t in tour]
             targets, failed = graph.sequence(path)
             if not failed:
+                if settings.drift_check:
+                    path, targets = _clear_revisit(graph, path, targets)
                 return [p - 1 for p in path[1:]], targets, rejected
         # drop the pose with the most colliding moves found so far (ties: the pose the first failed move enters)
         bad_count: dict[int, int] = {}
@@ -656,6 +660,32 @@ def _order_and_check(settings: PlanSettings, start_q: np.ndarray, q: np.ndarray,
         active.remove(worst - 1)
         if not active:
             return [], np.empty((0, 6)), rejected
+
+
+def _clear_revisit(graph: _MoveGraph, path: list[int], targets: np.ndarray) -> tuple[list[int], np.ndarray]:
+    """Make the drift-check revisit (last target → first target, as the executor moves) clear if possible.
+
+    The poses are taken as a cycle and the cycle is started at another pose (either direction), cheapest first
+    move from the start first, until every move and the revisit are clear. Returns the path unchanged if none is
+    (the plan then carries a warning).
+    """
+    def revisit_clear(t: np.ndarray) -> bool:
+        return len(t) < 2 or not graph.checker.problems_along(t[-1], t[0])
+
+    if revisit_clear(targets):
+        return path, targets
+    cycle = path[1:]
+    options = []
+    for direction in (cycle, cycle[::-1]):
+        for k in range(len(direction)):
+            rotated = direction[k:] + direction[:k]
+            options.append((graph.cost[0, rotated[0]], [0] + rotated))
+    options.sort(key=lambda option: option[0])
+    for _, candidate in options[:MAX_REVISIT_ROTATIONS]:
+        candidate_targets, failed = graph.sequence(candidate)
+        if not failed and revisit_clear(candidate_targets):
+            return candidate, candidate_targets
+    return path, targets
 
 
 def listing_targets(model: URModel, start_q: np.ndarray, q_sequence: np.ndarray) -> np.ndarray:
