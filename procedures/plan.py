@@ -197,7 +197,7 @@ class PlanSettings:
         return PlanSettings(**data)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Plan:
     """A checked plan, in execution order (arrays are read-only copies).
 
