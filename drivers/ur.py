@@ -647,12 +647,17 @@ class URRobot:
         self.raise_if_faulted()
         self._stop_event.clear()
         deadline = time.monotonic() + timeout_s
-        accepted = self._call(method, [float(v) for v in target], speed, acceleration, True)
-        if not accepted:
-            deadline_fault = time.monotonic() + STREAM_CATCH_UP_S  # the refusal may be ahead of the receive stream
+        for _attempt in range(2):
+            accepted = self._call(method, [float(v) for v in target], speed, acceleration, True)
+            if accepted:
+                break
+            # the control stream may be ahead of the receive stream (a new fault) or behind it (a stop that was
+            # just cleared): wait for the receive stream to show a fault; if none shows, send once more
+            deadline_fault = time.monotonic() + STREAM_CATCH_UP_S
             while time.monotonic() < deadline_fault:
                 self.raise_if_faulted()
                 time.sleep(POLL_INTERVAL_S)
+        if not accepted:
             raise RobotError(f"robot {self.host}: the controller refused {method} to {np.round(target, 5).tolist()}")
         idle_since = arrived_since = None
         while True:

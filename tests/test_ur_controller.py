@@ -79,7 +79,8 @@ def at_home(fake, clients):
         dashboard.unlockProtectiveStop()
         dashboard.disconnect()
         wait_until(lambda: not receive.isProtectiveStopped(), what="unlock")
-    assert control.moveJ(HOME_Q, 1.0, 1.0)
+    # the control connection may still show the cleared stop for a few packages: retry until accepted
+    wait_until(lambda: control.moveJ(HOME_Q, 1.0, 1.0), what="moveJ home accepted")
     wait_for_joints(receive, HOME_Q)
     return receive, control
 
