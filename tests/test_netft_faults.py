@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drivers.netft import NetFTSensor
-from ftacq.errors import SensorFaultError
+from ftacq.errors import DeviceTimeoutError, SensorFaultError
 from tests.fakes.netft import FakeNetFT
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
 
@@ -46,12 +46,15 @@ def settle(sensor: NetFTSensor, fake: FakeNetFT) -> list:
     """Wait until the fake applied its pending faults, then read until the driver delivered records well past them;
     return the batches read."""
     fake.wait_until(lambda f: not f.faults_pending, what="faults applied")
-    target = fake.stats()["rdt_sequence"] + RECORDS_PAST_FAULT
-    batches = []
-    while not batches or batches[-1].sequence[-1] < target:
-        batch = sensor.read(timeout_s=READ_TIMEOUT_S)
-        if len(batch):
-            batches.append(batch)
+    target = fake.records_sent + RECORDS_PAST_FAULT  # well-formed records sent, duplicates included
+    fake.wait_for_records(target)
+    batches = [sensor.read(timeout_s=READ_TIMEOUT_S)]
+    while sensor.health().received < target:
+        batches.append(sensor.read(timeout_s=READ_TIMEOUT_S))
+    try:
+        batches.append(sensor.read(timeout_s=0.0))  # what health() decoded last
+    except DeviceTimeoutError:
+        pass
     return batches
 
 
