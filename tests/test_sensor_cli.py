@@ -140,3 +140,26 @@ def test_ctrl_c_keeps_what_was_recorded(tmp_path) -> None:
 def test_sensor_without_action_prints_help(capsys) -> None:
     assert main(["sensor"]) == 2
     assert "info" in capsys.readouterr().out
+
+
+def test_the_same_commands_work_for_a_can_sensor(physics, tmp_path, capsys) -> None:
+    """``ftacq sensor`` goes through drivers.sensor.open_sensor: a NETCANOEM board on a virtual CAN bus works too."""
+    import uuid
+
+    from tests.fakes.netcanoem import FakeNetCanOem
+
+    channel = f"cli-{uuid.uuid4()}"
+    board = FakeNetCanOem(channel, physics, serial="FT23456", torque_unit_code=4, counts_per_torque=1_000)
+    try:
+        url = f"can://virtual/{channel}?rate_hz=200"
+        assert main(["sensor", "info", url, "--seconds", "0.2"]) == 0
+        out = capsys.readouterr().out
+        assert "FT23456" in out and "torque N-mm" in out
+        path = tmp_path / "can.csv"
+        assert main(["sensor", "record", url, "--seconds", "0.3", "-o", str(path)]) == 0
+        table = np.loadtxt(path, delimiter=",", skiprows=1)
+        sigma = np.array(physics.truth.force_noise_n + physics.truth.torque_noise_nm)
+        np.testing.assert_array_less(np.abs(table[:, 1:7].mean(axis=0) - physics.noiseless_wrench(POSE)),
+                                     NOISE_SIGMAS * sigma / np.sqrt(len(table)) + 0.02)  # + gage quantisation
+    finally:
+        board.close()
