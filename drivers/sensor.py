@@ -5,7 +5,8 @@ cores a per-sample object costs more than the protocol itself.
 
 Sensors are named by URL:
 
-- ``netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R]`` — ATI Net F/T (defaults 49152, 49151, 80)
+- ``netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R&buffered=0&buffer_size=N&timeout_s=T]`` — ATI Net F/T
+  (defaults 49152, 49151, 80; more keys in :mod:`drivers.netft`)
 - ``can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]`` — ATI NETCANOEM on a python-can bus
 """
 
