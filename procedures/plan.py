@@ -63,7 +63,7 @@ path check), so that a move planned clear is still clear when the executor re-ch
 slightly different, configuration."""
 MAX_REORDER_ROUNDS = 20
 """Re-orderings tried (each avoiding the moves found colliding so far) before a pose is dropped."""
-MAX_REVISIT_ROTATIONS = 24
+MAX_REVISIT_ROTATIONS = 40
 """Rotations of the tour tried to clear a blocked drift-check revisit move."""
 MAX_CENTERS_PLANNED = 3
 """When no centre is given: how many candidate centres (best static reachability first) are ordered and checked."""
@@ -210,6 +210,9 @@ class Plan:
         settings: the settings it was made from. center_m: the centre used. branch: the IK branch used (str).
         start_q_rad: the configuration the plan starts from.
         warnings: things the technician should know (e.g. the drift-check revisit move is blocked).
+        revisit_target_rad: joint target (6,) for the drift-check revisit of the first pose: the same flange pose
+            as ``joint_targets_rad[0]``, possibly another 2π-equivalent of it, chosen so that the move from the
+            last pose is short and clear (checked); None when the settings have no drift check.
     """
 
     poses: np.ndarray
@@ -225,6 +228,7 @@ class Plan:
     branch: str = ""
     start_q_rad: tuple[float, ...] = field(default=(0.0,) * 6)
     warnings: tuple[str, ...] = ()
+    revisit_target_rad: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("poses", "joint_targets_rad"):
@@ -261,6 +265,7 @@ class Plan:
             "branch": self.branch,
             "start_q_rad": list(self.start_q_rad),
             "warnings": list(self.warnings),
+            "revisit_target_rad": None if self.revisit_target_rad is None else list(self.revisit_target_rad),
         }, indent=1)
 
     @staticmethod
@@ -285,6 +290,8 @@ class Plan:
                 branch=str(data["branch"]),
                 start_q_rad=tuple(float(v) for v in data["start_q_rad"]),
                 warnings=tuple(str(w) for w in data.get("warnings", ())),
+                revisit_target_rad=None if data.get("revisit_target_rad") is None
+                else tuple(float(v) for v in data["revisit_target_rad"]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PlanError):
@@ -358,15 +365,20 @@ def move_time_s(q_from: np.ndarray, q_to: np.ndarray, speed_rad_s: float, accele
     return trapezoid_time_s(delta, speed_rad_s, acceleration_rad_s2)
 
 
-def estimate_duration_s(settings: PlanSettings, start_q: np.ndarray, q_sequence: np.ndarray) -> float:
-    """Return moves + (settle + averaging) per pose, plus the drift-check revisit of the first pose, s."""
+def estimate_duration_s(settings: PlanSettings, start_q: np.ndarray, q_sequence: np.ndarray,
+                        revisit_target: np.ndarray | None = None) -> float:
+    """Return moves + (settle + averaging) per pose, plus the drift-check revisit of the first pose, s.
+
+    ``revisit_target``: the joint target of the revisit (default the first target).
+    """
     all_q = np.vstack([np.asarray(start_q, dtype=float)[None, :], q_sequence])
     moves = sum(move_time_s(a, b, settings.joint_speed_rad_s, settings.joint_acceleration_rad_s2)
                 for a, b in zip(all_q[:-1], all_q[1:]))
     per_pose = settings.settle_time_s + settings.average_time_s
     total = moves + len(q_sequence) * per_pose
     if settings.drift_check and len(q_sequence):
-        total += move_time_s(q_sequence[-1], q_sequence[0], settings.joint_speed_rad_s,
+        target = q_sequence[0] if revisit_target is None else revisit_target
+        total += move_time_s(q_sequence[-1], target, settings.joint_speed_rad_s,
                              settings.joint_acceleration_rad_s2) + per_pose
     return float(total)
 
@@ -542,6 +554,7 @@ class _MoveGraph:
     """
 
     def __init__(self, settings: PlanSettings, start_q: np.ndarray, q: np.ndarray) -> None:
+        self.settings = settings
         self.model = settings.ur
         self.checker = collision_checker(settings, planning=True)
         self.weights = joint_weights(self.model)
@@ -665,21 +678,26 @@ def _order_and_check(settings: PlanSettings, start_q: np.ndarray, q: np.ndarray,
 def _clear_revisit(graph: _MoveGraph, path: list[int], targets: np.ndarray) -> tuple[list[int], np.ndarray]:
     """Make the drift-check revisit (last target → first target, as the executor moves) clear if possible.
 
-    The poses are taken as a cycle and the cycle is started at another pose (either direction), cheapest first
-    move from the start first, until every move and the revisit are clear. Returns the path unchanged if none is
-    (the plan then carries a warning).
+    The poses are taken as a cycle: the cycle is started at another pose (either direction), or its closing move
+    is exchanged by a 2-opt step, cheapest first, until every move and the revisit are clear. Returns the path
+    unchanged if none is (the plan then carries a warning).
     """
     def revisit_clear(t: np.ndarray) -> bool:
-        return len(t) < 2 or not graph.checker.problems_along(t[-1], t[0])
+        return len(t) < 2 or not _revisit_target(graph.settings, t)[1]
 
     if revisit_clear(targets):
         return path, targets
     cycle = path[1:]
+    cost = graph.cost
     options = []
-    for direction in (cycle, cycle[::-1]):
-        for k in range(len(direction)):
+    for direction in (cycle, cycle[::-1]):  # rotations of the cycle: another pose first
+        for k in range(1, len(direction)):
             rotated = direction[k:] + direction[:k]
-            options.append((graph.cost[0, rotated[0]], [0] + rotated))
+            options.append((cost[0, rotated[0]] + cost[direction[-1], direction[0]], [0] + rotated))
+    for m in range(1, len(cycle) - 1):  # 2-opt on the closing move: p1…pm, pN…pm+1, then back to p1
+        changed = cycle[:m] + cycle[m:][::-1]
+        added = cost[cycle[m - 1], cycle[-1]] + cost[cycle[m], cycle[0]] - cost[cycle[m - 1], cycle[m]]
+        options.append((cost[0, changed[0]] + added, [0] + changed))
     options.sort(key=lambda option: option[0])
     for _, candidate in options[:MAX_REVISIT_ROTATIONS]:
         candidate_targets, failed = graph.sequence(candidate)
@@ -767,10 +785,11 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
         return None, _plan_error_message(problems, rejected, candidate.center)
     chosen = [kept[i] for i in order]
     warnings = []
-    if settings.drift_check and len(q_exec) > 1:
-        problems = collision_checker(settings, planning=True).problems_along(q_exec[-1], q_exec[0])
-        if problems:
-            warnings.append(f"the drift-check revisit of {poses.labels[chosen[0]]} is blocked: {problems[0]}")
+    revisit = None
+    if settings.drift_check and len(q_exec):
+        revisit, problem = _revisit_target(settings, q_exec)
+        if problem:
+            warnings.append(f"the drift-check revisit of {poses.labels[chosen[0]]} is blocked: {problem}")
     weights = joint_weights(model)
     listing = [i for i in kept if keep[i]]
     q_listing = listing_targets(model, start_q, np.array([candidate.q[i] for i in listing]))
@@ -780,7 +799,7 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
         labels=tuple(poses.labels[i] for i in chosen),
         set_names=tuple(poses.set_names[i] for i in chosen),
         rejected=tuple(rejected),
-        estimated_duration_s=estimate_duration_s(settings, start_q, q_exec),
+        estimated_duration_s=estimate_duration_s(settings, start_q, q_exec, revisit),
         joint_travel_rad=path_travel(start_q, q_exec, weights),
         listing_travel_rad=path_travel(start_q, q_listing, weights),
         settings=settings,
@@ -788,7 +807,37 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
         branch=str(candidate.branch),
         start_q_rad=tuple(float(v) for v in start_q),
         warnings=tuple(warnings),
+        revisit_target_rad=None if revisit is None else tuple(float(v) for v in revisit),
     ), ""
+
+
+def _revisit_target(settings: PlanSettings, q_exec: np.ndarray) -> tuple[np.ndarray, str]:
+    """Return (joint target for revisiting the first pose, "" or why every candidate move is blocked).
+
+    Candidates, in order: the first target itself, then its 2π-equivalent nearest the last target (shortest
+    move), then that with one wrist or base joint the long way round; each within the limits and checked clear.
+    """
+    model = settings.ur
+    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    checker = collision_checker(settings, planning=True)
+    last, first = q_exec[-1], q_exec[0]
+    shortest = last + angle_delta(last, first)
+    candidates = [first, shortest]
+    for j in ALTERNATIVE_MOVE_JOINTS:
+        alternative = shortest.copy()
+        if alternative[j] != last[j]:
+            alternative[j] -= np.sign(alternative[j] - last[j]) * TWO_PI
+            candidates.append(alternative)
+    first_problem = ""
+    for candidate in candidates:
+        if np.any(candidate < lower - 1e-9) or np.any(candidate > upper + 1e-9):
+            continue
+        candidate = np.clip(candidate, lower, upper)
+        problems = checker.problems_along(last, candidate)
+        if not problems:
+            return candidate, ""
+        first_problem = first_problem or problems[0]
+    return first, first_problem or "no equivalent of the first pose within the joint limits"
 
 
 def _plan_error_message(problems: list[str], rejected: list[tuple[str, str]], center: np.ndarray) -> str:

@@ -50,6 +50,24 @@ def test_default_plan_moves_are_clear(default_plan):
     targets = np.vstack([HOME[None, :], plan.joint_targets_rad])
     for q_from, q_to in zip(targets[:-1], targets[1:]):
         assert check_path(plan.settings, q_from, q_to) == []
+    assert plan.warnings == ()
+
+
+def test_drift_revisit_target_is_the_first_pose_and_clear(default_plan):
+    plan = default_plan
+    revisit = np.array(plan.revisit_target_rad)
+    model = plan.settings.ur
+    np.testing.assert_allclose(forward_kinematics(model, revisit), forward_kinematics(model, plan.joint_targets_rad[0]),
+                               atol=POSE_TOLERANCE)
+    assert check_path(plan.settings, plan.joint_targets_rad[-1], revisit) == []
+    assert make_plan(PlanSettings(drift_check=False), HOME).revisit_target_rad is None
+
+
+@pytest.mark.parametrize("model, mount", [("UR30", "wall"), ("UR5", "ceiling")])
+def test_drift_revisit_is_made_clear(model, mount):
+    plan = make_plan(PlanSettings(model=model, mount=mount), HOME)
+    assert not any("revisit" in w for w in plan.warnings)
+    assert check_path(plan.settings, plan.joint_targets_rad[-1], np.array(plan.revisit_target_rad)) == []
 
 
 def test_order_is_shorter_than_listing(default_plan):
@@ -89,6 +107,7 @@ def test_json_round_trip(default_plan):
     assert again.settings == default_plan.settings
     assert again.estimated_duration_s == default_plan.estimated_duration_s
     assert again.center_m == default_plan.center_m and again.branch == default_plan.branch
+    assert again.revisit_target_rad == default_plan.revisit_target_rad and again.warnings == default_plan.warnings
 
 
 def test_json_errors_are_plan_errors(default_plan):
