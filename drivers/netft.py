@@ -35,6 +35,7 @@ import re
 import select
 import socket
 import struct
+import sys
 import threading
 import time
 import warnings
@@ -117,7 +118,10 @@ MAX_DATAGRAM_BYTES = 65536
 SLACK_RECORDS = -(-MAX_DATAGRAM_BYTES // RECORD_SIZE)
 """Room past the ring's end so that a whole datagram always fits at the write position (wrapped after)."""
 RECEIVE_BUFFER_BYTES = 8 << 20
-"""Requested SO_RCVBUF (the kernel may cap it; SO_RCVBUFFORCE is tried first)."""
+"""Requested SO_RCVBUF (the kernel caps it at net.core.rmem_max; SO_RCVBUFFORCE, tried first, needs
+CAP_NET_ADMIN)."""
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
+"""Linux's SO_RCVBUFFORCE (33; Python's socket module does not name it)."""
 POLL_S = 0.05
 """Longest the receive thread blocks before checking its stop flag, seconds."""
 DEFAULT_TIMEOUT_S = 0.25
@@ -665,7 +669,7 @@ class NetFTSensor:
 
     def _open_socket(self) -> None:
         sock = socket.socket(self._family, socket.SOCK_DGRAM)
-        for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        for option in (SO_RCVBUFFORCE, socket.SO_RCVBUF):
             if option is None:
                 continue
             try:
