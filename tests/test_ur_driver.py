@@ -242,8 +242,10 @@ def test_state_reader_reads_joints_flange_pose_and_time_without_moving(fake, rea
     assert len(fake.commands()) == before
 
 
-@pytest.mark.parametrize("fault", ["drop", "freeze"])
+@pytest.mark.parametrize("fault", ["drop", "freeze", "kill"])
 def test_a_lost_connection_is_reported_within_3_s(fault):
+    """drop: the controller closes every connection (and refuses new ones); freeze: it goes silent with the
+    connections open (a pulled cable); kill: the controller process dies."""
     with URControllerProcess(time_scale=1.0, initial_q=HOME_Q) as process:
         robot = URRobot(process.host, LIMITS).start()
         try:
@@ -261,7 +263,10 @@ def test_a_lost_connection_is_reported_within_3_s(fault):
             mover.start()
             wait_until(lambda: process.state()["moving"], what="the arm moving")
             injected_at = time.monotonic()
-            process.inject(fault)
+            if fault == "kill":
+                process.kill()
+            else:
+                process.inject(fault)
             mover.join(timeout=10.0)
             assert not mover.is_alive()
             assert isinstance(outcome["result"], DeviceConnectionError), outcome

@@ -153,6 +153,12 @@ class URControllerProcess:
                 self._stderr.close()
                 self._stderr = None
 
+    def kill(self) -> None:
+        """SIGKILL the controller process (a crashed or switched-off controller); :meth:`stop` still cleans up."""
+        if self._process is not None and self._process.poll() is None:
+            self._process.kill()
+            self._process.wait()
+
     def stderr_text(self) -> str:
         """What the controller process wrote to stderr so far (for test failure messages)."""
         if self._stderr is None:
