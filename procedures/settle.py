@@ -36,7 +36,7 @@ SETTLE_POLL_PERIOD_S = 0.005
 """The settle loop checks the robot and the sensor at most this often (no busy loop on a fast sensor)."""
 MIN_SAMPLE_FRACTION = 0.5
 """An averaging window with fewer than this fraction of the samples the sensor's rate promises is taken again."""
-MAX_AVERAGE_ATTEMPTS = 3
+MAX_AVERAGE_ATTEMPTS = 5
 """Averaging windows tried at one pose before accepting a short one (with a warning) or failing."""
 MIN_SAMPLES = 2
 """Fewest samples of an accepted average (a standard deviation needs two)."""

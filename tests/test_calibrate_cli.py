@@ -30,7 +30,7 @@ validation_count = 4
 [sampling]
 settle_time_s = 0.0
 settle_window_s = 0.02
-average_time_s = 0.05
+average_time_s = 0.1
 """
 
 

@@ -165,7 +165,7 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
 def _fast_toml(tmp_path):
     path = tmp_path / "FAST.toml"
     path.write_text("[poses]\nrandom_count = 6\nvalidation_count = 4\n"
-                    "[sampling]\nsettle_time_s = 0.0\nsettle_window_s = 0.02\naverage_time_s = 0.05\n",
+                    "[sampling]\nsettle_time_s = 0.0\nsettle_window_s = 0.02\naverage_time_s = 0.1\n",
                     encoding="utf-8")
     return path
 

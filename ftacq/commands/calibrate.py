@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_SIM_TIME_SCALE = 10.0
 """--sim runs the simulated controller this many times faster than real time (the plan shows real time)."""
-SIM_MIN_AVERAGE_TIME_S = 0.05
+SIM_MIN_AVERAGE_TIME_S = 0.1
 SIM_MIN_SETTLE_WINDOW_S = 0.02
 
 
