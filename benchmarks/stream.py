@@ -240,7 +240,7 @@ def search(trial, label: str) -> tuple[float, bool, list[str]]:
 
 def _short(result: dict) -> str:
     keys = ("delivered", "fake_sent", "caught_up", "lost", "duplicate", "out_of_order", "overflowed",
-            "queue_dropped", "cpu_percent")
+            "queue_dropped", "fake_send_errors", "cpu_percent")
     return ", ".join(f"{k} {result[k]:.0f}" if isinstance(result[k], float) else f"{k} {result[k]}"
                      for k in keys if k in result)
 
@@ -275,9 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     fake = FakeProcess(RATE_HZ, max_rate_hz=MAX_RATE_FAKE_HZ)
     try:
         single, single_limited, log_single = search(
-            lambda rate: driver_run(fake, trial_s, f"&rate_hz={rate:g}&buffer_size=1"), "driver 0x0002")
+            lambda rate: driver_run(fake, trial_s, f"&rate_hz={rate:.0f}&buffer_size=1"), "driver 0x0002")
         buffered, buffered_limited, log_buffered = search(
-            lambda rate: driver_run(fake, trial_s, f"&rate_hz={rate:g}&buffered=1&buffer_size={BUFFERED_RECORDS}"),
+            lambda rate: driver_run(fake, trial_s, f"&rate_hz={rate:.0f}&buffered=1&buffer_size={BUFFERED_RECORDS}"),
             "driver 0x0003")
         try:
             import pynetft  # noqa: F401

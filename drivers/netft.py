@@ -47,9 +47,7 @@ import numpy as np
 
 from drivers.sensor import (
     STATUS_HEALTHY_MASK,
-    STATUS_MONITOR_LATCH,
     STATUS_SATURATION,
-    STATUS_SUMMARY,
     SensorHealth,
     SensorInfo,
     WrenchAverage,
@@ -141,6 +139,9 @@ MAX_TRACKED_MISSING = 4096
 """Missing sequence numbers remembered, so a late record is counted out of order rather than lost."""
 MAX_PENDING_SAMPLES = 1_000_000
 RATE_WINDOW_S = 1.0
+COALESCE_S = 0.0
+"""After a wake-up that drained data, the receive thread pauses this long so the next wake-up drains several
+datagrams (fewer system calls per record at high rates, at the cost of this much latency), seconds."""
 NOTIFY_INTERVAL_S = 0.001
 """The receive thread wakes a waiting reader at most this often, seconds: readers get batches, not single records,
 at the cost of at most this much latency."""
@@ -269,6 +270,7 @@ class NetFTSensor:
         self.info = SensorInfo(transport="netft", serial="", firmware="", force_unit="", torque_unit="",
                                counts_per_force=0.0, counts_per_torque=0.0, rate_hz=float(rate_hz or 0.0))
         self.timeout_s = DEFAULT_TIMEOUT_S
+        self.coalesce_s = COALESCE_S
         # receive side (written by the receive thread only)
         self._ring = bytearray((RING_RECORDS + SLACK_RECORDS) * RECORD_SIZE)
         self._ring_records = np.frombuffer(self._ring, dtype=RECORD_DTYPE)
@@ -764,6 +766,8 @@ class NetFTSensor:
                     got = True
                 now = monotonic()
                 if got or arrived:  # the box is streaming (even if the ring is full)
+                    if self.coalesce_s > 0.0:
+                        stop.wait(self.coalesce_s)  # let a few datagrams queue: one wake-up drains them all
                     last_data_s = now
                     next_retry_s = now + self.timeout_s
                     backoff_s = BACKOFF_INITIAL_S

@@ -270,3 +270,10 @@ def test_a_reader_that_stops_reading_loses_records_counted_as_lost(physics, smal
         health = sensor.health()
         assert sensor.overflowed > 0 and health.lost == sensor.overflowed  # each dropped datagram is one lost record
         assert health.duplicate == health.out_of_order == health.restarts == 0
+
+
+def test_url_keys_become_constructor_arguments() -> None:
+    assert parse_netft_url("netft://box.local:5000?tcp_port=5001&http_port=8080&rate_hz=500&buffered=yes"
+                           "&buffer_size=20&timeout_s=0.5&status_map=axia") == {
+        "host": "box.local", "rdt_port": 5000, "tcp_port": 5001, "http_port": 8080, "rate_hz": 500.0,
+        "buffered": True, "buffer_size": 20, "timeout_s": 0.5, "status_map": "axia"}
