@@ -95,9 +95,10 @@ SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVE
                      13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
 RUNTIME_STATE_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
 
-RECEIVE_VARIABLES = ["timestamp", "actual_q", "actual_qd", "target_q", "actual_TCP_pose", "robot_mode",
-                     "safety_mode", "runtime_state", "robot_status_bits", "safety_status_bits", "speed_scaling"]
-"""The receive recipe (all in ur-rtde's decode table and in every controller's default list, spec §5.2)."""
+RECEIVE_VARIABLES = ["timestamp", "actual_q", "actual_qd", "actual_TCP_pose", "robot_mode", "safety_mode",
+                     "runtime_state", "safety_status_bits"]
+"""The receive recipe: only what ftacq reads (all in ur-rtde's decode table and in every controller's default list,
+spec §5.2). A controller answering NOT_FOUND for one of them gets ur-rtde's default list instead."""
 
 _E_SERIES_DASHBOARD_NAMES = ("UR3", "UR5", "UR10", "UR16")
 
@@ -266,9 +267,15 @@ class URStateReader:
                 self.model = read_controller_info(self.host, self.connect_timeout_s).model
             except DeviceConnectionError as error:
                 log.warning("cannot read the robot model from the dashboard (%s); flange pose unavailable", error)
+        frequency = float(self.frequency_hz) if self.frequency_hz else -1.0
         try:
-            self._receive = rtde_receive.RTDEReceiveInterface(
-                self.host, float(self.frequency_hz) if self.frequency_hz else -1.0, RECEIVE_VARIABLES)
+            try:
+                self._receive = rtde_receive.RTDEReceiveInterface(self.host, frequency, RECEIVE_VARIABLES)
+            except RuntimeError as error:
+                if "not found" not in str(error).lower():
+                    raise
+                log.warning("robot %s: %s; using ur-rtde's default RTDE recipe", self.host, error)
+                self._receive = rtde_receive.RTDEReceiveInterface(self.host, frequency)
         except RuntimeError as error:
             raise DeviceConnectionError(f"robot controller {self.host}: RTDE (port 30004): {error}") from error
         self._last_timestamp, self._last_change_s = self._receive.getTimestamp(), time.monotonic()
@@ -648,7 +655,10 @@ class URRobot:
         self._stop_event.clear()
         deadline = time.monotonic() + timeout_s
         for _attempt in range(2):
-            accepted = self._call(method, [float(v) for v in target], speed, acceleration, True)
+            # asynchronous, so this returns at once; a controller that ran it synchronously still gets the full
+            # move deadline (the watchdog keeps checking the connection meanwhile)
+            accepted = self._call(method, [float(v) for v in target], speed, acceleration, True,
+                                  timeout_s=max(CALL_TIMEOUT_S, deadline - time.monotonic()))
             if accepted:
                 break
             # the control stream may be ahead of the receive stream (a new fault) or behind it (a stop that was
