@@ -423,14 +423,19 @@ class URRobot:
         """Connect: dashboard (model, version), RTDE receive, RTDE control (uploads ur-rtde's control script)."""
         import rtde_control
 
-        for port in (RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT):
+        for port in (RTDE_PORT, SCRIPT_PORT):
             probe_port(self.host, port, self.connect_timeout_s)
-        self.info = read_controller_info(self.host, self.connect_timeout_s)
+        try:
+            self.info = read_controller_info(self.host, self.connect_timeout_s)
+        except DeviceConnectionError as error:  # PolyScope X (10.x) has no dashboard server
+            log.warning("robot %s: no dashboard server (%s); model, version and serial number unknown", self.host,
+                        error)
+            self.info = URControllerInfo(None, None, None, None, None, None, None, None)
         if self._reader.model is None:
             self._reader.model = self.info.model
         if self._reader.model is None:
-            log.warning("robot %s: unknown model %r; joint limits unchecked, flange pose from the controller only",
-                        self.host, self.info.model_reply)
+            log.warning("robot %s: unknown model %r; joint limits unchecked, flange pose from the controller only "
+                        "(pass model=, e.g. 'UR5e')", self.host, self.info.model_reply)
         self._reader.start()
         try:
             self._control = rtde_control.RTDEControlInterface(self.host)
