@@ -36,7 +36,8 @@ HEALTH_FIELDS = ("received", "lost", "duplicate", "out_of_order", "malformed", "
 def register(subparsers) -> None:
     """Add ``ftacq sensor {info,record,bias}``."""
     parser = subparsers.add_parser("sensor", help="inspect, record or bias an ATI F/T sensor",
-                                   description=__doc__.split("\n\n")[0])
+                                   description="Look at, record and bias an ATI F/T sensor named by URL "
+                                               "(netft:// or can://).")
     commands = parser.add_subparsers(dest="sensor_command", metavar="ACTION")
     url_help = ("sensor URL: netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R] or "
                 "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]")
@@ -145,8 +146,8 @@ def run_record(args: argparse.Namespace) -> int:
     from ftacq.fileio import atomic_write
 
     seconds = _positive_seconds(args.seconds)
-    if args.output.suffix.lower() != ".csv":
-        raise InputError(f"-o {args.output}: expected a .csv file name")
+    if args.output.is_dir():
+        raise InputError(f"-o {args.output}: is a folder; give a file name such as {args.output / 'wrench.csv'}")
     sensor = _open(args.url)
     samples = read_timeouts = 0
     interrupted = False
