@@ -324,4 +324,4 @@ def test_ftacq_robot_info_prints_identity_joints_and_flange_pose(fake, ready, ca
 
 def test_ftacq_robot_info_on_an_unreachable_host_exits_1(capsys):
     assert ftacq_main(["robot", "info", random_loopback_address()]) == 1
-    assert "cannot connect to port" in capsys.readouterr().err
+    assert "cannot connect to port 30004" in capsys.readouterr().err

@@ -33,14 +33,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def collect_info(host: str, model: str | None = None) -> dict:
     """Read everything ``robot info`` prints; raises ftacq.errors.DeviceError types."""
     from drivers.ur import (
+        RTDE_PORT,
         ROBOT_MODE_NAMES,
         RUNTIME_STATE_NAMES,
         SAFETY_MODE_NAMES,
+        URControllerInfo,
         URStateReader,
+        probe_port,
         read_controller_info,
     )
+    from ftacq.errors import DeviceConnectionError
 
-    info = read_controller_info(host)
+    probe_port(host, RTDE_PORT)
+    try:
+        info = read_controller_info(host)
+    except DeviceConnectionError:  # no dashboard server (PolyScope X): RTDE only
+        info = URControllerInfo(None, None, None, None, None, None, None, None)
     reader = URStateReader(host, model=model or info.model)
     reader.start()
     try:
