@@ -151,6 +151,7 @@ def run_record(args: argparse.Namespace) -> int:
     sensor = _open(args.url)
     samples = read_timeouts = 0
     interrupted = False
+    fault: DeviceError | None = None
     first_time_s = None
     started = time.monotonic()
     try:
@@ -173,6 +174,8 @@ def run_record(args: argparse.Namespace) -> int:
                     samples += len(batch)
             except KeyboardInterrupt:
                 interrupted = True
+            except DeviceError as error:  # keep what was recorded; report the fault below
+                fault = error
         health = sensor.health()
     finally:
         try:
@@ -184,6 +187,9 @@ def run_record(args: argparse.Namespace) -> int:
     print(f"ftacq sensor record: {samples} samples in {duration_s:.2f} s ({rate_hz:.0f} Hz) → {args.output}"
           + ("; stopped by Ctrl-C (kept what was recorded)" if interrupted else ""))
     print(f"health: {health_line(health)}" + (f", read timeouts {read_timeouts}" if read_timeouts else ""))
+    if fault is not None:
+        print(f"ftacq sensor record: stopped by a sensor fault (kept what was recorded): {fault}", file=sys.stderr)
+        return 1
     if interrupted:
         return 130
     if samples == 0:
