@@ -224,6 +224,8 @@ class NetFTSensor:
         counts_per_force, counts_per_torque, force_unit, torque_unit: override discovery (all four together).
         status_map: "netft", "axia" or "auto" (Axia when the product name says so or ``setrate`` exists).
         http_timeout_s, tcp_timeout_s: discovery timeouts, seconds.
+        accept_any_port: also accept records from the box's address but another port (a box that does not send
+            from its RDT port; by default such datagrams are rejected as ``foreign``).
 
     The constructor does no I/O. ``start()`` discovers, opens the socket, starts the receive thread and the
     stream and waits for the first record. ``close()`` sends stop (0x0000) and joins the thread.
@@ -234,7 +236,8 @@ class NetFTSensor:
                  buffer_size: int | None = None, timeout_s: float | None = None,
                  counts_per_force: float | None = None, counts_per_torque: float | None = None,
                  force_unit: str | None = None, torque_unit: str | None = None, status_map: str = "auto",
-                 http_timeout_s: float = DEFAULT_HTTP_TIMEOUT_S, tcp_timeout_s: float = DEFAULT_TCP_TIMEOUT_S) -> None:
+                 http_timeout_s: float = DEFAULT_HTTP_TIMEOUT_S, tcp_timeout_s: float = DEFAULT_TCP_TIMEOUT_S,
+                 accept_any_port: bool = False) -> None:
         if not host:
             raise InputError(f"Net F/T host is empty; expected {URL_FORM}")
         for name, port in (("rdt_port", rdt_port), ("tcp_port", tcp_port), ("http_port", http_port)):
@@ -265,6 +268,7 @@ class NetFTSensor:
         self.requested_rate_hz, self.buffered, self.requested_buffer_size = rate_hz, bool(buffered), buffer_size
         self.requested_timeout_s, self.status_map_setting = timeout_s, status_map
         self.http_timeout_s, self.tcp_timeout_s = http_timeout_s, tcp_timeout_s
+        self.accept_any_port = bool(accept_any_port)
         self.scaling: Scaling | None = None
         self.status_map = "netft"
         self.info = SensorInfo(transport="netft", serial="", firmware="", force_unit="", torque_unit="",
@@ -351,7 +355,9 @@ class NetFTSensor:
                 raise DeviceTimeoutError(
                     f"Net F/T {self.host}: no RDT data on UDP port {self.rdt_port} within "
                     f"{wait_s:.2g} s (HTTP or TCP answered; is RDT "
-                    f"enabled (comrdte) and is the RDT port right?){self._rx_problems()}")
+                    f"enabled (comrdte) and is the RDT port right?){self._rx_problems()}"
+                    + ("; records came from another address or port: if the box sends from another port, add "
+                       "accept_any_port=1 to the URL" if self._rx.foreign else ""))
         except BaseException:
             self.close()
             raise
@@ -708,7 +714,7 @@ class NetFTSensor:
 
     def _receive(self) -> None:
         sock, ring, times, stop = self._sock, memoryview(self._ring), self._times, self._stop
-        expected = self._address
+        expected, any_port = self._address, self.accept_any_port
         capacity_mask = RING_RECORDS - 1
         room_needed = SLACK_RECORDS + 1
         scratch = bytearray(MAX_DATAGRAM_BYTES)
@@ -745,7 +751,7 @@ class NetFTSensor:
                     except OSError:  # ICMP port unreachable etc.: count and keep going
                         self.socket_errors += 1
                         break
-                    if sender != expected:
+                    if sender != expected and (not any_port or sender[0] != expected[0]):
                         rx.foreign += 1
                         continue
                     if size == 0 or size % RECORD_SIZE:
@@ -1001,6 +1007,7 @@ _URL_KEYS = {
     "tcp_port": int, "http_port": int, "rate_hz": float, "buffered": _parse_bool, "buffer_size": int,
     "timeout_s": float, "counts_per_force": float, "counts_per_torque": float, "force_unit": str,
     "torque_unit": str, "status_map": str, "http_timeout_s": float, "tcp_timeout_s": float,
+    "accept_any_port": _parse_bool,
 }
 
 
@@ -1032,7 +1039,7 @@ def parse_netft_url(url: str) -> dict:
             kwargs[key] = _URL_KEYS[key](value)
         except ValueError:
             raise InputError(f"sensor URL {url!r}: {key}={value!r} is not a valid "
-                             f"{'boolean' if key == 'buffered' else _URL_KEYS[key].__name__}") from None
+                             f"{'boolean' if _URL_KEYS[key] is _parse_bool else _URL_KEYS[key].__name__}") from None
     return kwargs
 
 

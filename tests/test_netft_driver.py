@@ -277,3 +277,14 @@ def test_url_keys_become_constructor_arguments() -> None:
                            "&buffer_size=20&timeout_s=0.5&status_map=axia") == {
         "host": "box.local", "rdt_port": 5000, "tcp_port": 5001, "http_port": 8080, "rate_hz": 500.0,
         "buffered": True, "buffer_size": 20, "timeout_s": 0.5, "status_map": "axia"}
+
+
+def test_records_from_another_port_are_rejected_unless_allowed(physics) -> None:
+    with make_fake(physics, send_from_other_socket=True) as device:
+        with pytest.raises(DeviceError, match=r"foreign.*accept_any_port=1"):
+            NetFTSensor.from_url(device.url).start()
+        with NetFTSensor.from_url(device.url + "&accept_any_port=1") as sensor:
+            average = sensor.average(0.1)
+            np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
+                                         tolerance(physics, average.count))
+            assert sensor.health().foreign == 0

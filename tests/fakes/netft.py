@@ -133,6 +133,8 @@ class FakeNetFT:
         counts_per_force, counts_per_torque: counts per force / torque unit (different on purpose).
         serial: calibration serial number. prodname: product name, or None to omit it (legacy firmware).
         serve_calibration_page: False makes ``/netftcalapi.xml`` answer 404 (older firmware).
+        serve_tcp: False serves no TCP port. send_from_other_socket: records leave from another UDP port (a
+        box that breaks spec §7.1.1; connected clients drop them).
         max_rate_hz: highest streaming rate; above 7000 only for benchmarks (not what a real box does).
         max_rating: (6,) max rating per axis in device units (``cfgmr``; sets the READFT scale factors).
         seed: seed of the garbage-datagram generator.
@@ -142,7 +144,7 @@ class FakeNetFT:
                  rate_hz: float = INTERNAL_RATE_HZ, buffer_size: int = 1, force_unit: str = "N",
                  torque_unit: str = "Nm", counts_per_force: int = 1_000_000, counts_per_torque: int = 500_000,
                  serial: str = "FT12345", prodname: str | None = "Net F/T (simulated)",
-                 serve_calibration_page: bool = True, serve_tcp: bool = True,
+                 serve_calibration_page: bool = True, serve_tcp: bool = True, send_from_other_socket: bool = False,
                  max_rate_hz: float = INTERNAL_RATE_HZ, max_rating: tuple | None = None, firmware: str = "2.2.59",
                  seed: int = 0) -> None:
         if force_unit not in FORCE_UNIT_CODES:
@@ -157,6 +159,7 @@ class FakeNetFT:
         self.serial, self.prodname, self.firmware = serial, prodname, firmware
         self.serve_calibration_page = serve_calibration_page
         self.serve_tcp = serve_tcp
+        self.send_from_other_socket = send_from_other_socket
         self.max_rate_hz = float(max_rate_hz)
         if max_rating is None:
             max_rating = (660.0 / NEWTONS_PER_FORCE_UNIT[force_unit],) * 2 + (1980.0 / NEWTONS_PER_FORCE_UNIT[force_unit],) \
@@ -205,6 +208,7 @@ class FakeNetFT:
         self.streams_started = 0
         # sockets and threads
         self._udp: socket.socket | None = None
+        self._udp_out: socket.socket | None = None
         self._tcp: socket.socket | None = None
         self._http: HTTPServer | None = None
         self._threads: list[threading.Thread] = []
@@ -255,6 +259,9 @@ class FakeNetFT:
         except OSError:
             pass
         self.rdt_port = self._udp.getsockname()[1]
+        if self.send_from_other_socket:  # a misbehaving box: records come from another port (clients drop them)
+            self._udp_out = socket.socket(family, socket.SOCK_DGRAM)
+            self._udp_out.bind((self.host, 0))
         if self.serve_tcp:
             self._tcp = socket.socket(family, socket.SOCK_STREAM)
             self._tcp.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -292,7 +299,7 @@ class FakeNetFT:
         for thread in self._threads:
             thread.join(CLOSE_JOIN_TIMEOUT_S)
         alive = [t.name for t in self._threads if t.is_alive()]
-        for sock in (self._udp, self._tcp):
+        for sock in (self._udp, self._udp_out, self._tcp):
             if sock is not None:
                 sock.close()
         if self._http is not None:
@@ -621,9 +628,10 @@ class FakeNetFT:
             self.datagrams_sent += len(datagrams)
             self._lock.notify_all()
         failed_records = failed_datagrams = 0
+        sender = self._udp_out or self._udp
         for datagram in datagrams:
             try:
-                self._udp.sendto(datagram, target)
+                sender.sendto(datagram, target)
             except OSError:
                 failed_datagrams += 1
                 failed_records += len(datagram) // RECORD_SIZE if len(datagram) % RECORD_SIZE == 0 else 0
