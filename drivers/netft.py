@@ -139,9 +139,10 @@ MAX_TRACKED_MISSING = 4096
 """Missing sequence numbers remembered, so a late record is counted out of order rather than lost."""
 MAX_PENDING_SAMPLES = 1_000_000
 RATE_WINDOW_S = 1.0
-COALESCE_S = 0.0
-"""After a wake-up that drained data, the receive thread pauses this long so the next wake-up drains several
-datagrams (fewer system calls per record at high rates, at the cost of this much latency), seconds."""
+COALESCE_S = 0.001
+"""After a wake-up that drained data (and woke the reader), the receive thread pauses this long so that its next
+wake-up drains several datagrams: at 7 kHz this halves the CPU cost. Records arriving meanwhile wait at most this
+long in the kernel (their receive stamp is taken when drained), seconds; 0 disables it."""
 NOTIFY_INTERVAL_S = 0.001
 """The receive thread wakes a waiting reader at most this often, seconds: readers get batches, not single records,
 at the cost of at most this much latency."""
@@ -772,8 +773,6 @@ class NetFTSensor:
                     got = True
                 now = monotonic()
                 if got or arrived:  # the box is streaming (even if the ring is full)
-                    if self.coalesce_s > 0.0:
-                        stop.wait(self.coalesce_s)  # let a few datagrams queue: one wake-up drains them all
                     last_data_s = now
                     next_retry_s = now + self.timeout_s
                     backoff_s = BACKOFF_INITIAL_S
@@ -792,6 +791,8 @@ class NetFTSensor:
                     self._send_start()
                     next_retry_s = now + backoff_s
                     backoff_s = min(backoff_s * 2.0, BACKOFF_MAX_S)
+                if got and self.coalesce_s > 0.0 and not notify_pending:
+                    stop.wait(self.coalesce_s)  # let a few datagrams queue: the next wake-up drains them all
             except Exception:  # never raise out of the receive loop
                 self.socket_errors += 1
                 logger.exception("Net F/T %s: unexpected error in the receive loop", self.host)
