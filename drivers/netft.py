@@ -7,7 +7,8 @@ are converted to SI once: ``wrench = counts × (SI per unit) / counts_per_unit``
 
 Streaming: one named receive thread owns a UDP socket with a large ``SO_RCVBUF`` and drains it with
 ``recvfrom_into`` straight into a preallocated byte ring (36-byte records, whole datagrams, also buffered ones of
-N × 36 bytes), stamping each datagram with ``time.monotonic()``. It accepts datagrams only from the sensor's address
+N × 36 bytes), stamping each datagram with ``time.monotonic()`` when it drains it (after a wake-up the thread
+pauses ``COALESCE_S`` = 1 ms, so a stamp may be up to that much after the datagram's arrival). It accepts datagrams only from the sensor's address
 and port (others: ``foreign``), never decodes, never raises: a datagram whose length is not a positive multiple of
 36 is ``malformed``; silence longer than the timeout is a ``timeout`` and a re-sent start command (``reconnects``,
 back-off 0.25 s doubling to 5 s). Readers (``read``, ``average``, ``health``) decode whole batches with numpy
