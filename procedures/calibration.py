@@ -96,7 +96,9 @@ Step = Move | Measure | Identify | Validate
 def calibration_steps(plan, measured: Iterable[str] = (), drift_check: bool = True) -> Iterator[Step]:
     """Yield the steps of a run over ``plan`` (execution order), skipping the labels in ``measured``.
 
-    The drift check revisits the first pose of the plan after the last one (label ``<first>-revisit``, set D).
+    The drift check revisits the first pose of the plan after the last one (label ``<first>-revisit``, set D),
+    through the plan's checked ``revisit_target_rad`` (the same flange pose, perhaps another 2π-equivalent joint
+    target) when it has one.
     """
     done = set(measured)
     for i, label in enumerate(plan.labels):
@@ -105,7 +107,9 @@ def calibration_steps(plan, measured: Iterable[str] = (), drift_check: bool = Tr
         yield Move(i, label, np.asarray(plan.joint_targets_rad[i]))
         yield Measure(i, label, plan.set_names[i])
     if drift_check and len(plan) and drift_label(plan.labels[0]) not in done:
-        yield Move(0, plan.labels[0], np.asarray(plan.joint_targets_rad[0]), purpose="drift")
+        revisit = getattr(plan, "revisit_target_rad", None)
+        target = plan.joint_targets_rad[0] if revisit is None else revisit
+        yield Move(0, plan.labels[0], np.asarray(target, dtype=float), purpose="drift")
         yield Measure(0, drift_label(plan.labels[0]), DRIFT_SET)
     yield Identify()
     yield Validate()

@@ -136,6 +136,19 @@ def test_steps_skip_measured_poses_and_end_with_the_drift_revisit():
     assert count_measurements(plan, (), drift_check=False) == 4
 
 
+def test_drift_revisit_moves_to_the_plans_checked_revisit_target():
+    import dataclasses
+
+    plan = small_plan()
+    other = tuple(float(v) for v in np.asarray(plan.joint_targets_rad[0]) + np.array([0, 0, 0, 0, 0, 2 * np.pi]))
+    plan = dataclasses.replace(plan, revisit_target_rad=other)
+    drift = [s for s in calibration_steps(plan) if isinstance(s, Move) and s.purpose == "drift"]
+    assert len(drift) == 1
+    np.testing.assert_array_equal(drift[0].joint_target_rad, np.array(other))
+    first = next(s for s in calibration_steps(plan) if isinstance(s, Move))
+    np.testing.assert_array_equal(first.joint_target_rad, plan.joint_targets_rad[0])
+
+
 def test_progress_lines_without_a_terminal():
     import io
 

@@ -239,7 +239,7 @@ def _run(args: argparse.Namespace) -> int:
         stack.callback(progress.close)
         listeners = [RunFolderWriter(folder), progress]
         if _wants_dashboard(args):
-            listeners.append(_dashboard_listener(args, stack))
+            listeners.append(_dashboard_listener(args, stack, settings.model))
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
@@ -252,12 +252,17 @@ def _as_dict(sampling) -> dict:
     return asdict(sampling)
 
 
-def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack):
+def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
     from ftacq.dashboard import Dashboard, DashboardListener, close_recording, open_recording
+    from ftacq.kinematics import ur_model
 
     recording = open_recording(args)
     stack.callback(close_recording, recording)
-    return DashboardListener(Dashboard(recording))
+    try:
+        model = ur_model(model_name)
+    except Exception:  # noqa: BLE001 - without a model the dashboard draws the flange frames only
+        model = None
+    return DashboardListener(Dashboard(recording), model=model)
 
 
 def _input_summary(folder, result) -> dict:

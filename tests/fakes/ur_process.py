@@ -87,8 +87,10 @@ class URControllerProcess:
             env = dict(os.environ, PYTHONUNBUFFERED="1")
             env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
             stderr = tempfile.TemporaryFile()
+            # Own session: a Ctrl-C at the terminal reaches ftacq only, which then stops the (simulated) arm itself.
             process = subprocess.Popen(self._command(host), stdout=subprocess.PIPE, stderr=stderr,
-                                       stdin=subprocess.DEVNULL, cwd=str(REPO_ROOT), env=env)
+                                       stdin=subprocess.DEVNULL, cwd=str(REPO_ROOT), env=env,
+                                       start_new_session=True)
             line = self._read_first_line(process)
             if line.startswith("READY "):
                 self._process, self.host, self._stderr = process, host, stderr
