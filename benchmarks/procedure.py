@@ -1,7 +1,8 @@
 """Benchmark: the calibration procedure's pose plan: joint travel of the chosen order and the run's duration.
 
-    .venv/bin/python benchmarks/procedure.py            # every UR model on a floor mount, UR5e on wall and ceiling
-    .venv/bin/python benchmarks/procedure.py --quick    # the default cell only (UR5e, floor)
+    .venv/bin/python benchmarks/procedure.py              # every UR model on a floor mount, UR5e on wall and ceiling
+    .venv/bin/python benchmarks/procedure.py --quick      # the default cell only (UR5e, floor)
+    .venv/bin/python benchmarks/procedure.py --plan-only  # without the simulated run
 
 For each cell: the weighted joint travel of the planned order (nearest neighbour + 2-opt, from the UR "home"
 configuration) against the listing order of the paper (A01…A24, then E, then V) with the same shortest joint
@@ -9,8 +10,10 @@ moves (goal: ≥ 30 % shorter), and the estimated wall time of a default A + E +
 trapezoidal moveJ profiles at the configured speed/acceleration plus settle and averaging time per pose and the
 drift-check revisit (goal: ≤ 5 min). Also the time the planner itself took.
 
-The figures are functions in :data:`FIGURES`; a measured figure (e.g. the simulated wall time of a run against the
-simulated cell) is added by appending a function ``(quick: bool) -> list[str]`` to that list.
+Then the measured figure: a default run with the real drivers against the simulated cell (controller 10× real
+time, 20× with ``--quick``; ``benchmarks/procedure_run.py``), its wall time rebuilt at real-time scale
+(goal: ≤ 5 min). ``--plan-only`` skips it. The figures are functions ``(quick: bool) -> list[str]`` in
+:data:`FIGURES`.
 """
 
 from __future__ import annotations
@@ -54,14 +57,24 @@ def plan_figures(quick: bool) -> list[str]:
     return lines
 
 
-FIGURES: list[Callable[[bool], list[str]]] = [plan_figures]
+def simulated_run(quick: bool) -> list[str]:
+    """Return the lines of a default run against the simulated cell, rebuilt at real-time scale."""
+    from benchmarks.procedure_run import simulated_run_figures
+
+    _, lines = simulated_run_figures(20.0 if quick else 10.0)
+    return lines
+
+
+FIGURES: list[Callable[[bool], list[str]]] = [plan_figures, simulated_run]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="the default cell only")
+    parser.add_argument("--quick", action="store_true",
+                        help="the default cell only; the simulated run at controller time scale 20")
+    parser.add_argument("--plan-only", action="store_true", help="plan figures only, no simulated run")
     args = parser.parse_args(argv)
-    for figure in FIGURES:
+    for figure in FIGURES[:1] if args.plan_only else FIGURES:
         print(f"== {figure.__name__} ==")
         for line in figure(args.quick):
             print(line, flush=True)

@@ -56,7 +56,18 @@ def main() -> int:
     scale = args.time_scale if args.time_scale is not None else (20.0 if args.quick else 10.0)
     if scale <= 0:
         parser.error("--time-scale must be > 0 (motion time is measured)")
+    ok, lines = simulated_run_figures(scale, args.sensor)
+    for line in lines:
+        print(line, flush=True)
+    return 0 if ok else 1
 
+
+def simulated_run_figures(scale: float, sensor: str = "netft") -> tuple[bool, list[str]]:
+    """Run a default calibration against the simulated cell with the controller ``scale`` (> 0) times real time.
+
+    Returns (run completed, the lines to print): measured wall time per state, the run rebuilt at real-time
+    scale against the 5 min goal, the planner's estimate and the accuracy against the simulation's truth.
+    """
     from drivers.robot import MotionLimits
     from drivers.ur import URRobot
     from ftacq.commands.calibrate import sim_sampling
@@ -65,7 +76,7 @@ def main() -> int:
     from tests.fakes.cell import SimulatedCell, run_calibration
 
     t0 = time.monotonic()
-    with SimulatedCell(sensor=args.sensor, time_scale=scale) as cell:
+    with SimulatedCell(sensor=sensor, time_scale=scale) as cell:
         t_cell = time.monotonic() - t0
         base = CellConfig()
         config = base.replace_section("robot", host=cell.robot_host).replace_section("sensor", url=cell.sensor_url)
@@ -82,8 +93,7 @@ def main() -> int:
         _, result = run_calibration(cell, config_run, [timer], plan=plan)
         t_run = time.monotonic() - t2
     if result.status != "done":
-        print(f"run failed: {result.message}")
-        return 1
+        return False, [f"run failed: {result.message}"]
     poses = timer.counts.get("averaging", 0)
     moving = timer.totals.get("moving", 0.0)
     settling = timer.totals.get("settling", 0.0)
@@ -98,22 +108,23 @@ def main() -> int:
     cal = result.identification.calibration
     truth = cell.truth
     v = result.validation
-    print(f"default run: {len(plan)} poses (A {sum(s == 'A' for s in plan.set_names)}, E "
+    lines: list[str] = []
+    lines.append(f"default run: {len(plan)} poses (A {sum(s == 'A' for s in plan.set_names)}, E "
           f"{sum(s == 'E' for s in plan.set_names)}, V {sum(s == 'V' for s in plan.set_names)}) + drift revisit, "
-          f"UR5e floor, {args.sensor}, controller time scale {scale:g}")
-    print(f"  measured wall time at scale {scale:g}: {t_run:.1f} s run (moving {moving:.1f} s, settling "
+          f"UR5e floor, {sensor}, controller time scale {scale:g}")
+    lines.append(f"  measured wall time at scale {scale:g}: {t_run:.1f} s run (moving {moving:.1f} s, settling "
           f"{settling:.1f} s, averaging {averaging:.1f} s, other {other:.1f} s) + plan {t_plan:.1f} s "
           f"+ cell start {t_cell:.1f} s")
-    print(f"  simulated-controller motion time: {scale * moving:.1f} s (= {scale:g} × {moving:.2f} s)")
-    print(f"  run at real-time scale (rebuilt): {real_estimate:.0f} s = {real_estimate / 60:.1f} min "
+    lines.append(f"  simulated-controller motion time: {scale * moving:.1f} s (= {scale:g} × {moving:.2f} s)")
+    lines.append(f"  run at real-time scale (rebuilt): {real_estimate:.0f} s = {real_estimate / 60:.1f} min "
           f"[goal ≤ {DURATION_GOAL_S / 60:.0f} min: {'OK' if real_estimate <= DURATION_GOAL_S else 'MISSED'}]; "
           f"planner estimate {plan.estimated_duration_s:.0f} s")
-    print(f"  speed {config.robot.joint_speed_rad_s} rad/s, acceleration {config.robot.joint_acceleration_rad_s2} "
+    lines.append(f"  speed {config.robot.joint_speed_rad_s} rad/s, acceleration {config.robot.joint_acceleration_rad_s2} "
           f"rad/s², per pose still for max(settle {real_sampling.settle_time_s} s, window "
           f"{real_sampling.settle_window_s} s) + average {real_sampling.average_time_s} s")
-    print(f"  accuracy: mass {cal.mass_kg:.4f} kg (true {truth.mass_kg}), validation RMS F "
+    lines.append(f"  accuracy: mass {cal.mass_kg:.4f} kg (true {truth.mass_kg}), validation RMS F "
           f"{np.linalg.norm(v.rms[:3]):.4f} N, T {np.linalg.norm(v.rms[3:]):.5f} N·m")
-    return 0
+    return True, lines
 
 
 if __name__ == "__main__":
