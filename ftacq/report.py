@@ -100,6 +100,12 @@ def format_identification_report(result, validation: dict | None = None) -> str:
                 + ", ".join(f"{v:.5f}" for v in rms[3:])
                 + f" N·m; noise {noise.get('source', '')}"
             )
+        orientation_deg = noise.get("orientation_error_deg", 0.0)
+        add(
+            f"  robot orientation error: {orientation_deg:.4f}° (1σ per axis, estimated; modelled in the weights)"
+            if orientation_deg > 0.0
+            else "  robot orientation error: not detected in the residuals"
+        )
     add(f"  conditioning: scaled condition number {diag.get('condition_number', float('nan')):.3g}")
     add("")
     add("Per-pose residuals (measured − predicted; |F| N, |T| N·m; weight 1 = fully trusted)")

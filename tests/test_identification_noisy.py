@@ -158,3 +158,52 @@ def test_count_without_std_weights_poses_relative_to_their_sample_count():
     np.testing.assert_allclose(result.noise[0] / result.noise[30], 10.0)  # √(2000 / 20)
     error = np.abs(parameter_vector(result.calibration) - parameter_vector(truth.calibration()))
     assert np.all(error <= 5 * sigma_vector(result.calibration))
+
+
+HEAVY_ON_A_CEILING = CellTruth(mass_kg=15.0, base_tilt_deg=(-0.3, 179.6))
+
+
+def heavy_tool_rotations(seed: int) -> np.ndarray:
+    hanging = gravity_down_base_R_flange(HEAVY_ON_A_CEILING.gravity_base)
+    return np.concatenate(
+        [special_orientations(0.2, seed), cone_orientations(24, 40.0, seed + 7, axis_base_R_flange=hanging)]
+    )
+
+
+def test_robot_orientation_error_is_estimated_and_weighted():
+    """0.03° of pose error on a 15 kg tool: the full noise model finds σ_θ, shrinks the bias and centre-of-mass
+    errors against per-channel weights and reports a 1σ that matches the scatter."""
+    full_errors, channel_errors, z, estimated_deg = [], [], [], []
+    truth = HEAVY_ON_A_CEILING
+    for seed in range(8):
+        record = simulate_record(truth, heavy_tool_rotations(seed), seed=seed, orientation_error_deg=0.03)
+        full = identify(record).calibration
+        channel = identify(record, orientation_error=False).calibration
+        full_errors.append(np.abs(parameter_vector(full) - parameter_vector(truth.calibration()))[3:])
+        channel_errors.append(np.abs(parameter_vector(channel) - parameter_vector(truth.calibration()))[3:])
+        z.append((parameter_vector(full) - parameter_vector(truth.calibration())) / sigma_vector(full))
+        estimated_deg.append(full.metadata["noise"]["orientation_error_deg"])
+        assert channel.metadata["noise"]["orientation_error_deg"] == 0.0
+    assert 0.02 <= np.median(estimated_deg) <= 0.04, estimated_deg
+    rms_full = np.sqrt(np.mean(np.square(full_errors), axis=0))
+    rms_channel = np.sqrt(np.mean(np.square(channel_errors), axis=0))
+    assert np.all(rms_full < 0.6 * rms_channel), rms_full / rms_channel  # biases and centre of mass
+    z_rms = np.sqrt(np.mean(np.square(z), axis=0))
+    assert np.all(z_rms < 1.8), z_rms
+
+
+def test_no_orientation_error_is_reported_when_there_is_none():
+    flagged = 0
+    for seed in range(10):
+        record = simulate_record(HEAVY_ON_A_CEILING, heavy_tool_rotations(seed), seed=seed)
+        flagged += identify(record).calibration.metadata["noise"]["orientation_error_deg"] > 0.0
+    assert flagged <= 1  # the likelihood-ratio test's 1 % level
+
+
+def test_contact_is_still_named_with_orientation_error():
+    truth = HEAVY_ON_A_CEILING
+    record = simulate_record(truth, heavy_tool_rotations(3), seed=3, orientation_error_deg=0.03,
+                             contacts={30: np.array([0.0, 20.0, 0.0, 0.0, 0.0, 0.0])})
+    result = identify(record)
+    assert result.outliers == (record.labels[30],)
+    assert result.calibration.metadata["noise"]["orientation_error_deg"] > 0.0

@@ -10,8 +10,9 @@ Steps (Yu, Shi & Lou 2021, Algorithm 1, with method.md's corrections):
    bias by least squares (eqs 43-45). This closed form is repeated with robust pose weights when a pose
    looks disturbed.
 4. Refinement (unless ``refine=False``): Levenberg-Marquardt over all 15 parameters, rotation on SO(3),
-   each channel weighted by its noise (measured std/√count plus scatter estimated from the residuals),
-   inside an iteratively re-weighted loop that down-weights and names disturbed poses.
+   each pose weighted by its noise (measured std/√count, scatter estimated from the residuals and, when the
+   residuals show it, the robot's orientation error, which couples the channels: pose_error.py), inside an
+   iteratively re-weighted loop that down-weights and names disturbed poses.
 5. 1σ of every parameter from (JᵀWJ)⁻¹ at the optimum; mass and base tilt (corrected eqs 46-48) with
    their 1σ, the tilt relative to a named mount; conditioning warnings.
 """
@@ -27,6 +28,7 @@ from ftacq.calibration import Calibration
 from ftacq.errors import IdentificationError
 from ftacq.identification import diagnostics, robust
 from ftacq.identification.lrom import lrom
+from ftacq.identification.pose_error import estimate_noise, orientation_sensitivity
 from ftacq.identification.refine import (
     PARAMETER_SLICES,
     ModelParameters,
@@ -73,8 +75,9 @@ class IdentificationResult:
         residuals: (N, 6) measured − predicted wrench of the final calibration [N, N·m].
         closed_form_residuals: (N, 6) the same for the closed form.
         weights: (N,) robust weight of each pose in [0, 1] (1 = fully trusted).
-        noise: (N, 6) the 1σ noise per pose and channel the fit used [N, N·m].
-        pose_statistic: (N,) d² = Σ (residual/σ)² (≈ χ²₆ for a clean pose).
+        noise: (N, 6) the 1σ sensor-side noise per pose and channel the fit used [N, N·m] (without the robot
+            orientation error, whose σ is ``calibration.metadata["noise"]["orientation_error_deg"]``).
+        pose_statistic: (N,) d² = rᵀ C⁻¹ r (≈ χ²₆ for a clean pose; C the pose's noise covariance).
         outliers: labels of the poses named as disturbed.
         warnings: conditioning and data warnings, one sentence each.
         method_used: "srom" or "lrom" (how gravity_base was first estimated), "+refine" when refined.
@@ -174,8 +177,13 @@ def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.nda
     )
 
 
+def _gravity_sensor(params: ModelParameters, rotations: np.ndarray) -> np.ndarray:
+    """Return v_i = S R_i g (N, 3), the tool's weight in the sensor frame at every pose [N]."""
+    return (rotations @ params.gravity_base) @ params.sensor_rotation.T
+
+
 def _covariance(params: ModelParameters, rotations: PoseSet, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return (JᵀWJ, its inverse) at ``params`` with ``weight`` (N, 6) = w/σ²."""
+    """Return (JᵀWJ, its inverse) at ``params`` with ``weight`` as in refine.normal_equations."""
     information, *_ = normal_equations(params, rotations, np.zeros((len(rotations), 6)), weight)
     try:
         covariance = np.linalg.inv(information)
@@ -213,6 +221,7 @@ def identify(
     method: str = "auto",
     refine: bool = True,
     special_tolerance_deg: float = DEFAULT_SPECIAL_TOLERANCE_DEG,
+    orientation_error: bool = True,
 ) -> IdentificationResult:
     """Identify the calibration from a pose record (see the module docstring for the steps).
 
@@ -222,6 +231,8 @@ def identify(
         method: "auto" (SROM when all 24 special orientations are present, else LROM), "srom" or "lrom".
         refine: run the joint robust refinement (True) or stop at the closed form (False).
         special_tolerance_deg: how close (geodesic angle) a pose must be to a cube rotation to count as special.
+        orientation_error: estimate the robot's orientation error and weight each pose with its full noise
+            covariance when the residuals show it (pose_error.py); False: independent channels only.
 
     Raises:
         IdentificationError: too few poses, a degenerate pose set, SROM forced without the 24 special
@@ -295,17 +306,20 @@ def identify(
     residual = closed_residual
     sigma, tau = channel_noise(residual, np.ones(n), dof_ratio, "median")
     pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
+    robust_sigma = sigma  # includes the scatter the measured noise does not explain: picks the first inliers
     if standard_error is not None:
         # start from the measured noise alone: the closed form's residuals overstate the noise of the
         # channels it fits sub-optimally; extra scatter τ is re-estimated after each refit
         sigma = np.sqrt(np.maximum(standard_error, floor) ** 2)
     converged, iterations = True, 0
     pose_set = PoseSet(rotations)
+    noise = None  # the full noise model (pose_error.py), once the refinement has residuals to estimate it from
     if refine:
         converged = False
         covariance = None
+        weight = pose_weight[:, None] / sigma**2
+        total_sigma = sigma
         for _ in range(MAX_ROBUST_ITERATIONS):
-            weight = pose_weight[:, None] / sigma**2
             result = levenberg_marquardt(params, pose_set, wrench, weight, max_iterations=INNER_ITERATIONS)
             iterations += result.iterations
             step_ok = covariance is None or bool(
@@ -316,17 +330,32 @@ def identify(
             )
             params = result.params
             residual = wrench - predict(params, rotations)
-            previous_sigma = sigma
-            inlier = robust.pose_statistic(residual, sigma) <= robust.outlier_threshold(n)
+            if noise is not None:
+                statistic = noise.pose_statistic(residual)
+            else:
+                statistic = robust.pose_statistic(residual, robust_sigma)
+            inlier = statistic <= robust.outlier_threshold(n)
             n_in = max(int(inlier.sum()), 3)
-            sigma, tau = channel_noise(
-                residual, inlier.astype(float), max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3), "mean"
+            noise = estimate_noise(
+                residual,
+                orientation_sensitivity(_gravity_sensor(params, rotations), params.center_of_mass),
+                standard_error,
+                relative,
+                inlier.astype(float),
+                max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3),
+                floor,
+                start_scatter2=tau**2 if noise is None else noise.scatter**2,
+                start_orientation_variance=0.0 if noise is None else noise.fitted_orientation_variance_rad2,
+                model_orientation=orientation_error,
             )
-            sigma_change = float(np.max(np.abs(sigma / previous_sigma - 1.0)))
-            new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
+            sigma, tau = noise.channel_sigma, noise.scatter
+            previous_total, total_sigma = total_sigma, np.sqrt(np.einsum("nii->ni", noise.covariance()))
+            sigma_change = float(np.max(np.abs(total_sigma / previous_total - 1.0)))
+            new_weight = robust.robust_weights(noise.pose_statistic(residual))
             weight_change = float(np.max(np.abs(new_weight - pose_weight)))
             pose_weight = new_weight
-            _, covariance = _covariance(params, pose_set, pose_weight[:, None] / sigma**2)
+            weight = noise.weight(pose_weight)
+            _, covariance = _covariance(params, pose_set, weight)
             if weight_change <= ROBUST_WEIGHT_TOLERANCE and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok and result.converged:
                 converged = True
                 break
@@ -338,8 +367,12 @@ def identify(
 
     # --- uncertainty, diagnostics, warnings (step 5) ---
     residual = wrench - predict(params, rotations)
-    d2 = robust.pose_statistic(residual, sigma)
-    information, covariance = _covariance(params, pose_set, pose_weight[:, None] / sigma**2)
+    if noise is not None:
+        d2 = noise.pose_statistic(residual)
+        information, covariance = _covariance(params, pose_set, noise.weight(pose_weight))
+    else:
+        d2 = robust.pose_statistic(residual, sigma)
+        information, covariance = _covariance(params, pose_set, pose_weight[:, None] / sigma**2)
     conditioning = diagnostics.fisher_conditioning(information)
     uncertainty = _uncertainty(params, covariance, mount)
     mass_kg = float(np.linalg.norm(params.gravity_base) / STANDARD_GRAVITY_M_S2)
@@ -397,6 +430,7 @@ def identify(
     metadata["noise"] = {
         "source": noise_text,
         "extra_scatter": tau.tolist(),
+        "orientation_error_deg": noise.orientation_error_deg if noise is not None else 0.0,
         "rms_residual": np.sqrt(np.mean(residual[pose_weight > 0.5] ** 2, axis=0)).tolist()
         if np.any(pose_weight > 0.5)
         else [],

@@ -1,6 +1,7 @@
 """Joint refinement: weighted least squares over all parameters, the rotation on SO(3) (beyond the paper).
 
-Minimises Σ_i Σ_ch (r_i,ch / σ_i,ch)² · w_i over θ = (sensor_rotation, gravity_base, force_bias,
+Minimises Σ_i Σ_ch (r_i,ch / σ_i,ch)² · w_i (or, with the robot's orientation error modelled, Σ_i w_i r_iᵀ C_i⁻¹ r_i
+with the full 6×6 noise covariance of pose_error.py) over θ = (sensor_rotation, gravity_base, force_bias,
 center_of_mass, torque_bias), where r_i = measured − predicted wrench of the model (eqs 10-11):
 
     F_i = S R_i g + F0,   T_i = c × (S R_i g) + T0
@@ -165,31 +166,47 @@ def _as_pose_set(flange_R_base) -> PoseSet:
 def normal_equations(
     params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """Return (JᵀWJ (15, 15), JᵀW r (15,), cost Σ W r², residuals r (N, 6)); ``weight`` (N, 6) = w_i / σ².
+    """Return (JᵀWJ (15, 15), JᵀW r (15,), cost rᵀW r, residuals r (N, 6)).
 
+    ``weight`` is (N, 6) = w_i / σ_i,ch² (independent channels) or (N, 6, 6) whitening matrices
+    A_i = √w_i L_i⁻¹ with L_i L_iᵀ = C_i the pose's full noise covariance (pose_error.py): W_i = A_iᵀ A_i.
     ``flange_R_base`` is (N, 3, 3) or a :class:`PoseSet` (reused across calls).
     """
     poses = _as_pose_set(flange_R_base)
     n = len(poses)
+    full = weight.ndim == 3
     information = np.zeros((15, 15))
     gradient = np.zeros(15)
     residual = np.empty((n, 6))
+    total = 0.0
     for start in range(0, n, CHUNK_POSES):
         block = slice(start, min(start + CHUNK_POSES, n))
         rotations_t = poses.rotations_t[:, :, block]
         r_t = wrench[block].T - _predict_t(params, rotations_t)
         residual[block] = r_t.T
-        jac = _jacobian_t(params, rotations_t).reshape(15, -1)
-        weighted = jac * weight[block].T.reshape(-1)
-        information += weighted @ jac.T
-        gradient += weighted @ r_t.reshape(-1)
-    return information, gradient, float(np.sum(weight * residual**2)), residual
+        jac = _jacobian_t(params, rotations_t)
+        if full:
+            whitened_jac = (weight[block] @ jac.transpose(2, 1, 0)).reshape(-1, 15)  # (n·6, 15)
+            whitened_r = (weight[block] @ r_t.T[:, :, None]).reshape(-1)
+            information += whitened_jac.T @ whitened_jac
+            gradient += whitened_jac.T @ whitened_r
+            total += float(whitened_r @ whitened_r)
+        else:
+            jac = jac.reshape(15, -1)
+            weighted = jac * weight[block].T.reshape(-1)
+            information += weighted @ jac.T
+            gradient += weighted @ r_t.reshape(-1)
+            total += float(np.sum(weight[block].T * r_t**2))
+    return information, gradient, total, residual
 
 
 def cost(params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray) -> float:
-    """Return Σ W r² at ``params``."""
+    """Return rᵀ W r at ``params`` (``weight`` as in :func:`normal_equations`)."""
     poses = _as_pose_set(flange_R_base)
     residual = wrench.T - _predict_t(params, poses.rotations_t)
+    if weight.ndim == 3:
+        whitened = weight @ residual.T[:, :, None]
+        return float(np.sum(whitened**2))
     return float(np.sum(weight.T * residual**2))
 
 
@@ -210,7 +227,8 @@ def levenberg_marquardt(
     weight: np.ndarray,
     max_iterations: int = MAX_ITERATIONS,
 ) -> RefineResult:
-    """Minimise Σ weight · r² from ``params`` (``weight`` (N, 6) = w_i / σ_i,ch²); return the optimum."""
+    """Minimise rᵀ W r from ``params`` (``weight`` (N, 6) = w_i / σ_i,ch² or (N, 6, 6) whitening matrices, as in
+    :func:`normal_equations`); return the optimum."""
     flange_R_base = _as_pose_set(flange_R_base)
     damping = INITIAL_DAMPING
     jtj, jtr, current, _ = normal_equations(params, flange_R_base, wrench, weight)

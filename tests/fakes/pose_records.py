@@ -108,10 +108,13 @@ def simulate_record(
     labels: tuple[str, ...] | None = None,
     sets: tuple[str, ...] | None = None,
     with_std: bool = True,
+    orientation_error_deg: float = 0.0,
 ) -> PoseRecord:
     """Return a simulated pose record at the given orientations (see the module docstring).
 
     ``contacts`` maps a pose index to a contact wrench (6,) in the sensor frame [N, N·m] added to its mean.
+    ``orientation_error_deg`` > 0: the record reports each flange orientation off by a random rotation (1σ per
+    axis, flange frame) while the wrench follows the true one, as with a robot's kinematic error.
     """
     rotations = np.asarray(flange_R_base, dtype=float).reshape(-1, 3, 3)
     n = len(rotations)
@@ -119,6 +122,11 @@ def simulate_record(
     calibration = truth.calibration()
     exact_rotations = np.swapaxes(rotation_from_rotvec(poses[:, 3:]), -1, -2)  # as the reader will see them
     mean = calibration.predict(exact_rotations)
+    if orientation_error_deg > 0.0:
+        error_rng = np.random.default_rng([seed, 7919])
+        error = rotation_from_rotvec(error_rng.standard_normal((n, 3)) * np.radians(orientation_error_deg))
+        reported = np.swapaxes(exact_rotations, -1, -2) @ error  # base_R_flange · exp([δ]×)
+        poses = np.hstack([poses[:, :3], rotvec_from_rotation(reported).reshape(-1, 3)])
     sigma = np.array(truth.force_noise_n + truth.torque_noise_nm)
     rng = np.random.default_rng(seed)
     std = None
