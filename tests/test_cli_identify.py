@@ -183,3 +183,26 @@ def test_compensate_bad_pose_file_exit_2_and_no_output(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "line 3, column 'fz': value 'inf' is not finite" in err and str(path) in err
     assert not out.exists()
+
+
+def test_a_reader_that_goes_away_stops_the_output_quietly_and_keeps_the_file(tmp_path, poses_csv, monkeypatch, capsys):
+    class ClosedPipe:
+        """Standard output whose reader has gone (`ftacq identify … | head -1`)."""
+
+        def __init__(self, path):
+            self._file = open(path, "w")
+
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            pass
+
+        def fileno(self):
+            return self._file.fileno()
+
+    out = tmp_path / "cal.json"
+    monkeypatch.setattr("sys.stdout", ClosedPipe(tmp_path / "stdout"))
+    assert main(["identify", str(poses_csv), "-o", str(out)]) == 141
+    assert "Traceback" not in capsys.readouterr().err
+    assert load_calibration(out).mass_kg == pytest.approx(CellTruth().mass_kg, abs=1e-3)

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         uncertainty=result.calibration.uncertainty,
         metadata=metadata,
     )
-    sys.stdout.write(format_identification_report(result, validation=validation))
-    save_calibration(args.output, calibration)
+    report = format_identification_report(result, validation=validation)
+    save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
+    sys.stdout.write(report)
     print(f"wrote {args.output}")
     return 0
