@@ -320,6 +320,9 @@ def _finish(args, folder, plan, config, result, cell) -> int:
         alpha, beta = cal.base_tilt_deg
         print(f"identified ({result.identification.method_used}): tool mass {cal.mass_kg:.4f} kg, base tilt "
               f"({alpha:+.3f}°, {beta:+.3f}°), outliers: {', '.join(result.identification.outliers) or 'none'}")
+        orientation_deg = cal.metadata.get("noise", {}).get("orientation_error_deg", 0.0)
+        if orientation_deg > 0.0:
+            print(f"robot orientation error found in the residuals: {orientation_deg:.4f}° (1σ per axis; weighted in)")
     if truth is not None and result.identification is not None:
         print("")
         print(format_truth_comparison(result.identification.calibration, truth))

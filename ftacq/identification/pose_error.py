@@ -159,6 +159,8 @@ def estimate_noise(
     scatter_scale = np.maximum(np.mean(r**2 / np.maximum(rel2, 1e-300), axis=0), floor2)
     g_norm2 = np.einsum("nab,nab->n", g, g)
     orientation_scale = max(float(np.sum(r**2) / max(np.sum(g_norm2), 1e-300)), 1e-30)
+    scale = np.concatenate([scatter_scale, [orientation_scale]])
+    g2 = g**2  # (n, 6, 3)
 
     def evaluate(x: np.ndarray, want_information: bool):
         """Return (objective, gradient, expected Hessian or None) at x = (τ² / scale, σ_θ² / scale)."""
@@ -191,9 +193,6 @@ def estimate_noise(
         gtcg = g.transpose(0, 2, 1) @ inverse_g  # Gᵀ C⁻¹ G (n, 3, 3)
         information[CHANNELS, CHANNELS] = w @ np.einsum("nab,nab->n", gtcg, gtcg)
         return value, gradient * scale, information * np.outer(scale, scale)
-
-    g2 = g**2  # (n, 6, 3)
-    scale = np.concatenate([scatter_scale, [orientation_scale]])
 
     def evaluate_diagonal(variance: np.ndarray, want_information: bool):
         """:func:`evaluate` at σ_θ² = 0, where C is diagonal (``variance`` (n, 6))."""
