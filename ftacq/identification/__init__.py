@@ -335,13 +335,15 @@ def identify(
             else:
                 statistic = robust.pose_statistic(residual, robust_sigma)
             inlier = statistic <= robust.outlier_threshold(n)
-            n_in = max(int(inlier.sum()), 3)
+            # the noise comes from the clean poses; if too few look clean, from all of them with their robust weights
+            noise_weight = inlier.astype(float) if inlier.sum() >= diagnostics.MIN_POSES else pose_weight
+            n_in = max(int(np.count_nonzero(noise_weight)), 3)
             noise = estimate_noise(
                 residual,
                 orientation_sensitivity(_gravity_sensor(params, rotations), params.center_of_mass),
                 standard_error,
                 relative,
-                inlier.astype(float),
+                noise_weight,
                 max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3),
                 floor,
                 start_scatter2=tau**2 if noise is None else noise.scatter**2,
