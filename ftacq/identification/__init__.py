@@ -33,6 +33,7 @@ from ftacq.identification.refine import (
     PARAMETER_SLICES,
     ModelParameters,
     PoseSet,
+    gravity_in_sensor,
     levenberg_marquardt,
     normal_equations,
     predict,
@@ -175,11 +176,6 @@ def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.nda
             after.torque_bias - before.torque_bias,
         ]
     )
-
-
-def _gravity_sensor(params: ModelParameters, rotations: np.ndarray) -> np.ndarray:
-    """Return v_i = S R_i g (N, 3), the tool's weight in the sensor frame at every pose [N]."""
-    return (rotations @ params.gravity_base) @ params.sensor_rotation.T
 
 
 def _covariance(params: ModelParameters, rotations: PoseSet, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -340,7 +336,7 @@ def identify(
             n_in = max(int(np.count_nonzero(noise_weight)), 3)
             noise = estimate_noise(
                 residual,
-                orientation_sensitivity(_gravity_sensor(params, rotations), params.center_of_mass),
+                orientation_sensitivity(gravity_in_sensor(params, rotations), params.center_of_mass),
                 standard_error,
                 relative,
                 noise_weight,
@@ -351,7 +347,7 @@ def identify(
                 model_orientation=orientation_error,
             )
             sigma, tau = noise.channel_sigma, noise.scatter
-            previous_total, total_sigma = total_sigma, np.sqrt(np.einsum("nii->ni", noise.covariance()))
+            previous_total, total_sigma = total_sigma, np.sqrt(noise.total_variance)
             sigma_change = float(np.max(np.abs(total_sigma / previous_total - 1.0)))
             new_weight = robust.robust_weights(noise.pose_statistic(residual))
             weight_change = float(np.max(np.abs(new_weight - pose_weight)))
@@ -369,12 +365,9 @@ def identify(
 
     # --- uncertainty, diagnostics, warnings (step 5) ---
     residual = wrench - predict(params, rotations)
-    if noise is not None:
-        d2 = noise.pose_statistic(residual)
-        information, covariance = _covariance(params, pose_set, noise.weight(pose_weight))
-    else:
-        d2 = robust.pose_statistic(residual, sigma)
-        information, covariance = _covariance(params, pose_set, pose_weight[:, None] / sigma**2)
+    d2 = noise.pose_statistic(residual) if noise is not None else robust.pose_statistic(residual, sigma)
+    weight = noise.weight(pose_weight) if noise is not None else pose_weight[:, None] / sigma**2
+    information, covariance = _covariance(params, pose_set, weight)
     conditioning = diagnostics.fisher_conditioning(information)
     uncertainty = _uncertainty(params, covariance, mount)
     mass_kg = float(np.linalg.norm(params.gravity_base) / STANDARD_GRAVITY_M_S2)

@@ -87,12 +87,21 @@ class NoiseModel:
         return np.sqrt(self.channel_variance)
 
     @property
+    def orientation_variance(self) -> np.ndarray:
+        """(N, 6) the orientation error's share of diag C_i: σ_θ² Σ_b G_ab²."""
+        return self.orientation_variance_rad2 * np.sum(self.sensitivity**2, axis=2)
+
+    @property
+    def total_variance(self) -> np.ndarray:
+        """(N, 6) diag C_i: the full variance of every pose and channel."""
+        return self.channel_variance + self.orientation_variance
+
+    @property
     def full(self) -> bool:
         """Whether the orientation error matters (else the model is diagonal: per-channel weights suffice)."""
         if self.orientation_variance_rad2 <= 0.0:
             return False
-        share = self.orientation_variance_rad2 * np.einsum("nab,nab->na", self.sensitivity, self.sensitivity)
-        return bool(np.any(share > NEGLIGIBLE_ORIENTATION_SHARE * self.channel_variance))
+        return bool(np.any(self.orientation_variance > NEGLIGIBLE_ORIENTATION_SHARE * self.channel_variance))
 
     def covariance(self) -> np.ndarray:
         """Return C (N, 6, 6)."""
@@ -157,10 +166,9 @@ def estimate_noise(
 
     # scales so that the optimiser's variables are O(1)
     scatter_scale = np.maximum(np.mean(r**2 / np.maximum(rel2, 1e-300), axis=0), floor2)
-    g_norm2 = np.einsum("nab,nab->n", g, g)
-    orientation_scale = max(float(np.sum(r**2) / max(np.sum(g_norm2), 1e-300)), 1e-30)
-    scale = np.concatenate([scatter_scale, [orientation_scale]])
     g2 = g**2  # (n, 6, 3)
+    orientation_scale = max(float(np.sum(r**2) / max(np.sum(g2), 1e-300)), 1e-30)
+    scale = np.concatenate([scatter_scale, [orientation_scale]])
 
     def evaluate(x: np.ndarray, want_information: bool):
         """Return (objective, gradient, expected Hessian or None) at x = (τ² / scale, σ_θ² / scale)."""

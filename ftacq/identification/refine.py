@@ -83,9 +83,14 @@ class ModelParameters:
         )
 
 
+def gravity_in_sensor(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
+    """Return v_i = S R_i g (N, 3) [N]: the tool's weight in the sensor frame at (N, 3, 3) orientations."""
+    return (flange_R_base @ params.gravity_base) @ params.sensor_rotation.T
+
+
 def predict(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
     """Return the predicted contact-free wrench (N, 6) at (N, 3, 3) orientations (eqs 10-11)."""
-    gravity_sensor = (flange_R_base @ params.gravity_base) @ params.sensor_rotation.T
+    gravity_sensor = gravity_in_sensor(params, flange_R_base)
     out = np.empty((len(gravity_sensor), 6))
     out[:, :3] = gravity_sensor + params.force_bias
     out[:, 3:] = gravity_sensor @ skew(params.center_of_mass).T + params.torque_bias  # c × g_s
