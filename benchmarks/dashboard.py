@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.sensor import open_sensor  # noqa: E402
-from ftacq import dashboard as dash  # noqa: E402
+from ftacq.app import dashboard as dash  # noqa: E402
 from ftacq.kinematics import flange_pose, ur_model  # noqa: E402
 from procedures.monitor import LiveMonitor  # noqa: E402
 from tests.fakes.world import CellTruth  # noqa: E402

@@ -70,8 +70,8 @@ def simulated_run_figures(scale: float, sensor: str = "netft") -> tuple[bool, li
     """
     from drivers.robot import MotionLimits
     from drivers.ur import URRobot
-    from ftacq.commands.calibrate import sim_sampling
-    from ftacq.config import CellConfig
+    from ftacq.app.commands.calibrate import sim_sampling
+    from ftacq.app.config import CellConfig
     from procedures.plan import make_plan
     from tests.fakes.cell import SimulatedCell, run_calibration
 

@@ -152,7 +152,7 @@ class ProcedureOptions:
 
     @classmethod
     def from_config(cls, config) -> "ProcedureOptions":
-        """Build from :class:`ftacq.config.CellConfig`."""
+        """Build from :class:`ftacq.app.config.CellConfig`."""
         s = config.sampling
         return cls(settle=SettleSettings.from_sampling(s), move_timeout_s=config.robot.move_timeout_s,
                    drift_check=s.drift_check, drift_warn_force_n=s.drift_warn_force_n,

@@ -286,7 +286,7 @@ class LiveMonitor:
         sensor: a started :class:`drivers.sensor.ForceTorqueSensor`.
         calibration: a :class:`ftacq.calibration.Calibration`, or None (raw only).
         robot: the robot's latest state (:class:`RobotStateSource`), or None (no compensation, no 3-D arm).
-        dashboard: a :class:`ftacq.dashboard.Dashboard`, or None.
+        dashboard: a :class:`ftacq.app.dashboard.Dashboard`, or None.
         model: the :class:`ftacq.kinematics.URModel` drawn in 3-D.
         record_path: write every sample to this CSV (see :data:`RECORD_COLUMNS`), or None.
         strict: re-raise a dashboard failure at the end of :meth:`run` (tests); live, it is only reported.

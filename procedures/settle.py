@@ -64,7 +64,7 @@ class SettleSettings:
 
     @classmethod
     def from_sampling(cls, sampling) -> "SettleSettings":
-        """Build from :class:`ftacq.config.SamplingConfig`."""
+        """Build from :class:`ftacq.app.config.SamplingConfig`."""
         return cls(settle_time_s=sampling.settle_time_s, window_s=sampling.settle_window_s,
                    force_std_n=sampling.settle_force_std_n, torque_std_nm=sampling.settle_torque_std_nm,
                    timeout_s=sampling.settle_timeout_s, average_time_s=sampling.average_time_s,

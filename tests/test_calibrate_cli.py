@@ -37,7 +37,7 @@ average_time_s = 0.1
 def calibrate_command(tmp_path: Path, *extra: str) -> list[str]:
     config = tmp_path / "FAST.toml"
     config.write_text(FAST_TOML, encoding="utf-8")
-    return [sys.executable, "-m", "ftacq.cli", "calibrate", "--sim", "--sensor", "can", "--time-scale", "0",
+    return [sys.executable, "-m", "ftacq.app.cli", "calibrate", "--sim", "--sensor", "can", "--time-scale", "0",
             "--yes", "--config", str(config), "--out", str(tmp_path / "runs"), *extra]
 
 

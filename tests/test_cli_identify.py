@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ftacq.calfile import load_calibration
-from ftacq.cli import main
+from ftacq.app.cli import main
 from ftacq.posefile import POSE_COLUMNS, write_pose_csv
 from tests.fakes.pose_records import cone_orientations, example_record, simulate_record, special_orientations
 from tests.fakes.world import CellTruth

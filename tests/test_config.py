@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-from ftacq.cli import EXIT_BAD_INPUT, main
-from ftacq.config import SCHEMA, CellConfig, config_from_dict, example_config_text, load_config
+from ftacq.app.cli import EXIT_BAD_INPUT, main
+from ftacq.app.config import SCHEMA, CellConfig, config_from_dict, example_config_text, load_config
 from ftacq.errors import ConfigError
 
 if sys.version_info >= (3, 11):

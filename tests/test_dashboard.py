@@ -20,7 +20,7 @@ import pytest
 rr = pytest.importorskip("rerun")
 
 from drivers.sensor import SensorHealth, WrenchBatch  # noqa: E402
-from ftacq import dashboard as dash  # noqa: E402
+from ftacq.app import dashboard as dash  # noqa: E402
 from ftacq.errors import DeviceTimeoutError  # noqa: E402
 from ftacq.kinematics import flange_pose, forward_kinematics, ur_model  # noqa: E402
 from procedures import events  # noqa: E402
@@ -476,7 +476,7 @@ def test_monitor_run_against_the_simulated_cell_matches_ftacq_compensate(simulat
     from drivers.sensor import open_sensor
     from drivers.ur import URStateReader
     from ftacq.calfile import save_calibration
-    from ftacq.cli import main as ftacq_main
+    from ftacq.app.cli import main as ftacq_main
 
     cell = simulated_cell
     calibration = cell.truth.calibration()
@@ -530,7 +530,7 @@ def test_monitor_run_against_the_simulated_cell_matches_ftacq_compensate(simulat
 
 
 def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
-    from ftacq.cli import main as ftacq_main
+    from ftacq.app.cli import main as ftacq_main
 
     rrd_path = tmp_path / "sim.rrd"
     assert ftacq_main(["monitor", "--sim", "--seconds", "1", "--save", str(rrd_path)]) == 0
@@ -575,7 +575,7 @@ def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
 
     rrd_path, record_path = tmp_path / "live.rrd", tmp_path / "live.csv"
     process = subprocess.Popen(
-        [sys.executable, "-m", "ftacq.cli", "monitor", "--sim", "--sim-still", "--save", str(rrd_path),
+        [sys.executable, "-m", "ftacq.app.cli", "monitor", "--sim", "--sim-still", "--save", str(rrd_path),
          "--record", str(record_path)],
         cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})

@@ -12,7 +12,7 @@ import pytest
 
 from drivers.robot import MotionLimits
 from ftacq.calfile import load_calibration
-from ftacq.cli import main
+from ftacq.app.cli import main
 from procedures import events
 from procedures.run_folder import RunFolder, RunFolderWriter, drift_label
 from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, run_calibration
@@ -142,7 +142,7 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
                    "--save", str(tmp_path / "view.rrd")])
     out = capsys.readouterr().out
     assert status == 0
-    from ftacq.dashboard import entity_paths
+    from ftacq.app.dashboard import entity_paths
 
     paths = entity_paths(tmp_path / "view.rrd")  # the dashboard listener was attached and drew the run
     assert {"world/plan/A", "calibration/measured/force", "calibration/residuals/force",

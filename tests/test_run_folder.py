@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from ftacq.config import CellConfig
+from ftacq.app.config import CellConfig
 from ftacq.errors import InputError
 from ftacq.posefile import POSE_CSV_HEADER, read_pose_csv
 from procedures import events
@@ -170,7 +170,7 @@ def test_progress_lines_without_a_terminal():
 
 
 def test_calibrate_needs_a_source(capsys):
-    from ftacq.cli import main
+    from ftacq.app.cli import main
 
     assert main(["calibrate"]) == 2
     assert "--config CELL.toml, --sim, or --resume RUN_DIR" in capsys.readouterr().err

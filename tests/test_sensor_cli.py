@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ftacq.cli import main
+from ftacq.app.cli import main
 from tests.fakes.netft import FakeNetFT
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
 
@@ -116,7 +116,7 @@ def test_ctrl_c_keeps_what_was_recorded(tmp_path) -> None:
     try:
         url = json.loads(fake_process.stdout.readline())["url"]
         path = tmp_path / "interrupted.csv"
-        recorder = subprocess.Popen([sys.executable, "-m", "ftacq.cli", "sensor", "record", url, "--seconds", "60",
+        recorder = subprocess.Popen([sys.executable, "-m", "ftacq.app.cli", "sensor", "record", url, "--seconds", "60",
                                      "-o", str(path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                     text=True)
         deadline = time.monotonic() + SUBPROCESS_TIMEOUT_S

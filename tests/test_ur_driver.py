@@ -15,7 +15,7 @@ import pytest
 
 from drivers.robot import MotionLimits, Robot
 from drivers.ur import URRobot, URStateReader, model_from_dashboard
-from ftacq.cli import main as ftacq_main
+from ftacq.app.cli import main as ftacq_main
 from ftacq.errors import (
     AbortedError,
     ConfigError,

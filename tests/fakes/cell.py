@@ -145,9 +145,9 @@ __all__ = ["SimulatedCell", "SENSORS", "fast_config", "run_calibration", "motion
 
 
 def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: int = 4, **sampling):
-    """Return a :class:`ftacq.config.CellConfig` for ``cell`` with a small pose set and short sampling windows
+    """Return a :class:`ftacq.app.config.CellConfig` for ``cell`` with a small pose set and short sampling windows
     (tests: A 24 + E ``random_count`` + V ``validation_count`` poses, 0.1 s averaging, no settle delay)."""
-    from ftacq.config import config_from_dict
+    from ftacq.app.config import config_from_dict
 
     values = {"settle_time_s": 0.0, "settle_window_s": 0.02, "average_time_s": 0.1, "settle_timeout_s": 5.0,
               "sensor_timeout_s": 1.0}

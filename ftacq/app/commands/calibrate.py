@@ -62,7 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     viewer.add_argument("--rerun", action="store_true",
                         help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
     try:
-        from ftacq.dashboard import add_sink_args
+        from ftacq.app.dashboard import add_sink_args
 
         add_sink_args(parser)
     except ImportError:  # pragma: no cover - dashboard not installed
@@ -74,7 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sim_config(args: argparse.Namespace):
-    from ftacq.config import CellConfig, RobotConfig
+    from ftacq.app.config import CellConfig, RobotConfig
 
     return CellConfig(robot=RobotConfig(host="(simulated)", model=args.model, mount=args.mount), source="--sim")
 
@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
-    from ftacq.config import config_from_dict, load_config
+    from ftacq.app.config import config_from_dict, load_config
     from procedures.calibration import CalibrationProcedure, Move, ProcedureOptions, calibration_steps, \
         check_steps, count_measurements
     from procedures.plan import Plan, format_plan, make_plan
@@ -180,11 +180,11 @@ def _run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         cell = None
         if args.sim:
-            from tests.fakes.cell import SimulatedCell
+            from ftacq.app.simcell import simulated_cell
 
             _err(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, "
                  f"time scale {time_scale:g}) and a simulated {sim_info['sensor']} sensor on loopback …")
-            cell = stack.enter_context(SimulatedCell(sensor=sim_info["sensor"], model=sim_info["model"],
+            cell = stack.enter_context(simulated_cell(sensor=sim_info["sensor"], model=sim_info["model"],
                                                      mount=sim_info["mount"], time_scale=time_scale))
             config = config.replace_section("robot", host=cell.robot_host)
             config = config.replace_section("sensor", url=cell.sensor_url)
@@ -253,7 +253,7 @@ def _as_dict(sampling) -> dict:
 
 
 def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
-    from ftacq.dashboard import Dashboard, DashboardListener, close_recording, open_recording
+    from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.kinematics import ur_model
 
     recording = open_recording(args)

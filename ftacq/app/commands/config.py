@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_init(args: argparse.Namespace) -> int:
     """Write the example configuration; refuse to overwrite without --force."""
-    from ftacq.config import example_config_text
+    from ftacq.app.config import example_config_text
     from ftacq.fileio import atomic_write
 
     path: Path = args.path
@@ -55,7 +55,7 @@ def run_check(args: argparse.Namespace) -> int:
     """Validate a configuration and print it as the procedure will use it."""
     import json
 
-    from ftacq.config import load_config
+    from ftacq.app.config import load_config
 
     config = load_config(args.path)
     print(json.dumps(config.to_dict(), indent=2))

@@ -1,4 +1,4 @@
-"""The ``ftacq`` command line: one sub-command module per job under :mod:`ftacq.commands`.
+"""The ``ftacq`` command line: one sub-command module per job under :mod:`ftacq.app.commands`.
 
 Each module in ``COMMAND_MODULES`` exposes ``register(subparsers)``, which adds its sub-parser and sets
 ``func`` (``args -> int`` exit code). Modules import heavy dependencies inside their ``func`` so that
@@ -20,13 +20,13 @@ from ftacq import __version__
 from ftacq.errors import AbortedError, FtacqError, InputError
 
 COMMAND_MODULES = (
-    "ftacq.commands.identify",
-    "ftacq.commands.compensate",
-    "ftacq.commands.sensor",
-    "ftacq.commands.robot",
-    "ftacq.commands.calibrate",
-    "ftacq.commands.config",
-    "ftacq.commands.monitor",
+    "ftacq.app.commands.identify",
+    "ftacq.app.commands.compensate",
+    "ftacq.app.commands.sensor",
+    "ftacq.app.commands.robot",
+    "ftacq.app.commands.calibrate",
+    "ftacq.app.commands.config",
+    "ftacq.app.commands.monitor",
 )
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141

@@ -74,7 +74,7 @@ class SimulatedTechnician:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``monitor`` sub-command."""
-    from ftacq.dashboard import add_sink_args
+    from ftacq.app.dashboard import add_sink_args
 
     parser = subparsers.add_parser(
         "monitor",
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the monitor; return 0 when it stopped as asked (--seconds or Ctrl-C)."""
     from drivers.sensor import open_sensor
     from ftacq import __version__
-    from ftacq.dashboard import Dashboard, close_recording, open_recording
+    from ftacq.app.dashboard import Dashboard, close_recording, open_recording
     from ftacq.kinematics import ur_model
     from procedures.monitor import LiveMonitor
 
@@ -118,16 +118,16 @@ def run(args: argparse.Namespace) -> int:
 
             calibration = load_calibration(args.calibration)
         if args.sim:
-            from tests.fakes.cell import SimulatedCell
+            from ftacq.app.simcell import simulated_cell
 
-            cell = stack.enter_context(SimulatedCell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
+            cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
             robot_host, sensor_url = cell.robot_host, cell.sensor_url
             model_name = getattr(cell, "model_name", DEFAULT_SIM_MODEL)
             if calibration is None:
                 calibration = cell.truth.calibration()
             source = "simulated cell"
         else:
-            from ftacq.config import load_config
+            from ftacq.app.config import load_config
 
             config = load_config(args.config)
             robot_host, model_name, sensor_url = config.robot.host, config.robot.model, config.sensor.url

@@ -1,0 +1,40 @@
+"""The simulated-cell launcher: the one place the application reaches the simulated devices in ``tests.fakes``.
+
+The simulator (a UR controller speaking RTDE / dashboard / script on loopback, a Net F/T box and a NETCANOEM
+board whose wrench follows the simulated flange pose) ships with the source checkout, not with the wheel: an
+installed ``ftacq`` has no ``tests`` package. From a clone, this module puts the checkout's root on
+``sys.path`` so that ``ftacq calibrate --sim`` works from any directory.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+from typing import Any
+
+from ftacq.errors import InputError
+
+CHECKOUT_ROOT = Path(__file__).resolve().parents[2]
+"""The source checkout this package was loaded from (holds ``tests/fakes/`` in a clone)."""
+
+NOT_INSTALLED = ("the simulated cell is not installed: it ships with the source checkout. Clone the ftacq "
+                 "repository and run './run.sh demo' (or '.venv/bin/ftacq calibrate --sim' from the clone)")
+
+
+def _fakes_module(name: str) -> Any:
+    """Import ``tests.fakes.<name>``, from the checkout beside this package when it is not importable yet."""
+    if (CHECKOUT_ROOT / "tests" / "fakes" / "cell.py").is_file() and str(CHECKOUT_ROOT) not in sys.path:
+        sys.path.insert(0, str(CHECKOUT_ROOT))
+    try:
+        return importlib.import_module(f"tests.fakes.{name}")
+    except ModuleNotFoundError as error:
+        if error.name in ("tests", "tests.fakes", f"tests.fakes.{name}"):
+            raise InputError(NOT_INSTALLED) from error
+        raise
+
+
+def simulated_cell(**kwargs: Any) -> Any:
+    """Start and return a :class:`tests.fakes.cell.SimulatedCell` (a context manager); see its docstring for the
+    arguments. Raises :class:`InputError` with what to do when the simulator is not installed."""
+    return _fakes_module("cell").SimulatedCell(**kwargs)
