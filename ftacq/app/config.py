@@ -60,6 +60,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "radius_m": Key("float", 0.05, "radius of a cylinder along the flange z axis enclosing sensor and tool, m",
                         0.0, 0.5),
         "length_m": Key("float", 0.1, "length of that cylinder from the flange, m", 0.0, 1.0),
+        "sensor_offset_m": Key("vec3", None, "the sensor origin (its measuring point) in the flange frame [x, y, z], "
+                                             "m, from the adapter drawing (absent = [0, 0, 0]: sensor on the "
+                                             "flange); used by ftacq bridge", -0.5, 0.5, optional=True),
+        "sensor_body_mass_kg": Key("float", 0.0, "mass between the flange and the sensor's measuring plane (adapter "
+                                                 "and sensor body, which the sensor cannot weigh), kg; part of the "
+                                                 "payload ftacq bridge sets", 0.0, 20.0),
     },
     "poses": {
         "special": Key("bool", True, "include the 24 special orientations (set A; SROM needs all 24)"),
@@ -119,6 +125,8 @@ class SensorConfig:
 class ToolConfig:
     radius_m: float = 0.05
     length_m: float = 0.1
+    sensor_offset_m: tuple[float, float, float] | None = None
+    sensor_body_mass_kg: float = 0.0
 
 
 @dataclass(frozen=True)
