@@ -74,3 +74,15 @@ class Robot(Protocol):
 
     def close(self) -> None:
         """Disconnect. Safe to call twice."""
+
+
+class RobotStateSource(Protocol):
+    """The robot's latest state, read without blocking and without moving it (the live monitor's view of the arm;
+    implemented by :class:`drivers.ur.URStateReader`, which also offers ``connected``: False while its data stream
+    is lost)."""
+
+    def joint_positions(self) -> np.ndarray:
+        """Return the 6 latest joint angles, rad."""
+
+    def flange_pose(self) -> np.ndarray:
+        """Return the latest flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame."""
