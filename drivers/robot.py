@@ -1,4 +1,5 @@
-"""The robot contract the calibration procedure uses, whatever the arm.
+"""The robot contracts, whatever the arm: :class:`Robot` (what the calibration procedure moves) and
+:class:`RobotStateSource` (what the live monitor reads).
 
 All angles in radians, lengths in metres, poses in the robot base frame as ``[x, y, z, rx, ry, rz]``
 (rotation vector of ``base_R_flange``). Implemented by :class:`drivers.ur.URRobot` over ur-rtde.
@@ -77,9 +78,7 @@ class Robot(Protocol):
 
 
 class RobotStateSource(Protocol):
-    """The robot's latest state, read without blocking and without moving it (the live monitor's view of the arm;
-    implemented by :class:`drivers.ur.URStateReader`, which also offers ``connected``: False while its data stream
-    is lost)."""
+    """The robot's latest state, read without blocking (implemented by :class:`drivers.ur.URStateReader`)."""
 
     def joint_positions(self) -> np.ndarray:
         """Return the 6 latest joint angles, rad."""

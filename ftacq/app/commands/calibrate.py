@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from ftacq.app.dashboard.sinks import add_sink_args
-from ftacq.errors import AbortedError, InputError
+from ftacq.errors import AbortedError, InputError, InterruptedByUser
 
 log = logging.getLogger(__name__)
 
@@ -315,7 +315,7 @@ def _finish(args, folder, plan, config, result, cell) -> int:
                 f"the robot was stopped; {kept} measured poses are kept in {folder.path / 'poses.csv'}\n"
                 f"resume with: {resume}")
         if result.interrupted:
-            text = "interrupted: " + text
+            raise InterruptedByUser("interrupted: " + text) from result.error
         raise AbortedError(text) from result.error
     print("")
     if result.identification is not None:
