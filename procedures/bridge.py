@@ -29,7 +29,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 from scipy import signal
@@ -39,6 +39,7 @@ from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
+from procedures.events import FedWrenches, Listener, Notice
 
 log = logging.getLogger(__name__)
 
@@ -87,24 +88,6 @@ class BridgeSettings:
     jump_force_n: float = JUMP_FORCE_N
     jump_torque_nm: float = JUMP_TORQUE_NM
     cycle_timeout_s: float = CYCLE_TIMEOUT_S
-
-
-@dataclass(frozen=True)
-class FedBatch:
-    """Listener event: the values written since the previous event (monotonic host times, fed wrenches (N, 6))."""
-
-    written_s: np.ndarray
-    fed: np.ndarray
-    cycles: int
-    written: int
-
-
-@dataclass(frozen=True)
-class BridgeStopped:
-    """Listener event: the bridge stopped (``reason``: "done", "interrupted" or the watchdog's message)."""
-
-    reason: str
-    tripped: bool
 
 
 @dataclass
@@ -165,6 +148,8 @@ class _Log:
     def __init__(self, capacity: int) -> None:
         self.data = np.full((max(capacity, 1024), len(LOG_COLUMNS)), np.nan)
         self.count = 0
+        self.complete = 0
+        """Rows before this one are filled in (the publisher reads only those)."""
 
     def row(self) -> np.ndarray:
         if self.count == len(self.data):
@@ -183,12 +168,14 @@ class Bridge:
         (drivers.ur.URRobot opened with ``leave_external_ft_input=True``), or None when a PolyScope program enables
         the input itself. plan: ftacq.bridge_convention.FeedPlan. calibration: for the bias (raw) or the
         compensation (compensated). model: the arm's kinematics (flange orientation from actual_q).
-        listeners: callables taking :class:`FedBatch` / :class:`BridgeStopped` (must not block or raise).
+        listeners: :data:`procedures.events.Listener` s: they get :class:`~procedures.events.FedWrenches` about ten
+        times a second and a :class:`~procedures.events.Notice` (source "bridge") when the feed starts and stops
+        (level ERROR for a watchdog trip). They must not block (wrap a viewer in a BackgroundListener).
     """
 
     def __init__(self, sensor: ForceTorqueSensor, controller_input: ControllerInput, switch: InputSwitch | None,
                  plan: FeedPlan, calibration: Calibration, model: URModel, settings: BridgeSettings = BridgeSettings(),
-                 listeners: tuple[Callable[[object], None], ...] = (), sensor_rate_hz: float | None = None) -> None:
+                 listeners: tuple[Listener, ...] = (), sensor_rate_hz: float | None = None) -> None:
         self.sensor, self.input, self.switch = sensor, controller_input, switch
         self.plan, self.calibration, self.model, self.settings = plan, calibration, model, settings
         self.listeners = tuple(listeners)
@@ -219,6 +206,7 @@ class Bridge:
         previous: np.ndarray | None = None
         try:
             while not self._stop_feeding.is_set():
+                self._log.complete = self._log.count
                 try:
                     cycle = self.input.next_cycle(timeout_s=settings.cycle_timeout_s)
                 except DeviceError as error:
@@ -266,6 +254,7 @@ class Bridge:
         except Exception as error:  # noqa: BLE001 - any failure stops the feed and is reported as a trip
             self._trip_now(f"bridge failure: {type(error).__name__}: {error}")
         finally:
+            self._log.complete = self._log.count
             self._done.set()
 
     def _trip_now(self, reason: str) -> None:
@@ -293,6 +282,7 @@ class Bridge:
                 self.switch.enable_external_ft_input(True, self.plan.function, self.plan.sensor_mass_kg,
                                                      self.plan.sensor_measuring_offset_m, self.plan.sensor_cog_m)
                 enabled = True
+                self._notify(Notice(f"feeding: {self.plan.function} enabled, feed {self.plan.feed}", source="bridge"))
             deadline_s = None if duration_s is None else start_s + duration_s
             while not stop.is_set() and not self._done.is_set():
                 wait_s = PUBLISH_PERIOD_S
@@ -316,8 +306,12 @@ class Bridge:
             summary.trip = self._trip
             summary.cycles, summary.written, summary.samples = self._log.count, self._written, self._samples
             summary.log = self._log.data[:self._log.count].copy()
-            reason = self._trip or ("interrupted" if summary.interrupted else "done")
-            self._notify(BridgeStopped(reason=reason, tripped=self._trip is not None))
+            if self._trip:
+                text = f"watchdog: {self._trip}; feed stopped, input {'disabled' if summary.disabled else 'NOT disabled'}"
+            else:
+                text = f"feed stopped ({'Ctrl-C' if summary.interrupted else 'done'}), input " \
+                       f"{'disabled' if summary.disabled else 'left as it was'}"
+            self._notify(Notice(text, level="ERROR" if self._trip else "INFO", source="bridge"))
         return summary
 
     def _wait_first_write(self, start_s: float) -> None:
@@ -337,13 +331,13 @@ class Bridge:
             return False
 
     def _publish(self, published: int) -> int:
-        count = self._log.count
+        count = self._log.complete
         if count <= published or not self.listeners:
             return count
         rows = self._log.data[published:count]
         rows = rows[np.isfinite(rows[:, 2])]
-        self._notify(FedBatch(written_s=rows[:, 2].copy(), fed=rows[:, 5:].copy(), cycles=count - published,
-                              written=len(rows)))
+        self._notify(FedWrenches(time_s=rows[:, 2].copy(), fed=rows[:, 5:].copy(), cycles=count - published,
+                                 written=len(rows)))
         return count
 
     def _notify(self, event: object) -> None:

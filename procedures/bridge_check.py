@@ -13,7 +13,8 @@ or payload error is caught on the real cell before anything relies on the input.
    for torque steps: independent of the TCP). A reading opposite to the prediction is a flipped sign; one of the
    right size in another direction is a frame error (angle given).
 
-The arm must be still (checked every cycle; a moving arm aborts the check) and no force-mode program may run:
+Each step is read from the cycles sent :data:`SETTLE_CYCLES` cycles after its wrench reached the controller. The arm must be still
+(a moving arm aborts the check) and no force-mode program may run:
 the values fed are not measurements.
 """
 
@@ -36,6 +37,10 @@ FORCE_TOLERANCE_N = 0.5
 TORQUE_TOLERANCE_NM = 0.05
 RELATIVE_TOLERANCE = 0.05
 STILL_JOINT_SPEED_RAD_S = 1e-3
+MIN_CYCLES_PER_STEP = 5
+"""Each step's reading averages at least this many controller cycles (waiting longer if the controller is slow)."""
+SETTLE_CYCLES = 3
+"""A cycle counts for a step from this many controller cycles after the step's wrench can have arrived."""
 CYCLE_TIMEOUT_S = 1.0
 """The check is not time-critical: it waits this long for a controller cycle (the controller's own watchdog still
 pauses the program if the feed stops for 0.1 s)."""
@@ -115,24 +120,26 @@ def run_check(controller_input, switch, plan: FeedPlan, model: URModel, gravity_
         steps.append((f"+{AXES[axis]}", wrench))
     readings: list[np.ndarray] = []
     with _Feeder(controller_input) as feeder:
-        feeder.wait_cycles(5)
+        feeder.wait_readings(0, 1)
         q0 = feeder.q
         if switch is not None:
             switch.set_payload(plan.payload_kg, plan.payload_cog_m)
             switch.enable_external_ft_input(True, plan.function, plan.sensor_mass_kg, plan.sensor_measuring_offset_m,
                                             plan.sensor_cog_m)
         try:
-            for _name, wrench in steps:
-                feeder.set(wrench)
-                time.sleep(hold_s / 2)  # pacing only: the second half of the hold is what is read
-                mark = feeder.count
-                time.sleep(hold_s / 2)
-                readings.append(feeder.mean_since(mark))
+            for step, (_name, wrench) in enumerate(steps, start=1):
+                feeder.set(step, wrench)
+                time.sleep(hold_s)  # pacing only: what is read are the cycles after the value settled
+                readings.append(feeder.wait_readings(step, MIN_CYCLES_PER_STEP))
                 if float(np.max(np.abs(feeder.q - q0))) > 1e-3 or feeder.max_speed > STILL_JOINT_SPEED_RAD_S:
                     raise CheckAborted("the arm moved during ftacq bridge --check; the check needs the arm still")
         finally:
             if switch is not None:
-                switch.enable_external_ft_input(False, plan.function)
+                try:
+                    switch.enable_external_ft_input(False, plan.function)
+                except FtacqError as error:
+                    raise CheckAborted(f"could not disable the external input after the check ({error}); if the "
+                                       "program was paused, the controller saw no input for 0.1 s") from error
     report = CheckReport()
     base_R_flange = forward_kinematics(model, q0)[:3, :3]
     zero_expected = controller_tcp_force(np.zeros(6), plan, base_R_flange, plan.sensor_measuring_offset_m,
@@ -150,12 +157,21 @@ def run_check(controller_input, switch, plan: FeedPlan, model: URModel, gravity_
 
 class _Feeder:
     """Feeds the current test wrench every controller cycle on thread "ftacq-bridge-check" and keeps what the
-    controller reports (actual_TCP_force, q, the largest joint speed)."""
+    controller reports: per step, the actual_TCP_force of the cycles the controller sent after it surely held the
+    step's wrench, q and the largest joint speed.
+
+    "Surely held": the package's controller time is at least :data:`SETTLE_CYCLES` cycles past the latest controller
+    time at which the step's first write can have arrived: its host send time minus the smallest host-minus-
+    controller time difference seen (packages queued in the socket while this thread was late are older)."""
 
     def __init__(self, controller_input) -> None:
         self.input = controller_input
         self.current = np.zeros(6)
-        self.forces: list[np.ndarray] = []
+        self.step = 0
+        self._first_write_s: float | None = None
+        self._offset_s = np.inf
+        self._lock = threading.Lock()
+        self.settled: dict[int, list[np.ndarray]] = {}
         self.q = np.full(6, np.nan)
         self.max_speed = 0.0
         self.error: BaseException | None = None
@@ -170,39 +186,37 @@ class _Feeder:
         self._stop.set()
         self._thread.join(2.0)
 
-    @property
-    def count(self) -> int:
-        return len(self.forces)
+    def set(self, step: int, wrench: np.ndarray) -> None:
+        with self._lock:
+            self.step, self.current, self._first_write_s = step, np.array(wrench, dtype=float), None
 
-    def set(self, wrench: np.ndarray) -> None:
-        self.current = np.array(wrench, dtype=float)
-
-    def wait_cycles(self, n: int, timeout_s: float = 2.0) -> None:
+    def wait_readings(self, step: int, n: int, timeout_s: float = 5.0) -> np.ndarray:
+        """The mean actual_TCP_force over at least ``n`` settled cycles of ``step``."""
         deadline = time.monotonic() + timeout_s
-        while self.count < n:
-            self._raise_if_failed()
+        while True:
+            if self.error is not None:
+                raise CheckAborted(f"the controller stopped answering during the check ({self.error})")
+            with self._lock:
+                forces = list(self.settled.get(step, ()))
+            if len(forces) >= n:
+                return np.mean(forces, axis=0)
             if time.monotonic() > deadline:
-                raise CheckAborted(f"no controller cycle within {timeout_s:g} s")
+                raise CheckAborted(f"fewer than {n} controller cycles in {timeout_s:g} s during a check step")
             time.sleep(0.005)
-
-    def mean_since(self, mark: int) -> np.ndarray:
-        self._raise_if_failed()
-        forces = self.forces[mark:]
-        if not forces:
-            raise CheckAborted("no controller cycle during a check step")
-        return np.mean(forces, axis=0)
-
-    def _raise_if_failed(self) -> None:
-        if self.error is not None:
-            raise CheckAborted(f"the controller stopped answering during the check ({self.error})")
 
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
                 cycle = self.input.next_cycle(timeout_s=CYCLE_TIMEOUT_S)
-                self.input.write(self.current)
+                self._offset_s = min(self._offset_s, cycle.received_s - cycle.timestamp_s)
+                with self._lock:
+                    first = self._first_write_s
+                    if first is not None and cycle.timestamp_s >= first - self._offset_s + SETTLE_CYCLES * self.input.cycle_s:
+                        self.settled.setdefault(self.step, []).append(cycle.tcp_force)
+                    self.input.write(self.current)
+                    if first is None:
+                        self._first_write_s = time.monotonic()
                 self.q = cycle.q
                 self.max_speed = max(self.max_speed, float(np.max(np.abs(cycle.qd))))
-                self.forces.append(cycle.tcp_force)
         except BaseException as error:  # noqa: BLE001 - reported to the stepping thread
             self.error = error

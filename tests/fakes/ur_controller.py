@@ -28,7 +28,8 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
   on the dashboard, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
 - ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
 - ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
-  the deliberate error ``ftacq bridge --check`` must catch)
+  the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
+  period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
 """
 
 from __future__ import annotations
@@ -521,6 +522,10 @@ class ControllerServer:
                     if len(values) != 6:
                         raise ValueError("set q needs 6 joint angles (rad)")
                     sim.q = np.array(values)
+                elif what == "external_ft_watchdog":
+                    if not values or values[0] <= 0:
+                        raise ValueError("set external_ft_watchdog needs a period > 0 (s)")
+                    sim.external_ft.watchdog_period_s = values[0]
                 elif what == "external_ft_axes":
                     if len(values) != 6 or any(abs(v) != 1.0 for v in values):
                         raise ValueError("set external_ft_axes needs 6 signs (1 or -1)")

@@ -73,6 +73,8 @@ class ExternalFTInput:
         self._unfed_s = 0.0
         self.owned = False
         """An RTDE connection owns ``external_force_torque`` (set by the server)."""
+        self.watchdog_period_s = WATCHDOG_PERIOD_S
+        """As a program's ``rtde_set_watchdog`` would change it (``set external_ft_watchdog S``)."""
 
     # ------------------------------------------------------------------ inputs
     def enable(self, function: str, enable: bool, sensor_mass_kg: float, measuring_offset_m, sensor_cog_m,
@@ -111,13 +113,13 @@ class ExternalFTInput:
         self.cycles.append([controller_time_s, 1.0 if fed else 0.0, age])
         self._new_since_cycle = False
         self._unfed_s = 0.0 if fed else self._unfed_s + period_s
-        return self._unfed_s > WATCHDOG_PERIOD_S + 1e-9 and self._trip(controller_time_s)
+        return self._unfed_s > self.watchdog_period_s + 1e-9 and self._trip(controller_time_s)
 
     def watchdog(self, now_s: float, controller_time_s: float) -> bool:
         """Without an RTDE connection owning the input: True (and disabled) when enabled and no value arrived for
         :data:`WATCHDOG_PERIOD_S` (wall time): the caller pauses the program."""
         if self.enabled and not self.owned and self.last_arrival_s is not None \
-                and now_s - self.last_arrival_s > WATCHDOG_PERIOD_S:
+                and now_s - self.last_arrival_s > self.watchdog_period_s:
             return self._trip(controller_time_s)
         return False
 

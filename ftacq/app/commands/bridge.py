@@ -65,6 +65,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--check", action="store_true",
                         help="with the arm still: feed known wrenches, read back actual_TCP_force and say whether "
                              "frame, signs and payload handling match the convention")
+    from ftacq.app.dashboard import add_sink_args
+
+    add_sink_args(parser)
     parser.set_defaults(func=run)
 
 
@@ -159,8 +162,17 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
     sensor = open_sensor(sensor_url)
     stack.callback(sensor.close)
     sensor.start()
-    readout = _Readout()
-    bridge = Bridge(sensor, client, robot, plan, calibration, model, listeners=(readout,))
+    listeners: list = [_Readout()]
+    if any(getattr(args, flag, None) for flag in ("spawn", "connect", "serve", "save")):
+        from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
+        from procedures.delivery import BackgroundListener
+
+        recording = open_recording(args)
+        stack.callback(close_recording, recording)
+        background = BackgroundListener([DashboardListener(Dashboard(recording), model=model)])
+        stack.callback(background.close)
+        listeners.append(background)
+    bridge = Bridge(sensor, client, robot, plan, calibration, model, listeners=tuple(listeners))
     print(f"ftacq bridge: sensor {sensor_url} at {bridge.sensor_rate_hz:.0f} Hz, low-pass {bridge.cutoff_hz:g} Hz "
           f"(delay {bridge.filter.delay_s * 1000:.1f} ms); feeding (Ctrl-C to stop)", file=sys.stderr)
     summary = bridge.run(duration_s=args.seconds)
@@ -186,9 +198,12 @@ class _Readout:
         self.cycles = 0
 
     def __call__(self, event) -> None:
-        from procedures.bridge import FedBatch
+        from procedures.events import FedWrenches, Notice
 
-        if not isinstance(event, FedBatch) or not len(event.fed):
+        if isinstance(event, Notice):
+            print(f"ftacq bridge: {event.text}", file=sys.stderr)
+            return
+        if not isinstance(event, FedWrenches) or not len(event.fed):
             return
         with self._lock:
             self.cycles += event.cycles
