@@ -1,4 +1,4 @@
-"""The fake Net F/T speaks the real bytes (specs/ati.md §7.1-7.3), checked with raw sockets and independent clients.
+"""The fake Net F/T speaks the real bytes (docs/protocols-ati.md), checked with raw sockets and independent clients.
 
 Force and torque use different counts per unit and the torque is served in N-mm, so a scale or unit mix-up fails.
 """
@@ -266,7 +266,7 @@ def test_pynetft_reads_correct_newtons_and_newton_metres(fake, physics) -> None:
 def test_legacy_netft_client_reads_raw_counts(fake, physics) -> None:
     NetFT = pytest.importorskip("NetFT")
     sensor = NetFT.Sensor("127.0.0.1")
-    sensor.sock.connect(("127.0.0.1", fake.rdt_port))  # its port is hard-coded to 49152 (specs/ati.md §7.1.10)
+    sensor.sock.connect(("127.0.0.1", fake.rdt_port))  # its port is hard-coded to 49152
     sensor.sock.settimeout(RECEIVE_TIMEOUT_S)
     try:
         readings = np.array([sensor.getMeasurement() for _ in range(50)], dtype=float)

@@ -77,18 +77,7 @@ def _positive_seconds(value: float, flag: str = "--seconds") -> float:
 
 def describe_status(sensor, status: int) -> str:
     """Return ``0x…: names`` for a status word of this sensor's transport."""
-    if sensor.info.transport == "netft":
-        from drivers.netft import status_text
-
-        return f"{status:#010x} ({status_text(status, getattr(sensor, 'status_map', 'netft'))})"
-    if sensor.info.transport == "can":
-        from drivers.ati_can import decode_status
-
-        names = decode_status(status & 0xFFFF)
-        if status & 0x0002_0000:
-            names = ["gage saturated", *names]
-        return f"{status:#010x} ({', '.join(names) or 'ok'})"
-    return f"{status:#010x}"
+    return sensor.describe_status(status)
 
 
 def health_line(health) -> str:
