@@ -257,6 +257,7 @@ class AtiCanSensor(SensorBase):
         self._sequence = 0
         self._last_board_status = 0
         self._silent = False
+        self._last_sample_s: float | None = None
         self.send_errors = 0
         self.overflowed = 0
         self._stop = threading.Event()
@@ -399,7 +400,8 @@ class AtiCanSensor(SensorBase):
 
     def health(self) -> SensorHealth:
         """Return a snapshot of the counters: received, timeouts (polls with no reply), lost (polls with a
-        partial reply), out_of_order (late replies to an earlier poll), duplicate, malformed (our IDs, wrong
+        partial reply), gaps (runs of unanswered polls) and longest_gap_s (host time across the longest),
+        out_of_order (late replies to an earlier poll), duplicate, malformed (our IDs, wrong
         length), foreign (other IDs), saturated, status_errors, restarts (watchdog-reset bit rising),
         last_status and the measured poll rate_hz."""
         with self._lock:
@@ -627,6 +629,11 @@ class AtiCanSensor(SensorBase):
         if self._silent:
             self._silent = False
             logger.info("ATI CAN board (base %#04x) answers again", self.base)
+            with self._lock:  # a run of unanswered polls between two samples is one gap
+                self._health.gaps += 1
+                if self._last_sample_s is not None:
+                    self._health.longest_gap_s = max(self._health.longest_gap_s, received_at - self._last_sample_s)
+        self._last_sample_s = received_at
         status, sg0, sg2, sg4 = struct.unpack(">Hhhh", replies[OP_GAGES])
         sg1, sg3, sg5 = struct.unpack(">hhh", replies[OP_GAGES_SECOND])
         gages = (sg0, sg1, sg2, sg3, sg4, sg5)

@@ -168,8 +168,10 @@ class SequenceTracker:
                     self._continuing = 0
                 self._bias_pending = self._bias_pending or bias
             r, f, t = int(rdt[i]), int(ft[i]), float(times[i])
-            if self._last_rdt is None:
+            if self._last_rdt is None:  # the first record: it answers our first start
                 self._new_stream(r, f, t, lost=0)
+                self._active_since = None
+                self._bias_pending = False
                 continue
             dr = (r - self._head_rdt) & UINT32_MASK
             df = (f - self._head_ft) & UINT32_MASK
