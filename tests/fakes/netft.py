@@ -318,6 +318,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--serial", default="FT12345")
     parser.add_argument("--pose-shm", help="read the flange pose from this tests.fakes.world.SharedPose")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--sent-log-limit", type=int, default=0,
+                        help="records of what was sent to keep in memory (default 0: a long-running fake logs none)")
     args = parser.parse_args(argv)
 
     from tests.fakes.world import CellTruth, SensorPhysics, SettablePose, SharedPose
@@ -337,7 +339,8 @@ def main(argv: list[str] | None = None) -> int:
                      http_port=args.http_port, rate_hz=args.rate_hz, buffer_size=args.buffer_size,
                      force_unit=args.force_unit, torque_unit=args.torque_unit,
                      counts_per_force=args.counts_per_force, counts_per_torque=args.counts_per_torque,
-                     serial=args.serial, max_rate_hz=args.max_rate_hz, seed=args.seed)
+                     serial=args.serial, max_rate_hz=args.max_rate_hz, seed=args.seed,
+                     sent_log_limit=args.sent_log_limit)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
