@@ -9,13 +9,13 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from ftacq.app.cli import main
+from tests.conftest import wait_until
 from tests.fakes.netft import FakeNetFT
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
 
@@ -79,8 +79,9 @@ def test_record_saturated_samples_are_marked(fake, tmp_path, capsys) -> None:
 
 def test_bias_tares_the_device(fake, capsys) -> None:
     assert main(["sensor", "bias", fake.url]) == 0
-    out = capsys.readouterr().out
-    assert "biased" in out and "residual mean" in out
+    captured = capsys.readouterr()
+    assert "biased" in captured.out and "residual mean" in captured.out
+    assert "no longer fits" in captured.err and "ftacq tare" in captured.err  # a box bias invalidates calibrations
     assert 0x0042 in [c.code for c in fake.commands if c.source == "udp"]
     assert np.abs(fake.bias_counts).max() > 0
 
@@ -119,10 +120,10 @@ def test_ctrl_c_keeps_what_was_recorded(tmp_path) -> None:
         recorder = subprocess.Popen([sys.executable, "-m", "ftacq.app.cli", "sensor", "record", url, "--seconds", "60",
                                      "-o", str(path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                     text=True)
-        deadline = time.monotonic() + SUBPROCESS_TIMEOUT_S
-        while not any(p.stat().st_size > 4096 for p in tmp_path.glob(".interrupted.csv.*")):
-            assert time.monotonic() < deadline and recorder.poll() is None, recorder.communicate()
-            time.sleep(0.05)  # polling a file another process writes; bounded by the deadline above
+        wait_until(lambda: recorder.poll() is not None
+                   or any(p.stat().st_size > 4096 for p in tmp_path.glob(".interrupted.csv.*")),
+                   "the recorder writing samples", timeout_s=SUBPROCESS_TIMEOUT_S)
+        assert recorder.poll() is None, recorder.communicate()
         recorder.send_signal(signal.SIGINT)
         out, err = recorder.communicate(timeout=SUBPROCESS_TIMEOUT_S)
         assert recorder.returncode == 130, err
