@@ -264,7 +264,7 @@ def test_a_reader_that_stops_reading_loses_records_counted_as_lost(physics, smal
         device.wait_until(lambda f: f.records_sent > sent + 1500)  # ring holds 512: the rest must be dropped
         while sensor.overflowed == 0:
             now_sent = device.records_sent
-            device.wait_until(lambda f: f.records_sent > now_sent + 10)
+            device.wait_until(lambda f, now_sent=now_sent: f.records_sent > now_sent + 10)
         target = device.stats()["rdt_sequence"] + 20
         while sensor.read(timeout_s=READ_TIMEOUT_S).sequence[-1] < target:
             pass
