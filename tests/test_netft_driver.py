@@ -320,3 +320,21 @@ def test_receive_socket_is_bound_to_the_interface_that_routes_to_the_box(fake) -
         sensor.read(timeout_s=READ_TIMEOUT_S)
         address, port = sensor.local_address
         assert address == "127.0.0.1" and port != 0  # not the wildcard 0.0.0.0
+
+
+def test_resend_schedule_is_short_while_a_box_restarts_and_backs_off_when_it_is_gone() -> None:
+    from drivers.netft.receiver import (
+        BACKOFF_MAX_S,
+        BACKOFF_RESTARTING_MAX_S,
+        UNREACHABLE_AFTER_S,
+        next_retry_interval_s,
+    )
+
+    intervals, silent_s, interval = [], 0.25, 0.0
+    while silent_s < 2 * UNREACHABLE_AFTER_S:
+        interval = next_retry_interval_s(interval, silent_s)
+        intervals.append((silent_s, interval))
+        silent_s += interval
+    assert intervals[0][1] == 0.25 and intervals[1][1] == 0.5
+    assert max(i for s, i in intervals if s < UNREACHABLE_AFTER_S) == BACKOFF_RESTARTING_MAX_S
+    assert intervals[-1][1] == BACKOFF_MAX_S
