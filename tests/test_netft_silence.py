@@ -105,7 +105,7 @@ def test_every_record_sent_after_a_silence_is_received(fake, silence_s) -> None:
     assert health.reconnects >= 1 and health.duplicate == 0 and health.restarts == 0
     # the box streamed on into the quiet link: those are the lost records, in one gap about as long as the silence
     assert health.lost == fake.records_silenced and health.gaps == 1
-    assert health.longest_gap_s >= silence_s
+    assert health.longest_gap_s >= silence_s - 0.01  # the box forces one record out per start
 
 
 @pytest.mark.parametrize("faults", ["drop", "reorder", "duplicate"])
@@ -161,7 +161,7 @@ def test_record_through_a_two_second_silence_keeps_every_record_sent(fake, tmp_p
 
     thread = threading.Thread(target=silence, name="silence")
     thread.start()
-    status = main(["sensor", "record", fake.url, "--seconds", "4.5", "-o", str(output)])
+    status = main(["sensor", "record", fake.url, "--seconds", "6", "-o", str(output)])
     thread.join()
     assert not errors, errors
     out = capsys.readouterr()
