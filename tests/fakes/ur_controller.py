@@ -307,7 +307,7 @@ class ControllerServer:
             snap = self.sim.step(now)
             connections = []
             if self.shared_pose is not None:
-                self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"])
+                self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"], snap["joint_state"])
             if not self.frozen:
                 with self.lock:
                     # receive-only clients first: a client must never see 'done' on its control connection
