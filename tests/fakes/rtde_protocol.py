@@ -1,7 +1,7 @@
 """RTDE wire format (UR port 30004) for the simulated controller: framing, type table, packing.
 
 Everything is big-endian. A package is ``uint16 size (incl. header) | uint8 type | payload``
-(spec ``/work/shared/specs/ur.md`` §1). This module is pure: no sockets, no threads.
+(``docs/protocols-ur.md`` §1). This module is pure: no sockets, no threads.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 motion, fault injection and the record of executed motion commands. No sockets here (see ur_controller.py).
 
 All public methods take ``self.lock``; the network threads call them, the tick thread calls :meth:`step`.
-The control script is emulated as spec ``/work/shared/specs/ur.md`` §4.5 describes: ``input_int_register_(0+off)``
+The control script is emulated as ``docs/protocols-ur.md`` §4.5 describes: ``input_int_register_(0+off)``
 carries the command id, ``output_int_register_(0+off)`` is 1 (ready) / 2 (done), results go to
 ``output_int_register_(1+off)`` / ``output_double_register_(0..5+off)``, the async progress word to
 ``output_int_register_(2+off)``.
