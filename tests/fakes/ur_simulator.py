@@ -169,6 +169,9 @@ class URSimulator:
         self._pose_cache_key: tuple[bytes, bytes] | None = None
         self._pose_cache: tuple[np.ndarray, np.ndarray] = (np.zeros(6), np.zeros(6))
         self.tcp_speed = np.zeros(6)
+        self.tool_motion_outputs = True
+        """Compute actual_TCP_speed and actual_tool_accelerometer each tick (the server clears it while no client's
+        output recipe asks for them: ~0.1 ms a tick while moving)."""
 
     # ------------------------------------------------------------------ geometry
     def controller_time_s(self, now: float | None = None) -> float:
@@ -614,7 +617,10 @@ class URSimulator:
 
     def snapshot(self, now: float, dt: float) -> dict:
         flange, tcp = self._poses()
-        self.tcp_speed, accelerometer = self.tool_motion()
+        if self.tool_motion_outputs:
+            self.tcp_speed, accelerometer = self.tool_motion()
+        else:
+            self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
         q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
         moving = self.motion is not None
         running = self.robot_mode == ROBOT_MODE_RUNNING
