@@ -215,8 +215,9 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
           f"{summary.controller_rate_hz:g} Hz, low-pass {summary.cutoff_hz:g} Hz (group delay "
           f"{summary.filter_delay_s * 1000:.2f} ms), arm {'still' if args.still else 'jogging'}, push "
           f"{np.linalg.norm(CONTACT[:3]):.1f} N every {CONTACT_EVERY_S:g} s")
+    span_s = float(cycles[-1, 0] - cycles[0, 0]) if len(cycles) > 1 else float("nan")
     print(f"  controller cycles while enabled {len(cycles)}: fed {fed_cycles}, missed {missed} "
-          f"({len(cycles) / max(wall_s, 1e-9):.0f} cycles/s); values received {state['received']}, "
+          f"({(len(cycles) - 1) / span_s:.0f} cycles/s of controller time); values received {state['received']}, "
           f"written {summary.written}, identical to the bridge's log: {same}; watchdog trips "
           f"{len(state['watchdog_trips'])}; bridge trip: {summary.trip or 'none'}")
     print(f"  latency sensor sample -> controller: p50 {np.percentile(latency_ms, 50):.2f} ms, p99 "

@@ -141,6 +141,15 @@ def test_ctrl_c_disables_the_input_while_still_feeding(cell, robot, parts):
     assert state["watchdog_trips"] == before["watchdog_trips"]  # disabled before the feed stopped
 
 
+def test_program_mode_only_feeds(cell, robot, parts):
+    """--enable program: the PolyScope program enables the input; the bridge makes no enable call of its own."""
+    sensor, client, plan = parts
+    calls = len(cell.controller.external_ft()["enable_calls"])
+    summary = Bridge(sensor, client, None, plan, cell.truth.calibration(), UR5E, LOADED).run(duration_s=0.5)
+    assert summary.trip is None and summary.written > 0 and not summary.disabled
+    assert len(cell.controller.external_ft()["enable_calls"]) == calls
+
+
 def test_check_passes_on_a_matching_controller_and_catches_a_flipped_sign(cell, robot, parts):
     _sensor, client, plan = parts
     gravity = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_S2])

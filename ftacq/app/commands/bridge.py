@@ -4,8 +4,9 @@
     ftacq bridge --config CELL.toml --calibration CAL.json --check
     ftacq bridge --sim [--seconds S] [--feed ...] [--check]
 
-Never moves the arm. It uploads ur-rtde's control program (to make the enable call and set the payload), which
-replaces a program running on the controller; to feed a PolyScope program instead, see docs/bridge.md.
+Never moves the arm. By default it uploads ur-rtde's control program (to make the enable call and set the
+payload), which replaces a program running on the controller; ``--enable program`` only feeds, and prints the two
+URScript lines a PolyScope program runs itself (docs/bridge.md, "From a PolyScope program").
 """
 
 from __future__ import annotations
@@ -61,6 +62,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--feed", choices=("compensated", "raw"), default="compensated",
                         help="compensated: ftacq removes the tool's gravity; raw: the controller does, from the "
                              "payload set from the calibration (default %(default)s)")
+    parser.add_argument("--enable", choices=("ur-rtde", "program"), default="ur-rtde",
+                        help="who sets the payload and enables the input: ur-rtde (uploads its control program; "
+                             "default) or program (your PolyScope program runs the printed URScript lines; ftacq "
+                             "only feeds)")
     parser.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--check", action="store_true",
                         help="with the arm still: feed known wrenches, read back actual_TCP_force and say whether "
@@ -113,17 +118,20 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         host, model_name, sensor_url, calibration, offset, body_kg, cell = _load(args, stack)
         model = ur_model(model_name)
-        robot = URRobot(host, MotionLimits(), model=model, leave_external_ft_input=True)
-        stack.callback(robot.close)
-        robot.start()
+        robot = None
+        if args.enable == "ur-rtde":
+            robot = URRobot(host, MotionLimits(), model=model, leave_external_ft_input=True)
+            stack.callback(robot.close)
+            robot.start()
         client = stack.enter_context(URForceTorqueInput(host))
         function = enable_function_for(client.version)
         flange_p_tcp = np.zeros(3)
-        if function == ENABLE_EXTERNAL_FT_SENSOR:
-            from ftacq.so3 import rotation_from_rotvec
+        if function == ENABLE_EXTERNAL_FT_SENSOR:  # fed about the TCP (docs/bridge.md): where is it?
+            from ftacq.kinematics import forward_kinematics
 
-            flange, tcp = robot.flange_pose(), robot.tcp_pose()
-            flange_p_tcp = rotation_from_rotvec(flange[3:6]).T @ (tcp[:3] - flange[:3])
+            cycle = client.next_cycle(timeout_s=1.0)
+            base_T_flange = forward_kinematics(model, cycle.q)
+            flange_p_tcp = base_T_flange[:3, :3].T @ (cycle.tcp_pose[:3] - base_T_flange[:3, 3])
         plan = plan_feed(calibration, args.feed, offset, sensor_body_kg=body_kg, function=function,
                          flange_p_tcp_m=flange_p_tcp)
         version = ".".join(str(v) for v in client.version)
@@ -131,6 +139,10 @@ def run(args: argparse.Namespace) -> int:
               f"feed {plan.feed}; {plan.function}(True, {plan.sensor_mass_kg:.4g} kg, "
               f"{np.round(plan.sensor_measuring_offset_m, 4).tolist()} m, {np.round(plan.sensor_cog_m, 4).tolist()} m);"
               f" payload {plan.payload_kg:.4g} kg at {np.round(plan.payload_cog_m, 4).tolist()} m", file=sys.stderr)
+        if robot is None:
+            print("ftacq bridge: --enable program: the PolyScope program must run, before it relies on the input "
+                  "(and ftacq bridge must already be feeding: the controller pauses the program 0.1 s without "
+                  "input):\n" + plan.urscript(), file=sys.stderr)
         if args.check:
             return _check(client, robot, plan, model, calibration)
         if cell is not None:
