@@ -172,7 +172,10 @@ def open_sensor(url: str, **options) -> ForceTorqueSensor:
 
     Raises InputError with the expected form when the URL cannot be parsed.
     """
-    parts = urlsplit(url)
+    try:
+        parts = urlsplit(url)
+    except ValueError as error:  # e.g. "netft://[::1": Invalid IPv6 URL
+        raise InputError(f"sensor URL {url!r}: {error}") from None
     if parts.scheme == "netft":
         from drivers.netft import NetFTSensor
 
