@@ -163,6 +163,10 @@ def _run(args: argparse.Namespace) -> int:
         folder = RunFolder.open(args.resume)
         if folder.status == "done":
             raise InputError(f"{args.resume}: this run is already done (calibration.json is there); nothing to resume")
+        if folder.status == "running" and folder.process_alive():
+            raise InputError(f"{args.resume}: this run is still {folder.status_note}; stop it before resuming")
+        if folder.status == "interrupted":
+            _err(f"note: {args.resume}: {folder.status_note}; resuming it")
         config = config_from_dict(folder.config, str(folder.path / "run.json"))
         plan = Plan.from_json(folder.plan_json)
         sim_info = dict(folder.document.get("sim") or {})
