@@ -50,7 +50,7 @@ def _valid_calibration() -> dict:
 
 
 CALIBRATION_KEYS = ("format", "version", "sensor_rotation", "force_bias", "torque_bias", "gravity_base", "mass_kg",
-                    "center_of_mass_m", "base_tilt_deg", "uncertainty", "metadata_key")
+                    "center_of_mass_m", "base_tilt_deg", "uncertainty", "metadata_key", "sensor", "tool", "bias_history")
 
 
 def _text_mutation(draw, text: str) -> str:
@@ -68,6 +68,13 @@ def _text_mutation(draw, text: str) -> str:
 def calibration_json(draw) -> str:
     """Text of a calibration file: a valid document with fields replaced or removed, or its text mutated."""
     document = _valid_calibration()
+    if draw(st.booleans()):  # the optional provenance keys, well-formed, for the mutations below to break
+        document["sensor"] = {"serial": "FT1", "counts_per_force": 1000000, "counts_per_torque": 1000000}
+        document["tool"] = {"name": "gripper"}
+        document["bias_history"] = [{"force_bias": [0.1, 0.2, 0.3], "torque_bias": [0.0, 0.0, 0.0], "time": "t"}]
+        if draw(st.booleans()):
+            document["bias_history"][0][draw(st.sampled_from(["force_bias", "torque_bias", "time", "method"]))] = \
+                draw(json_values)
     for key in draw(st.lists(st.sampled_from(CALIBRATION_KEYS), max_size=3, unique=True)):
         if draw(st.booleans()):
             document[key] = draw(json_values)

@@ -254,7 +254,7 @@ def _run(args: argparse.Namespace) -> int:
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell)
+        return _finish(args, folder, plan, config, result, cell, sensor.info)
 
 
 def _as_dict(sampling) -> dict:
@@ -286,11 +286,12 @@ def _input_summary(folder, result) -> dict:
             "has_std": True, "has_count": True}
 
 
-def _finish(args, folder, plan, config, result, cell) -> int:
+def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
     """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
     import numpy as np
 
     from ftacq.calfile import save_calibration
+    from ftacq.provenance import with_provenance
     from procedures.report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
@@ -307,7 +308,8 @@ def _finish(args, folder, plan, config, result, cell) -> int:
         if result.drift is not None:
             metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
                                        "elapsed_s": result.drift.elapsed_s}
-        calibration = replace(calibration, metadata=metadata)
+        calibration = with_provenance(replace(calibration, metadata=metadata), sensor_info,
+                                      getattr(config.tool, "name", None))
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
