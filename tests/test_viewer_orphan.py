@@ -1,6 +1,6 @@
 """``--serve`` starts a Rerun web-viewer server; it must not outlive ftacq, even when ftacq is SIGKILLed (issue 15).
 
-A child process starts the server the way ``--serve`` does (:func:`ftacq.app.dashboard._serve_web`) on free
+A child process starts the server the way ``--serve`` does (:func:`ftacq.app.dashboard.sinks._serve_web`) on free
 loopback ports, reports them, and is killed; the server's gRPC port must then stop accepting connections.
 """
 
@@ -22,7 +22,7 @@ SERVER_GONE_TIMEOUT_S = 15.0
 
 CHILD = textwrap.dedent("""
     import socket, sys
-    from ftacq.app.dashboard import _serve_web
+    from ftacq.app.dashboard.sinks import _serve_web
     ports = []
     for _ in range(2):
         with socket.socket() as probe:
