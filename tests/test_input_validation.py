@@ -11,7 +11,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -95,13 +94,20 @@ def test_config_check_refuses_bad_values_and_urls_in_one_line(tmp_path, capsys, 
     assert str(path) in line and expected in line
 
 
-def test_dry_run_refuses_a_bad_sensor_url_before_connecting_the_robot(tmp_path, capsys):
+def never(what: str):
+    def fail(*args, **kwargs):
+        raise AssertionError(f"{what} was reached: the input should have been refused before")
+
+    return fail
+
+
+def test_dry_run_refuses_a_bad_sensor_url_before_connecting_the_robot(tmp_path, capsys, monkeypatch):
+    import drivers.ur
+
+    monkeypatch.setattr(drivers.ur.URRobot, "start", never("the robot connection"))
     path = tmp_path / "CELL.toml"
-    # robot.host is a documentation address nobody answers on: reaching it would fail differently (exit 1)
-    path.write_text('[robot]\nhost = "192.0.2.1"\n[sensor]\nurl = "ftp://x"\n', encoding="utf-8")
-    started = time.monotonic()
+    path.write_text('[robot]\nhost = "127.0.0.9"\n[sensor]\nurl = "ftp://x"\n', encoding="utf-8")
     assert main(["calibrate", "--config", str(path), "--dry-run"]) == 2
-    assert time.monotonic() - started < 2.0
     assert "unknown scheme 'ftp'" in one_line_error(capsys)
 
 
@@ -180,7 +186,6 @@ def test_identify_on_extreme_values_exits_2_at_once_in_a_subprocess(tmp_path, sc
     extreme = PoseRecord(pose=record.pose, wrench=record.wrench * scale, labels=record.labels, sets=record.sets)
     poses = tmp_path / "extreme.csv"
     write_pose_csv(poses, extreme)
-    started = time.monotonic()
     try:
         result = subprocess.run([sys.executable, "-m", "ftacq.app.cli", "identify", str(poses), "-o",
                                  str(tmp_path / "cal.json")], capture_output=True, text=True,
@@ -190,7 +195,6 @@ def test_identify_on_extreme_values_exits_2_at_once_in_a_subprocess(tmp_path, sc
         pytest.fail(f"identify on values scaled by {scale:g} still ran after {EXTREME_KILL_AFTER_S:g} s")
     assert result.returncode == 2, result.stderr
     assert "beyond what a robot or an F/T sensor reports" in result.stderr and "Traceback" not in result.stderr
-    assert time.monotonic() - started < EXTREME_KILL_AFTER_S
     assert not (tmp_path / "cal.json").exists()
 
 
@@ -221,19 +225,20 @@ def test_calibrate_sim_with_an_unknown_model_is_a_one_line_error(capsys):
     assert "UR99" in one_line_error(capsys)
 
 
-def test_output_paths_under_a_file_are_refused_before_any_device_starts(tmp_path, capsys):
+def test_output_paths_under_a_file_are_refused_before_any_device_starts(tmp_path, capsys, monkeypatch):
+    import ftacq.app.simcell
+
+    monkeypatch.setattr(ftacq.app.simcell, "simulated_cell", never("the simulated cell"))
     blocker = tmp_path / "a-file"
     blocker.write_text("x")
     assert main(["config", "init", str(blocker / "CELL.toml")]) == 2
     assert "is a file, not a folder" in one_line_error(capsys)
-    started = time.monotonic()
     assert main(["calibrate", "--sim", "--yes", "--save", str(blocker / "run.rrd")]) == 2
     assert "--save" in one_line_error(capsys)
     assert main(["monitor", "--sim", "--seconds", "1", "--record", str(blocker / "rec.csv")]) == 2
     assert "--record" in one_line_error(capsys)
     assert main(["calibrate", "--sim", "--yes", "--out", str(blocker)]) == 2
     assert "--out" in one_line_error(capsys)
-    assert time.monotonic() - started < 5.0  # no simulated cell was started for any of them
 
 
 def test_check_output_file_accepts_a_new_file_in_a_missing_folder(tmp_path):
