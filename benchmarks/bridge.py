@@ -18,8 +18,11 @@ Printed figures (all from what the simulated controller recorded, not from what 
   controller's arrival stamp of that value (one CLOCK_MONOTONIC for all processes), p50 / p99 / max;
 - staleness: at each controller cycle, the age of the newest sensor sample in the value the controller holds;
 - fed-wrench error against the simulated contact (the truth at the newest sample's time, through the convention),
-  at rest and during pushes, excluding :data:`SETTLE_S` after each push starts or ends (the filter's step
-  response); beside it the filtered sensor noise predicted from the truth's noise and the filter;
+  without a push and during pushes, excluding :data:`SETTLE_S` after each push starts or ends (the filter's step
+  response) and values written more than :data:`FRESH_S` after their newest sample; beside it the filtered sensor
+  noise predicted from the truth's noise and the filter. While the arm jogs, the simulated technician moves it in
+  30 Hz steps (as ``ftacq monitor --sim``) and the simulated sensor has no inertial wrench: the error then shows
+  the compensation's one-orientation-per-cycle lag at each step, not a dynamic model;
 - CPU of this process (every thread: ur-rtde's, the driver's, the bridge's) as % of one core.
 """
 
@@ -49,7 +52,10 @@ JOG_PERIOD_S = np.array([23.0, 17.0, 19.0, 11.0, 7.0, 13.0])
 CONTACT = np.array([4.0, 6.0, -15.0, 0.3, -0.1, 0.05])
 """The push on the tool, sensor frame (N, N·m)."""
 CONTACT_EVERY_S, CONTACT_DURATION_S = 8.0, 2.0
-SETTLE_S = 0.03
+SETTLE_S = 0.1
+FRESH_S = 0.01
+"""The error statistics use values whose newest sample was at most this old when written: the truth is known at
+the sample's *receive* stamp, which on a loaded machine lags its generation (the push schedule's clock)."""
 SENSOR_OFFSET_M = (0.0, 0.0, 0.035)
 SENSOR_BODY_KG = 0.3
 GOALS = {"missed": 0, "latency_p99_ms": 4.0, "cpu_percent": 50.0}
@@ -125,6 +131,10 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, help="feeding time, s")
     parser.add_argument("--feed", choices=("compensated", "raw"), default="compensated")
     parser.add_argument("--still", action="store_true", help="no jog")
+    parser.add_argument("--max-staleness-s", type=float, default=None,
+                        help="relax the bridge's staleness limit (default: the product's) so that a loaded machine "
+                             "does not end the run early; the figures say so")
+    parser.add_argument("--cycle-timeout-s", type=float, default=None, help="relax the lost-cycle limit likewise")
     parser.add_argument("--world", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--pose-shm", help=argparse.SUPPRESS)
     parser.add_argument("--host", help=argparse.SUPPRESS)
@@ -141,7 +151,7 @@ def main() -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import plan_feed
     from ftacq.kinematics import ur_model
-    from procedures.bridge import Bridge, WrenchFilter
+    from procedures.bridge import Bridge, BridgeSettings, WrenchFilter
     from procedures.plan import home_configuration_rad
     from tests.fakes.ur_process import URControllerProcess
     from tests.fakes.world import CellTruth, SharedPose
@@ -163,7 +173,15 @@ def main() -> int:
             sensor = open_sensor(ready["url"])
             sensor.start()
             plan = plan_feed(calibration, args.feed, SENSOR_OFFSET_M, sensor_body_kg=SENSOR_BODY_KG)
-            bridge = Bridge(sensor, client, robot, plan, calibration, ur_model("UR5e"), sensor_rate_hz=SENSOR_RATE_HZ)
+            settings = BridgeSettings()
+            if args.max_staleness_s:
+                settings = BridgeSettings(max_staleness_s=args.max_staleness_s, cycle_timeout_s=settings.cycle_timeout_s)
+            if args.cycle_timeout_s:
+                settings = BridgeSettings(max_staleness_s=settings.max_staleness_s, cycle_timeout_s=args.cycle_timeout_s)
+            if args.max_staleness_s or args.cycle_timeout_s:
+                controller.control("set external_ft_watchdog 1.0")  # as rtde_set_watchdog would
+            bridge = Bridge(sensor, client, robot, plan, calibration, ur_model("UR5e"), settings,
+                            sensor_rate_hz=SENSOR_RATE_HZ)
             cpu0, wall0 = time.process_time(), time.monotonic()
             summary = bridge.run(duration_s=seconds)
             cpu_s, wall_s = time.process_time() - cpu0, time.monotonic() - wall0
@@ -178,11 +196,12 @@ def main() -> int:
             world_process.wait(10)
     shared.close()
     report(args, seconds, summary, state, records, plan, cpu_s, wall_s, ready["t0"], health, truth,
-           WrenchFilter(bridge.cutoff_hz, SENSOR_RATE_HZ))
+           WrenchFilter(bridge.cutoff_hz, SENSOR_RATE_HZ), settings)
     return 0
 
 
-def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, health, truth, wrench_filter) -> None:
+def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, health, truth, wrench_filter,
+           settings) -> None:
     log = summary.log
     if summary.written == 0:
         print(f"ftacq bridge benchmark: nothing was written ({summary.trip})")
@@ -206,7 +225,7 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     if plan.feed == "raw":
         truth_fed = None  # the raw feed carries the tool's weight: compared after the controller's removal below
     error = written[:, 5:] - truth_fed if truth_fed is not None else None
-    keep = ~near_switch(elapsed, SETTLE_S) & (elapsed > 0.5)
+    keep = ~near_switch(elapsed, SETTLE_S) & (elapsed > 0.5) & (written[:, 2] - written[:, 3] <= FRESH_S)
     pushing = contact_at(elapsed)[:, 2] != 0
     noise = np.array(truth.force_noise_n + truth.torque_noise_nm)
     rng = np.random.default_rng(0)
@@ -225,9 +244,10 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
           f"{summary.filter_delay_s * 1000:.2f} ms group delay)")
     print(f"  staleness at each controller cycle: p50 {np.percentile(staleness_ms, 50):.2f} ms, p99 "
           f"{np.percentile(staleness_ms, 99):.2f} ms, max {staleness_ms.max():.2f} ms (bridge limit "
-          f"{bridge_limit_ms():.0f} ms)")
+          f"{settings.max_staleness_s * 1000:.0f} ms{'' if settings.max_staleness_s == bridge_limit_ms() / 1000 else ', RELAXED from ' + format(bridge_limit_ms(), '.0f') + ' ms'})")
+    print(f"  load average at the end: {', '.join(f'{v:.1f}' for v in os.getloadavg())} (2 cores)")
     if error is not None:
-        for label, mask in (("at rest", keep & ~pushing), ("pushed", keep & pushing)):
+        for label, mask in (("no push", keep & ~pushing), ("pushed", keep & pushing)):
             if not mask.any():
                 continue
             rms = np.sqrt(np.mean(error[mask] ** 2, axis=0))
