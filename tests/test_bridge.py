@@ -128,6 +128,19 @@ def test_saturation_stops_the_feed(cell, robot, parts):
     assert summary.disabled and not cell.controller.external_ft()["enabled"]
 
 
+def test_a_jump_of_the_fed_wrench_stops_the_feed(cell, robot, parts):
+    sensor, client, plan = parts
+    settings = BridgeSettings(max_staleness_s=0.5, cycle_timeout_s=1.0, jump_force_n=1.0)
+    bridge = Bridge(sensor, client, robot, plan, cell.truth.calibration(), UR5E, settings)
+    timer = later(0.6, lambda: cell.set_contact(np.array([0.0, 0.0, 40.0, 0.0, 0.0, 0.0])))
+    summary = bridge.run(duration_s=10.0)
+    timer.join()
+    assert summary.trip is not None and "jumped" in summary.trip, summary.trip
+    assert summary.disabled and not cell.controller.external_ft()["enabled"]
+    written = summary.log[np.isfinite(summary.log[:, 2])][:, 5:8]
+    assert np.all(np.linalg.norm(np.diff(written, axis=0), axis=1) <= 1.0)  # the jump itself was never written
+
+
 def test_ctrl_c_disables_the_input_while_still_feeding(cell, robot, parts):
     sensor, client, plan = parts
     before = cell.controller.external_ft()
