@@ -54,6 +54,8 @@ class ProgressListener:
         return per_pose * (self.total - self.done)
 
     def __call__(self, event) -> None:
+        if isinstance(event, (events.WrenchSamples, events.RobotState, events.SensorStatus)):
+            return  # the sample stream (up to the sensor's read rate): nothing to show here
         if isinstance(event, events.StateChanged):
             self._state = event.state
             if event.index is not None:

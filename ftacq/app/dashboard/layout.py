@@ -11,7 +11,8 @@ Entity paths::
     world                                                  robot base frame B (z up, metres)
     world/robot/link1 … link6                              DH frame i: base_T_i (Transform3D, per time)
     world/robot/link1/shape … link6/shape                  the link drawn in its own frame (static)
-    world/flange                                           base_T_flange (Transform3D, per time) and its axes
+    world/flange                                           base_T_flange (Transform3D, per time)
+    world/flange/axes                                      the flange frame's axes (static)
     world/flange/sensor                                    flange_T_sensor (from the calibration) and its axes
     world/flange/sensor/contact_force                      the compensated contact force, sensor frame
     world/gravity                                          the tool's weight (base frame) at the flange
@@ -54,6 +55,7 @@ LINK_FRAMES = tuple(f"{ROBOT}/link{i}" for i in range(1, 7))
 LINK_SHAPES = tuple(f"{frame}/shape" for frame in LINK_FRAMES)
 """Each link drawn once (static) in its own DH frame."""
 FLANGE = "world/flange"
+FLANGE_AXES = "world/flange/axes"
 SENSOR = "world/flange/sensor"
 CONTACT_FORCE = "world/flange/sensor/contact_force"
 GRAVITY = "world/gravity"
@@ -106,6 +108,8 @@ CURRENT_POSE_COLOR = (255, 255, 255)
 FORCE_ARROW_SCALE_M_PER_N = 0.01
 """Length of force arrows in the 3-D view: 10 N draws 0.1 m."""
 ARROW_RADIUS_M = 0.004
+LABEL_RADIUS_M = 0.002
+"""The labels' anchor points: small, the text is what shows."""
 LABEL_CLEARANCE_M = 0.04
 """A label sits this far beyond its arrow's tip and at least this far from either arrow."""
 LABEL_MIN_SEPARATION_M = 0.10
