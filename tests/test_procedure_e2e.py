@@ -148,7 +148,8 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     assert raw_time_s.size > 35 * 10 and raw_torque.shape == raw_force.shape  # 35 poses, many samples each
     assert 0 < compensated_time_s.size <= raw_time_s.size and compensated_torque.shape == compensated_force.shape
     assert np.median(np.abs(raw_force)) > 1.0  # the tool's weight ...
-    assert np.median(np.linalg.norm(compensated_force, axis=1)) < 0.2  # ... is gone: no contact while calibrating
+    assert np.linalg.norm(compensated_force, axis=1).max() < 1.0  # ... is gone in every averaging window: no
+    # contact while calibrating (and no sample from before a move compensated with the pose after it)
     (run_dir,) = list((tmp_path / "runs").iterdir())
     calibration = load_calibration(run_dir / "calibration.json")
     assert_recovers_truth(calibration, CellTruth())
