@@ -11,17 +11,23 @@ Optional keys written from the identification: ``uncertainty`` (1σ per key abov
 ``sensor_rotation_rad`` as a small rotation about the sensor axes), ``mount`` and ``base_tilt_relative_deg``,
 ``method``, ``residuals`` (per pose labels and [fx..tz] residual), ``outliers``, ``warnings``,
 ``diagnostics``, ``input``, ``software_version``, ``created_utc``. Unknown keys are kept in
-``Calibration.metadata`` on load.
+``Calibration.metadata`` on load. :func:`provenance` builds the keys saying where a calibration came from (the
+pose record, its sets, what was identified on, validation, run folder, drift check), for every command alike.
+
+Other file formats: :data:`WRITERS` maps a format name to a function turning a calibration into the file's text;
+:func:`write_calibration` writes any of them atomically (mode 0644). A new export format is one such function
+and one row of the table.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -91,12 +97,64 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     return _jsonable(document)
 
 
+def calibration_json_text(calibration: Calibration) -> str:
+    """Return the calibration as the versioned JSON text of this module's format (the ``json`` writer)."""
+    return json.dumps(calibration_to_dict(calibration), indent=2, allow_nan=False) + "\n"
+
+
+CalibrationWriter = Callable[[Calibration], str]
+"""A calibration file format: the file's whole text for one calibration."""
+
+WRITERS: dict[str, CalibrationWriter] = {
+    "json": calibration_json_text,
+}
+"""Every calibration file format ftacq writes, by name (``json`` is the one it reads back)."""
+
+
+def write_calibration(path: str | os.PathLike, calibration: Calibration, format: str = "json") -> None:
+    """Write ``calibration`` in ``format`` (a key of :data:`WRITERS`) atomically: never a half-written file.
+
+    Raises InputError naming the format and the known ones.
+    """
+    try:
+        writer = WRITERS[format]
+    except KeyError:
+        raise InputError(f"calibration format {format!r}: unknown (known: {', '.join(WRITERS)})") from None
+    text = writer(calibration)
+    with atomic_write(path) as handle:
+        handle.write(text)
+
+
 def save_calibration(path: str | os.PathLike, calibration: Calibration) -> None:
     """Write the calibration as versioned JSON, atomically (never a half-written file)."""
-    document = calibration_to_dict(calibration)
-    text = json.dumps(document, indent=2, allow_nan=False)
-    with atomic_write(path) as handle:
-        handle.write(text + "\n")
+    write_calibration(path, calibration, "json")
+
+
+def provenance(poses_file: str | os.PathLike, sets: Sequence[str], identified_on: Sequence[str], *,
+               has_std: bool, has_count: bool, validation: Mapping[str, Any] | None = None,
+               **extra: Any) -> dict[str, Any]:
+    """Return the metadata saying where a calibration came from, to merge into ``Calibration.metadata``.
+
+    Args:
+        poses_file: the pose record identified (its SHA-256 is taken now). sets: the set of every pose in it.
+        identified_on: the sets the fit used. has_std, has_count: whether the record had them.
+        validation: the held-out poses' compensation errors, when any. extra: further keys (``run_folder``,
+            ``drift_check``) stored as given.
+    """
+    path = Path(poses_file)
+    out: dict[str, Any] = dict(extra)
+    if validation is not None:
+        out["validation"] = dict(validation)
+    out["input"] = {
+        "file": str(path),
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "poses": len(sets),
+        "sets": {name: list(sets).count(name) for name in sorted(set(sets))},
+        "identified_on": list(identified_on),
+        "has_std": bool(has_std),
+        "has_count": bool(has_count),
+    }
+    return out
 
 
 def _array(path: Path, document: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:

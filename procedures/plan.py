@@ -18,17 +18,19 @@ a long detour back to the region the tour has left. Identification and validatio
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
-from ftacq.errors import ConfigError, PlanError
+from ftacq.errors import PlanError
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
+from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 from procedures.collision import CollisionChecker
 from procedures.ik import TWO_PI, Branch, IKResult, branch_of, solve_ik_branches, wrap_near
-from procedures.poses import MOUNTS, PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
+from procedures.plan_settings import PlanSettings
+from procedures.poses import PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
 
 PLAN_FORMAT_VERSION = 1
 
@@ -37,9 +39,10 @@ DEFAULT_CENTER_FRACTION: dict[str, tuple[float, float, float]] = {
     "wall": (-0.40, -0.50, 0.45),
     "ceiling": (-0.10, -0.35, 0.75),
 }
-"""Default pose-set centre per mount, as a fraction of the arm's reach |a2| + |a3| (UR5e floor: (−0.245, −0.368,
-0.368) m). Chosen so that all 24 cube rotations and the 40° cone are reachable without collision, with the wrist
-clear of singularities, for every model in the table with a 0.05 × 0.1 m tool."""
+"""Default pose-set centre per mount (every name of :data:`ftacq.mounts.MOUNTS`), as a fraction of the arm's reach
+|a2| + |a3| (UR5e floor: (−0.245, −0.368, 0.368) m). Chosen so that all 24 cube rotations and the 40° cone are
+reachable without collision, with the wrist clear of singularities, for every model in the table with a
+0.05 × 0.1 m tool, except the CB3 UR3 and UR5 whose short wrists need a slimmer tool (UR5: 0.045 m) for all 24."""
 MODEL_CENTER_FRACTION: dict[tuple[str, str], tuple[float, float, float]] = {
     ("UR3e", "floor"): (-0.30, -0.45, 0.55),
     ("UR3", "floor"): (-0.30, -0.45, 0.50),
@@ -51,10 +54,6 @@ ALTERNATIVE_CENTER_FRACTIONS: tuple[tuple[float, float, float], ...] = (
 )
 """Tried in this order when no centre is given and the mount's default does not reach every pose."""
 
-MAX_JOINT_ACCELERATION_RAD_S2 = 10.0
-"""The largest joint acceleration a plan accepts (the UR controllers allow more; calibration needs no more)."""
-MIN_IDENTIFICATION_POSES = 12
-"""Fewest identification poses (A + E) a plan may proceed with."""
 COLLIDING_EDGE_PENALTY_RAD = 1e3
 """Cost added to a joint move that failed the path check, so the 2-opt avoids it."""
 PLANNING_HYSTERESIS_M = 0.002
@@ -68,133 +67,6 @@ MAX_REVISIT_ROTATIONS = 40
 MAX_CENTERS_PLANNED = 3
 """When no centre is given: how many candidate centres (best static reachability first) are ordered and checked."""
 MAX_2OPT_PASSES = 50
-
-
-def _as_tuple(value, shape_name: str, length: int | None = None):
-    if value is None:
-        return None
-    arr = np.asarray(value, dtype=float)
-    if length is not None and arr.shape != (length,):
-        raise ConfigError(f"{shape_name} must have {length} numbers, got {arr.tolist()!r}")
-    if not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{shape_name} must be finite, got {arr.tolist()!r}")
-    if arr.ndim == 1:
-        return tuple(float(v) for v in arr)
-    return tuple(tuple(float(v) for v in row) for row in arr)
-
-
-@dataclass(frozen=True)
-class PlanSettings:
-    """Everything the plan depends on (SI units; the ``[poses]``, ``[tool]`` and ``[robot]`` parts of CELL.toml).
-
-    Attributes:
-        model: UR model name ("UR5e"…). mount: "floor", "wall" or "ceiling".
-        center_m: centre of the pose sets in the base frame (3,), m; None = the model's and mount's default
-            (:func:`default_center_m`, and alternatives if that does not reach every pose).
-        special: include the 24 special orientations (A set). random_count: size of the E set.
-        validation_count: size of the V set. cone_half_angle_deg: cone of the E and V tool axes, degrees.
-        nominal_rotvec: nominal orientation of the cone (rotation vector of base_R_flange, rad); None = tool down.
-        position_jitter_m: E/V positions move uniformly within ± this per axis, m. seed: random seed.
-        tool_radius_m, tool_length_m: bounding cylinder of sensor + tool along the flange z axis, m.
-        table_margin_m: clearance above the mounting surface, m.
-        joint_speed_rad_s, joint_acceleration_rad_s2: moveJ speed and acceleration.
-        settle_time_s: expected settle time per pose (estimate only). average_time_s: averaging time per pose.
-        explicit_poses: extra user poses (N, 6) [x, y, z, rx, ry, rz] used for identification, or None.
-        min_identification_poses: fewest A + E poses to proceed. require_srom: refuse unless all 24 A remain.
-        drift_check: the executor revisits the first pose at the end (counted in the duration estimate).
-        clearance_m: link-link and tool-link clearance beyond the capsule radii, m.
-    """
-
-    model: str = "UR5e"
-    mount: str = "floor"
-    center_m: tuple[float, float, float] | None = None
-    special: bool = True
-    random_count: int = 24
-    validation_count: int = 12
-    cone_half_angle_deg: float = 40.0
-    nominal_rotvec: tuple[float, float, float] | None = None
-    position_jitter_m: float = 0.0
-    seed: int = 0
-    tool_radius_m: float = 0.045
-    tool_length_m: float = 0.1
-    table_margin_m: float = 0.02
-    joint_speed_rad_s: float = 1.0
-    joint_acceleration_rad_s2: float = 1.4
-    settle_time_s: float = 1.0
-    average_time_s: float = 0.5
-    explicit_poses: tuple[tuple[float, ...], ...] | None = None
-    min_identification_poses: int = MIN_IDENTIFICATION_POSES
-    require_srom: bool = False
-    drift_check: bool = True
-    clearance_m: float = 0.01
-
-    def __post_init__(self) -> None:
-        set_ = object.__setattr__
-        set_(self, "center_m", _as_tuple(self.center_m, "poses.center_m", 3))
-        set_(self, "nominal_rotvec", _as_tuple(self.nominal_rotvec, "poses.nominal_rotvec", 3))
-        if self.explicit_poses is not None:
-            try:
-                pose_set = explicit_poses(np.asarray(self.explicit_poses, dtype=float).reshape(-1, 6)
-                                          if np.size(self.explicit_poses) else np.empty((0, 6)))
-            except ValueError as exc:
-                raise ConfigError(f"poses.explicit: {exc}") from exc
-            set_(self, "explicit_poses", tuple(tuple(float(v) for v in row) for row in pose_set.poses))
-        self.validate()
-
-    def validate(self) -> None:
-        """Raise ConfigError naming the key, the value and the allowed range for the first bad value."""
-        try:
-            model = ur_model(self.model)
-        except ValueError as exc:
-            raise ConfigError(f"robot.model = {self.model!r}: {exc}") from exc
-        if self.mount not in MOUNTS:
-            raise ConfigError(f"robot.mount = {self.mount!r}: must be one of {', '.join(MOUNTS)}")
-        checks = [
-            ("poses.random_count", self.random_count, 0, 1000),
-            ("poses.validation_count", self.validation_count, 0, 1000),
-            ("poses.cone_half_angle_deg", self.cone_half_angle_deg, 0.0, 90.0),
-            ("poses.position_jitter_m", self.position_jitter_m, 0.0, 0.5),
-            ("tool.radius_m", self.tool_radius_m, 0.0, 0.5),
-            ("tool.length_m", self.tool_length_m, 0.0, 1.0),
-            ("robot.table_margin_m", self.table_margin_m, 0.0, 0.5),
-            ("robot.joint_speed_rad_s", self.joint_speed_rad_s, 1e-3, min(model.max_joint_speed_rad_s)),
-            ("robot.joint_acceleration_rad_s2", self.joint_acceleration_rad_s2, 1e-3, MAX_JOINT_ACCELERATION_RAD_S2),
-            ("sampling.settle_time_s", self.settle_time_s, 0.0, 600.0),
-            ("sampling.average_time_s", self.average_time_s, 0.0, 600.0),
-            ("poses.min_identification_poses", self.min_identification_poses, 1, 10000),
-            ("robot.clearance_m", self.clearance_m, 0.0, 0.5),
-        ]
-        for key, value, low, high in checks:
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
-                    or not low <= value <= high:
-                raise ConfigError(f"{key} = {value!r}: must be a number in [{low:g}, {high:g}]")
-        for key in ("random_count", "validation_count", "seed", "min_identification_poses"):
-            if not isinstance(getattr(self, key), (int, np.integer)) or isinstance(getattr(self, key), bool):
-                raise ConfigError(f"poses.{key} = {getattr(self, key)!r}: must be an integer")
-        if not (self.special or self.random_count or self.explicit_poses):
-            raise ConfigError("poses: no identification poses (special = false, random_count = 0, no explicit poses)")
-
-    @property
-    def ur(self) -> URModel:
-        """The UR model these settings name."""
-        return ur_model(self.model)
-
-    def to_dict(self) -> dict:
-        """Return a JSON-ready dict of the settings."""
-        out = asdict(self)
-        for key, value in out.items():
-            if isinstance(value, tuple):
-                out[key] = json.loads(json.dumps(value))
-        return out
-
-    @staticmethod
-    def from_dict(data: dict) -> "PlanSettings":
-        """Rebuild settings from :meth:`to_dict`; unknown keys raise ConfigError naming them."""
-        known = {f.name for f in fields(PlanSettings)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"plan settings: unknown key(s) {', '.join(unknown)}")
-        return PlanSettings(**data)
 
 
 @dataclass(frozen=True, eq=False)
@@ -242,7 +114,7 @@ class Plan:
     @property
     def srom_ready(self) -> bool:
         """True when all 24 special poses (A01…A24) are in the plan (the SROM closed form needs all of them)."""
-        return sum(1 for s in self.set_names if s == "A") == 24
+        return sum(1 for s in self.set_names if s == SPECIAL_SET) == 24
 
     def indices(self, set_name: str) -> np.ndarray:
         """Return the plan indices of the poses of one set ("A", "E" or "V")."""
@@ -458,12 +330,12 @@ def build_pose_set(settings: PlanSettings, center_m: np.ndarray) -> PoseSet:
         out = out + special_poses(center_m)
     if settings.random_count:
         out = out + random_cone_poses(settings.random_count, settings.cone_half_angle_deg, nominal, center_m,
-                                      settings.position_jitter_m, settings.seed, "E", settings.mount)
+                                      settings.position_jitter_m, settings.seed, RANDOM_SET, settings.mount)
     if settings.explicit_poses:
         out = out + explicit_poses(np.array(settings.explicit_poses))
     if settings.validation_count:
         out = out + random_cone_poses(settings.validation_count, settings.cone_half_angle_deg, nominal, center_m,
-                                      settings.position_jitter_m, settings.seed, "V", settings.mount)
+                                      settings.position_jitter_m, settings.seed, VALIDATION_SET, settings.mount)
     return out
 
 
@@ -522,11 +394,11 @@ def _static_check(checker: CollisionChecker, result: IKResult) -> tuple[np.ndarr
 def _minimum_problems(settings: PlanSettings, candidate: _Candidate, keep: list[bool]) -> list[str]:
     """Return why the kept poses are not enough (empty = enough)."""
     names = candidate.poses.set_names
-    n_ident = sum(1 for k, s in zip(keep, names) if k and s in ("A", "E"))
-    n_a = sum(1 for k, s in zip(keep, names) if k and s == "A")
-    n_v = sum(1 for k, s in zip(keep, names) if k and s == "V")
+    n_ident = sum(1 for k, s in zip(keep, names) if k and s in IDENTIFICATION_SETS)
+    n_a = sum(1 for k, s in zip(keep, names) if k and s == SPECIAL_SET)
+    n_v = sum(1 for k, s in zip(keep, names) if k and s == VALIDATION_SET)
     problems = []
-    need = min(settings.min_identification_poses, sum(1 for s in names if s in ("A", "E")))
+    need = min(settings.min_identification_poses, sum(1 for s in names if s in IDENTIFICATION_SETS))
     if n_ident < need:
         problems.append(f"only {n_ident} identification poses (A + E) remain, at least {need} needed")
     if settings.require_srom and settings.special and n_a < 24:
@@ -854,16 +726,16 @@ def _minutes(seconds: float) -> str:
 def format_plan(plan: Plan) -> str:
     """Return the plan as text for the terminal: poses per set, rejected poses, duration, travel, limits."""
     s = plan.settings
-    counts = {name: sum(1 for x in plan.set_names if x == name) for name in ("A", "E", "V")}
-    wanted = {"A": 24 if s.special else 0,
-              "E": s.random_count + (len(s.explicit_poses) if s.explicit_poses else 0),
-              "V": s.validation_count}
+    counts = {name: sum(1 for x in plan.set_names if x == name) for name in PLANNED_SETS}
+    wanted = {SPECIAL_SET: 24 if s.special else 0,
+              RANDOM_SET: s.random_count + (len(s.explicit_poses) if s.explicit_poses else 0),
+              VALIDATION_SET: s.validation_count}
     lines = [
         f"Pose plan for {s.model} ({s.mount} mount), centre "
         f"({', '.join(f'{v:+.3f}' for v in plan.center_m)}) m, IK branch {plan.branch}",
         f"  tool cylinder r = {s.tool_radius_m:.3f} m, length {s.tool_length_m:.3f} m; "
         f"mounting-surface margin {s.table_margin_m * 1000:.0f} mm",
-        "  poses: " + ", ".join(f"{name} {counts[name]}/{wanted[name]}" for name in ("A", "E", "V") if wanted[name])
+        "  poses: " + ", ".join(f"{name} {counts[name]}/{wanted[name]}" for name in PLANNED_SETS if wanted[name])
         + f"  (total {len(plan)})",
         "  SROM closed form: " + ("available (all 24 special poses)" if plan.srom_ready
                                    else "not available (LROM + refinement only)"),

@@ -19,11 +19,17 @@ import numpy as np
 
 from ftacq import __version__
 from ftacq.fileio import atomic_write
+from ftacq.posesets import POSE_SETS, set_colour_rgb
 
 CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 UNITS = ("N", "N", "N", "N·m", "N·m", "N·m")
-SET_COLOURS = {"A": "tab:blue", "E": "tab:orange", "V": "tab:green", "D": "tab:red", "": "tab:gray"}
 FIGURE_DPI = 110
+
+
+def _colour(set_name: str) -> tuple[float, float, float]:
+    """The matplotlib colour (0-1 RGB) of a pose set (:mod:`ftacq.posesets`)."""
+    r, g, b = set_colour_rgb(set_name)
+    return (r / 255.0, g / 255.0, b / 255.0)
 
 
 def _pyplot():
@@ -46,7 +52,7 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
     plt = _pyplot()
     fig, axes = plt.subplots(6, 2, figsize=(12, 12), sharex=True)
     x = np.arange(len(labels))
-    colours = [SET_COLOURS.get(s, "tab:gray") for s in sets]
+    colours = [_colour(s) for s in sets]
     for k in range(6):
         for col, (data, title) in enumerate(((raw, "raw mean"), (compensated, "compensated"))):
             ax = axes[k, col]
@@ -54,7 +60,11 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
             ax.axhline(0.0, color="black", lw=0.5)
             ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
             if k == 0:
-                ax.set_title(f"{title} (colour = set: A blue, E orange, V green, D red)")
+                ax.set_title(f"{title} (colour = pose set)")
+    for name in sorted(set(sets), key=lambda s: list(POSE_SETS).index(s) if s in POSE_SETS else len(POSE_SETS)):
+        kind = POSE_SETS.get(name)
+        axes[0, 1].scatter([], [], color=_colour(name), s=12, label=f"{name}: {kind.title}" if kind else name or "?")
+    axes[0, 1].legend(loc="upper right", fontsize="small")
     for ax in axes[-1]:
         ax.set_xlabel("pose (execution order)")
     fig.tight_layout()

@@ -13,7 +13,8 @@ from ftacq.posefile import POSE_CSV_HEADER, read_pose_csv
 from procedures import events
 from procedures.calibration import Identify, Measure, Move, Validate, calibration_steps, count_measurements
 from procedures.plan import Plan, PlanSettings
-from procedures.run_folder import RUN_JSON, RunFolder, RunFolderWriter, drift_label
+from procedures.measured import drift_label
+from procedures.run_folder import RUN_JSON, RunFolder, RunFolderWriter
 
 LABELS = ("A01", "E01", "V01", "E02")
 SETS = ("A", "E", "V", "E")

@@ -39,13 +39,13 @@ from ftacq.identification.refine import (
     predict,
 )
 from ftacq.identification.srom import DEFAULT_SPECIAL_TOLERANCE_DEG, match_special, missing_special, srom_gravity_base
-from ftacq.identification.tilt import MOUNT_TILT_DEG, nearest_mount, relative_tilt_deg, tilt_deg, tilt_jacobian_deg
+from ftacq.identification.tilt import nearest_mount, relative_tilt_deg, tilt_deg, tilt_jacobian_deg
 from ftacq.identification.torque import torque_least_squares
 from ftacq.identification.wahba import wahba
+from ftacq.mounts import MOUNTS
 from ftacq.posefile import PoseRecord
 
 METHODS = ("auto", "srom", "lrom")
-MOUNTS = tuple(MOUNT_TILT_DEG)
 CLOSED_FORM_ROBUST_PASSES = 3
 """Closed-form re-solves with robust weights when a pose looks disturbed."""
 MAX_ROBUST_ITERATIONS = 40

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from ftacq.errors import AbortedError, InputError
+from ftacq.mounts import MOUNTS
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help=f"simulated time runs X times faster than real time (0 = instant moves; default "
                           f"{DEFAULT_SIM_TIME_SCALE:g}); settle and averaging times shrink by the same factor")
     sim.add_argument("--model", default="UR5e", help="simulated UR model without --config (default %(default)s)")
-    sim.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor",
+    sim.add_argument("--mount", choices=MOUNTS, default=MOUNTS[0],
                      help="simulated mount without --config (default %(default)s)")
     viewer = parser.add_argument_group("live view")
     viewer.add_argument("--rerun", action="store_true",
@@ -265,21 +266,12 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, m
     return DashboardListener(Dashboard(recording), model=model)
 
 
-def _input_summary(folder, result) -> dict:
-    import hashlib
-
-    poses = folder.poses_csv
-    sets = [m.set_name for m in result.measured.values()]
-    return {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(), "poses": len(sets),
-            "sets": {name: sets.count(name) for name in sorted(set(sets))}, "identified_on": ["A", "E"],
-            "has_std": True, "has_count": True}
-
-
 def _finish(args, folder, plan, config, result, cell) -> int:
     """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
     import numpy as np
 
-    from ftacq.calfile import save_calibration
+    from ftacq.calfile import provenance, save_calibration
+    from ftacq.posesets import IDENTIFICATION_SETS
     from procedures.report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
@@ -288,14 +280,14 @@ def _finish(args, folder, plan, config, result, cell) -> int:
         calibration = result.identification.calibration
         from dataclasses import replace
 
-        metadata = dict(calibration.metadata)
-        metadata["run_folder"] = str(folder.path)
-        if result.validation is not None:
-            metadata["validation"] = validation_dict(result.validation)
-        metadata["input"] = _input_summary(folder, result)
+        extra = {}
         if result.drift is not None:
-            metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
-                                       "elapsed_s": result.drift.elapsed_s}
+            extra["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
+                                    "elapsed_s": result.drift.elapsed_s}
+        sets = [m.set_name for m in result.measured.values()]
+        metadata = {**calibration.metadata, **provenance(
+            folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True, run_folder=str(folder.path),
+            validation=None if result.validation is None else validation_dict(result.validation), **extra)}
         calibration = replace(calibration, metadata=metadata)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:

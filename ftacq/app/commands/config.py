@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_init(args: argparse.Namespace) -> int:
     """Write the example configuration; refuse to overwrite without --force."""
-    from ftacq.app.config import example_config_text
+    from ftacq.app.config import EDIT_MARK, SCHEMA, example_config_text
     from ftacq.fileio import atomic_write
 
     path: Path = args.path
@@ -46,7 +46,8 @@ def run_init(args: argparse.Namespace) -> int:
         raise InputError(f"{path}: is a folder; give a file name such as {path / DEFAULT_CONFIG_PATH}")
     with atomic_write(path) as handle:
         handle.write(example_config_text())
-    print(f"wrote {path}: edit robot.host, robot.model, sensor.url and the tool cylinder, then run "
+    to_edit = ", ".join(key.key for keys in SCHEMA.values() for key in keys.values() if key.edit)
+    print(f"wrote {path}: set the keys marked {EDIT_MARK} for your cell ({to_edit}), then run "
           f"`ftacq calibrate --config {path} --dry-run` to check the plan", file=sys.stderr)
     return 0
 

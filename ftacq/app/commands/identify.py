@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 from pathlib import Path
 
-HELD_OUT_SETS = ("V", "D")
-"""Poses of these sets (column ``set``: V validation, D the procedure's drift-check revisit) are held out of the
-fit, as the calibration procedure does, and used to report the compensation error."""
+from ftacq.mounts import MOUNTS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -29,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
     parser.add_argument(
         "--mount",
-        choices=("floor", "wall", "ceiling"),
+        choices=MOUNTS,
         help="nominal robot mount: also report the base tilt relative to it",
     )
     parser.add_argument(
@@ -59,17 +56,19 @@ def run(args: argparse.Namespace) -> int:
     """Identify, print the report, write the calibration; return the exit status."""
     import numpy as np
 
-    from ftacq.calfile import save_calibration
-    from ftacq.calibration import Calibration
+    from dataclasses import replace
+
+    from ftacq.calfile import provenance, save_calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
     from ftacq.posefile import read_pose_csv
+    from ftacq.posesets import is_identified_on
     from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.report import format_identification_report, validation_errors
 
     path = Path(args.poses)
     record = read_pose_csv(path)
-    held_out = np.array([name.strip().upper() in HELD_OUT_SETS for name in record.sets])
+    held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
     validation = None
     fit_record = record
     if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
@@ -86,26 +85,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{path}: cannot identify a calibration: {error}") from error
     if fit_record is not record:
         validation = validation_errors(result.calibration, record.select(held_out))
-    metadata = dict(result.calibration.metadata)
-    if validation is not None:
-        metadata["validation"] = validation
-    metadata["input"] = {
-        "file": str(path),
-        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
-        "poses": len(record),
-        "sets": {name: record.sets.count(name) for name in sorted(set(record.sets))},
-        "has_std": record.std is not None,
-        "has_count": record.count is not None,
-    }
-    calibration = Calibration(
-        sensor_rotation=result.calibration.sensor_rotation,
-        force_bias=result.calibration.force_bias,
-        torque_bias=result.calibration.torque_bias,
-        gravity_base=result.calibration.gravity_base,
-        center_of_mass=result.calibration.center_of_mass,
-        uncertainty=result.calibration.uncertainty,
-        metadata=metadata,
-    )
+    metadata = {**result.calibration.metadata,
+                **provenance(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
+                             has_count=record.count is not None, validation=validation)}
+    calibration = replace(result.calibration, metadata=metadata)
     report = format_identification_report(result, validation=validation)
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
