@@ -18,7 +18,7 @@ import signal
 import sys
 from pathlib import Path
 
-from ftacq.errors import AbortedError, InputError
+from ftacq.errors import AbortedError, InputError, InterruptedByUser
 from ftacq.mounts import MOUNTS
 
 log = logging.getLogger(__name__)
@@ -304,7 +304,7 @@ def _finish(args, folder, plan, config, result, cell) -> int:
                 f"the robot was stopped; {kept} measured poses are kept in {folder.path / 'poses.csv'}\n"
                 f"resume with: {resume}")
         if result.interrupted:
-            text = "interrupted: " + text
+            raise InterruptedByUser("interrupted: " + text) from result.error
         raise AbortedError(text) from result.error
     print("")
     if result.identification is not None:
