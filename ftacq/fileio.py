@@ -1,6 +1,7 @@
 """Atomic file writing: nothing half written, ever.
 
-Write to a temporary file in the destination folder, flush and fsync it, then rename it over the target.
+Write to a temporary file in the destination folder, flush and fsync it, then rename it over the target. The file
+gets mode 0644 (owner writes, everyone reads), not the temporary file's private 0600.
 """
 
 from __future__ import annotations
@@ -10,6 +11,9 @@ import os
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
+
+FILE_MODE = 0o644
+"""Mode of every file written (mkstemp's temporary file is 0600)."""
 
 
 @contextlib.contextmanager
@@ -25,6 +29,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", encoding: str | None 
         with os.fdopen(fd, mode, encoding=None if "b" in mode else encoding, newline=None if "b" in mode else "") as handle:
             yield handle
             handle.flush()
+            os.fchmod(handle.fileno(), FILE_MODE)
             os.fsync(handle.fileno())
         os.replace(tmp_name, target)
     except BaseException:

@@ -17,7 +17,7 @@ configured model. Units are SI (m, rad, s, N, N·m; degrees only in keys ending 
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, Field, dataclass, field, fields, replace
+from dataclasses import Field, dataclass, field, fields, replace
 from typing import Any, Callable, TypeVar
 
 import numpy as np
