@@ -56,7 +56,7 @@ def good_document():
 @pytest.mark.parametrize(
     "change, expected",
     [
-        (lambda d: d.update(version=2), "reads calibration version 1, the file has 2"),
+        (lambda d: d.update(version=3), "reads calibration versions 1, 2, the file has 3"),
         (lambda d: d.pop("version"), "the file has None"),
         (lambda d: d.update(format="other"), "key 'format'"),
         (lambda d: d.pop("torque_bias"), "missing required key 'torque_bias'"),
@@ -116,16 +116,20 @@ def test_writer_table_writes_every_format_atomically(tmp_path, identified, monke
     assert not (tmp_path / "x").exists()
 
 
-def test_provenance_names_the_input_and_what_was_identified_on(tmp_path):
+def test_provenance_names_the_input_and_what_was_identified_on(tmp_path, identified):
     import hashlib
 
-    from ftacq.calfile import provenance
+    from ftacq.provenance import input_record, with_provenance
 
     poses = tmp_path / "poses.csv"
     poses.write_text("label,set\nA01,A\n", encoding="utf-8")
-    meta = provenance(poses, ["A", "A", "E", "V"], ["A", "E"], has_std=True, has_count=False,
-                      validation={"rms": [0.0] * 6}, run_folder="runs/x")
-    assert meta["input"] == {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(),
-                             "poses": 4, "sets": {"A": 2, "E": 1, "V": 1}, "identified_on": ["A", "E"],
-                             "has_std": True, "has_count": False}
-    assert meta["validation"] == {"rms": [0.0] * 6} and meta["run_folder"] == "runs/x"
+    record = input_record(poses, ["A", "A", "E", "V"], ["A", "E"], has_std=True, has_count=False)
+    assert record == {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(), "poses": 4,
+                      "sets": {"A": 2, "E": 1, "V": 1}, "identified_on": ["A", "E"], "has_std": True,
+                      "has_count": False}
+    calibration = with_provenance(identified, None, None, input=record, run_folder="runs/x", validation=None)
+    assert calibration.metadata["input"] == record and calibration.metadata["run_folder"] == "runs/x"
+    assert "validation" not in calibration.metadata and calibration.metadata["bias_history"]
+    path = tmp_path / "cal.json"
+    save_calibration(path, calibration)
+    assert load_calibration(path).metadata["input"]["identified_on"] == ["A", "E"]

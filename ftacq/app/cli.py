@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     "ftacq.app.commands.calibrate",
     "ftacq.app.commands.config",
     "ftacq.app.commands.monitor",
+    "ftacq.app.commands.tare",
 )
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141

@@ -244,7 +244,7 @@ def _run(args: argparse.Namespace) -> int:
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell)
+        return _finish(args, folder, plan, config, result, cell, sensor.info)
 
 
 def _as_dict(sampling) -> dict:
@@ -266,29 +266,29 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, m
     return DashboardListener(Dashboard(recording), model=model)
 
 
-def _finish(args, folder, plan, config, result, cell) -> int:
+def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
     """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
     import numpy as np
 
-    from ftacq.calfile import provenance, save_calibration
+    from ftacq.calfile import save_calibration
     from ftacq.posesets import IDENTIFICATION_SETS
+    from ftacq.provenance import input_record, with_provenance
     from procedures.report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
     truth = cell.truth.calibration() if cell is not None else None
     if result.identification is not None:
         calibration = result.identification.calibration
-        from dataclasses import replace
-
-        extra = {}
+        drift_check = None
         if result.drift is not None:
-            extra["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
-                                    "elapsed_s": result.drift.elapsed_s}
+            drift_check = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
+                           "elapsed_s": result.drift.elapsed_s}
         sets = [m.set_name for m in result.measured.values()]
-        metadata = {**calibration.metadata, **provenance(
-            folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True, run_folder=str(folder.path),
-            validation=None if result.validation is None else validation_dict(result.validation), **extra)}
-        calibration = replace(calibration, metadata=metadata)
+        calibration = with_provenance(
+            calibration, sensor_info, getattr(config.tool, "name", None), run_folder=str(folder.path),
+            validation=None if result.validation is None else validation_dict(result.validation),
+            input=input_record(folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True),
+            drift_check=drift_check)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,

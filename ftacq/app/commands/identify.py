@@ -56,13 +56,12 @@ def run(args: argparse.Namespace) -> int:
     """Identify, print the report, write the calibration; return the exit status."""
     import numpy as np
 
-    from dataclasses import replace
-
-    from ftacq.calfile import provenance, save_calibration
+    from ftacq.calfile import save_calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
     from ftacq.posefile import read_pose_csv
     from ftacq.posesets import is_identified_on
+    from ftacq.provenance import input_record, with_provenance
     from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.report import format_identification_report, validation_errors
 
@@ -85,10 +84,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{path}: cannot identify a calibration: {error}") from error
     if fit_record is not record:
         validation = validation_errors(result.calibration, record.select(held_out))
-    metadata = {**result.calibration.metadata,
-                **provenance(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
-                             has_count=record.count is not None, validation=validation)}
-    calibration = replace(result.calibration, metadata=metadata)
+    calibration = with_provenance(  # a pose file does not say which sensor measured it
+        result.calibration, None, None, validation=validation,
+        input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
+                           has_count=record.count is not None))
     report = format_identification_report(result, validation=validation)
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
