@@ -172,12 +172,13 @@ def _run(args: argparse.Namespace) -> int:
         note = check_sensor(calibration, sensor.info, args.force)
         if note:
             print(note, file=sys.stderr, flush=True)
+        sampled = config.replace_section("sampling", **_as_dict(sampling))
         if plan is None:
             print("taring at the current pose (the robot does not move): keep the arm still and the tool untouched",
                   flush=True)
-            result = tare_here(robot, sensor, calibration, SettleSettings.from_sampling(sampling))
+            result = tare_here(robot, sensor, calibration, SettleSettings.from_config(sampled))
         else:
-            options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
+            options = ProcedureOptions.from_config(sampled)
             procedure = TareProcedure(plan, robot, sensor, calibration, options)
             outcome = procedure.run()
             if outcome.status != "done" or procedure.result is None:
