@@ -26,7 +26,7 @@ from ftacq.calibration import Calibration
 from ftacq.errors import IdentificationError
 from ftacq.so3 import rotation_from_rotvec
 from procedures import events
-from procedures.calibration import CalibrationProcedure, ProcedureOptions
+from procedures.calibration_procedure import CalibrationProcedure, ProcedureOptions
 from procedures.settle import SettleSettings, average_at_pose, wait_until_settled
 
 log = logging.getLogger(__name__)

@@ -10,7 +10,7 @@ import pytest
 from ftacq.app.cli import EXIT_BAD_INPUT, main
 from ftacq.app.config import EDIT_MARK, SCHEMA, CellConfig, config_from_dict, example_config_text, load_config
 from ftacq.errors import ConfigError
-from procedures.calibration import ProcedureOptions
+from procedures.calibration_procedure import ProcedureOptions
 from procedures.plan_settings import PlanSettings
 from procedures.settle import SettleSettings
 

@@ -12,8 +12,9 @@ from ftacq.so3 import rotation_from_rotvec
 from procedures.ik import branch_of
 from procedures.plan import (
     Plan, PlanSettings, check_path, default_center_m, format_plan, home_configuration_rad, make_plan,
-    nearest_neighbour_order, trapezoid_time_s, two_opt,
+    trapezoid_time_s,
 )
+from procedures.tour import nearest_neighbour_order, two_opt
 
 HOME = home_configuration_rad()
 POSE_TOLERANCE = 1e-9

@@ -11,7 +11,7 @@ from ftacq.app.config import CellConfig
 from ftacq.errors import InputError
 from ftacq.posefile import POSE_CSV_HEADER, read_pose_csv
 from procedures import events
-from procedures.calibration import Identify, Measure, Move, Validate, calibration_steps, count_measurements
+from procedures.calibration_procedure import Identify, Measure, Move, Validate, calibration_steps, count_measurements
 from procedures.plan import Plan, PlanSettings
 from procedures.measured import drift_label
 from procedures.run_folder import RUN_JSON, RunFolder, RunFolderWriter
@@ -178,8 +178,8 @@ def test_calibrate_needs_a_source(capsys):
 
 
 def test_report_of_a_failed_run_lists_what_was_measured(tmp_path):
-    from procedures.calibration import ProcedureResult
-    from procedures.report import write_report
+    from procedures.calibration_procedure import ProcedureResult
+    from procedures.run_report import write_report
 
     folder = RunFolder.create(tmp_path, CellConfig().to_dict(), small_plan().to_json(), name="r")
     folder.append_pose(measured_event(0))

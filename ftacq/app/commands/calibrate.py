@@ -137,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.app.config import config_from_dict, load_config
-    from procedures.calibration import CalibrationProcedure, Move, ProcedureOptions, calibration_steps, \
+    from procedures.calibration_procedure import CalibrationProcedure, Move, ProcedureOptions, calibration_steps, \
         check_steps, count_measurements
     from procedures.plan import Plan, format_plan, make_plan
     from procedures.progress import ProgressListener
@@ -276,7 +276,7 @@ def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
     from ftacq.calfile import save_calibration
     from ftacq.posesets import IDENTIFICATION_SETS
     from ftacq.provenance import input_record, with_provenance
-    from procedures.report import format_truth_comparison, validation_dict, write_report
+    from procedures.run_report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
     truth = cell.truth.calibration() if cell is not None else None

@@ -166,7 +166,7 @@ def format_truth_comparison(calibration, truth) -> str:
 
 
 def write_report(folder: Path, result, plan, config: dict, *, truth=None, title: str = "ftacq calibration") -> Path:
-    """Write ``report.md`` and its PNGs into ``folder`` for a :class:`procedures.calibration.ProcedureResult`.
+    """Write ``report.md`` and its PNGs into ``folder`` for a :class:`procedures.calibration_procedure.ProcedureResult`.
 
     Returns the report's path. Plots need identification; without it the report lists what was measured.
     """
