@@ -9,7 +9,8 @@ whose fields are declared with :func:`setting`. Everything else is derived from 
   ``procedures.calibration_procedure.ProcedureOptions`` take their defaults and checks from them
   (:func:`from_setting`), so a default or a range is written in one place only.
 
-Adding a key is one :func:`setting` line in its section. A bound that depends on the robot model (the joint
+Adding a key is one :func:`setting` line in its section (an optional key with no default:
+``setting(None, help, kind="str", optional=True)``; it is absent, None, unless the file sets it). A bound that depends on the robot model (the joint
 speed) is a function of the :class:`ftacq.kinematics.URModel` (``model_high``), checked and shown for the
 configured model. Units are SI (m, rad, s, N, N·m; degrees only in keys ending ``_deg``).
 """
