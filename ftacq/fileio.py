@@ -1,7 +1,7 @@
 """Atomic file writing: nothing half written, ever.
 
-Write to a temporary file in the destination folder, flush and fsync it, then rename it over the target. The file
-gets mode 0644 (owner writes, everyone reads), not the temporary file's private 0600.
+Write to a temporary file in the destination folder, flush and fsync it, then rename it over the target
+(mode 0644).
 """
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ import tempfile
 from pathlib import Path
 from typing import IO, Iterator
 
+
 FILE_MODE = 0o644
-"""Mode of every file written (mkstemp's temporary file is 0600)."""
+"""Permissions of every file written here (owner read-write, everyone else read)."""
 
 
 @contextlib.contextmanager
@@ -26,10 +27,10 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", encoding: str | None 
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
+        os.fchmod(fd, FILE_MODE)  # mkstemp creates 0600; a result file is readable by everyone, like any other
         with os.fdopen(fd, mode, encoding=None if "b" in mode else encoding, newline=None if "b" in mode else "") as handle:
             yield handle
             handle.flush()
-            os.fchmod(handle.fileno(), FILE_MODE)
             os.fsync(handle.fileno())
         os.replace(tmp_name, target)
     except BaseException:

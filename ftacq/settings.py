@@ -26,6 +26,7 @@ import numpy as np
 from ftacq.errors import ConfigError
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
 from ftacq.mounts import MOUNTS
+from ftacq.validation import shown
 
 KINDS = ("float", "int", "bool", "str", "vec3", "poses")
 """Value shapes: a number, an integer, true/false, a string, 3 numbers (or absent), a list of 6-number poses."""
@@ -107,16 +108,16 @@ class Setting:
             return self._number(where, value, self.kind == "int", model)
         if self.kind == "bool":
             if not isinstance(value, (bool, np.bool_)):
-                raise ConfigError(f"{where} = {value!r}: must be true or false")
+                raise ConfigError(f"{where} = {shown(value)}: must be true or false")
             return bool(value)
         if self.kind == "str":
             if not isinstance(value, str) or not value.strip():
-                raise ConfigError(f"{where} = {value!r}: must be a non-empty string ({self.help})")
+                raise ConfigError(f"{where} = {shown(value)}: must be a non-empty string ({self.help})")
             if self.choices:  # case-insensitive, returned as declared ("ur5e" → "UR5e")
                 for choice in self.choices:
                     if choice.lower() == value.strip().lower():
                         return choice
-                raise ConfigError(f"{where} = {value!r}: must be {self.range_text()}")
+                raise ConfigError(f"{where} = {shown(value)}: must be {self.range_text()}")
             return value.strip()
         if self.kind == "vec3":
             items = _as_list(value)
@@ -127,7 +128,7 @@ class Setting:
         if self.kind == "poses":
             rows = _as_list(value)
             if rows is None:
-                raise ConfigError(f"{where} = {value!r}: must be a list of poses [x, y, z, rx, ry, rz] (m, rad)")
+                raise ConfigError(f"{where} = {_shown(value)}: must be a list of poses [x, y, z, rx, ry, rz] (m, rad)")
             coordinate = Setting("float", 0.0, "", low=-POSE_COORDINATE_BOUND, high=POSE_COORDINATE_BOUND)
             out = []
             for i, row in enumerate(rows):
@@ -145,9 +146,10 @@ class Setting:
         number_types = (int, float, np.integer, np.floating)
         bad_type = isinstance(value, (bool, np.bool_)) or not isinstance(value, number_types) \
             or (integer and not isinstance(value, (int, np.integer)))
-        if bad_type or not math.isfinite(value) or (self.low is not None and value < self.low) \
-                or (high is not None and value > high):
-            raise ConfigError(f"{where} = {value!r}: must be {self.range_text(model)}")
+        # an int is compared exactly (math.isfinite would overflow on one too large for a float)
+        if bad_type or (not isinstance(value, (int, np.integer)) and not math.isfinite(value)) \
+                or (self.low is not None and value < self.low) or (high is not None and value > high):
+            raise ConfigError(f"{where} = {shown(value)}: must be {self.range_text(model)}")
         return int(value) if integer else float(value)
 
 
@@ -160,8 +162,9 @@ def _as_list(value: Any) -> list | None:
 
 
 def _shown(value: Any) -> str:
-    return repr(value.tolist() if isinstance(value, np.ndarray) else list(value) if isinstance(value, tuple)
-                else value)
+    """:func:`ftacq.validation.shown` of a value, with arrays and tuples shown as the lists a file would hold."""
+    return shown(value.tolist() if isinstance(value, np.ndarray) else list(value) if isinstance(value, tuple)
+                 else value)
 
 
 def _number_text(value: float | None, up: bool = False) -> str:

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ftacq.errors import ConfigError
+from ftacq.errors import ConfigError, InputError
 from ftacq.settings import (
     CELL_SETTINGS,
     SECTION_TYPES,
@@ -30,6 +30,7 @@ from ftacq.settings import (
     Setting,
     ToolConfig,
 )
+from ftacq.validation import shown
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -91,7 +92,7 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CellConfig
         if section not in SCHEMA:
             raise ConfigError(f"{source}: unknown section [{section}] (known: {', '.join(SCHEMA)})")
         if not isinstance(table, dict):
-            raise ConfigError(f"{source}: {section} = {table!r}: must be a table [{section}]")
+            raise ConfigError(f"{source}: {section} = {shown(table)}: must be a table [{section}]")
         for name in table:
             if name not in SCHEMA[section]:
                 raise ConfigError(f"{source}: unknown key {section}.{name} (known in [{section}]: "
@@ -112,7 +113,24 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CellConfig
     if config.sampling.settle_window_s > config.sampling.settle_timeout_s:
         raise ConfigError(f"{source}: sampling.settle_window_s = {config.sampling.settle_window_s!r}: must not "
                           f"exceed sampling.settle_timeout_s = {config.sampling.settle_timeout_s!r}")
+    check_sensor_url(config.sensor.url, f"{source}: sensor.url")
     return config
+
+
+def check_sensor_url(url: str, where: str) -> None:
+    """Parse the sensor URL as its driver will (scheme, host, port, query keys) without touching the network.
+
+    Builds the driver from the URL and drops it (drivers do no I/O before ``start()``); raises ConfigError naming
+    ``where`` and the URL, so ``ftacq config check`` and ``--dry-run`` refuse what the run would refuse.
+    """
+    from drivers.sensor import open_sensor
+
+    try:
+        open_sensor(url)
+    except InputError as error:
+        raise ConfigError(f"{where}: {error}") from None
+    except (ValueError, TypeError) as error:  # urllib's own parse errors, e.g. "Invalid IPv6 URL"
+        raise ConfigError(f"{where} = {shown(url)}: not a valid URL ({error})") from None
 
 
 def load_config(path: str | Path) -> CellConfig:
@@ -126,6 +144,10 @@ def load_config(path: str | Path) -> CellConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from error
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML: nested too deeply to read") from None
+    except ValueError as error:  # e.g. an integer of more than 4300 digits
+        raise ConfigError(f"{path}: cannot read a value: {error}") from None
     return config_from_dict(data, str(path))
 
 
