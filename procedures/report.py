@@ -41,14 +41,16 @@ def _save(fig, path: Path) -> None:
 
 
 def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str], raw: np.ndarray,
-                         compensated: np.ndarray) -> None:
-    """Write the raw and compensated mean wrench per pose (N, 6) as a 6-panel PNG."""
+                         compensated: np.ndarray | None) -> None:
+    """Write the raw and compensated mean wrench per pose (N, 6) as a 6-panel PNG (raw only when
+    ``compensated`` is None: a stopped or failed run has no calibration to compensate with)."""
     plt = _pyplot()
-    fig, axes = plt.subplots(6, 2, figsize=(12, 12), sharex=True)
+    columns = [(raw, "raw mean")] + ([] if compensated is None else [(compensated, "compensated")])
+    fig, axes = plt.subplots(6, len(columns), figsize=(6 * len(columns), 12), sharex=True, squeeze=False)
     x = np.arange(len(labels))
     colours = [SET_COLOURS.get(s, "tab:gray") for s in sets]
     for k in range(6):
-        for col, (data, title) in enumerate(((raw, "raw mean"), (compensated, "compensated"))):
+        for col, (data, title) in enumerate(columns):
             ax = axes[k, col]
             ax.scatter(x, data[:, k], c=colours, s=12)
             ax.axhline(0.0, color="black", lw=0.5)
@@ -196,6 +198,11 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
         plot_residuals(folder / "residuals.png", list(ident.labels), np.asarray(ident.residuals), ident.outliers)
         lines += ["## Raw and compensated wrench per pose", "", "![raw and compensated](wrench_per_pose.png)", "",
                   "## Identification residuals", "", "![residuals](residuals.png)", ""]
+    elif order:  # a stopped or failed run: the raw wrenches measured so far
+        raw = np.array([result.measured[label].mean for label in order])
+        sets = [result.measured[label].set_name for label in order]
+        plot_wrench_per_pose(folder / "wrench_per_pose.png", order, sets, raw, None)
+        lines += ["## Raw wrench per measured pose", "", "![raw wrench](wrench_per_pose.png)", ""]
     if result.validation is not None:
         v = result.validation
         lines += ["## Validation on held-out poses (V)", "",

@@ -104,7 +104,8 @@ def test_sigint_then_resume(tmp_path):
     out, err = process.communicate(timeout=EXIT_TIMEOUT_S)
     assert process.returncode == 130, err
     assert "interrupted" in err
-    assert f"resume with: ftacq calibrate --sim --resume {run_dir}" in err
+    resume_line = next(line for line in err.splitlines() if line.startswith("resume with: "))[len("resume with: "):]
+    assert resume_line.endswith(f"calibrate --sim --resume {run_dir}")
     assert "the robot was stopped" in err
     document = json.loads((run_dir / "run.json").read_text())
     assert document["status"] == "stopped" and "interrupted" in document["message"]
@@ -113,7 +114,10 @@ def test_sigint_then_resume(tmp_path):
     assert measured_before >= ROWS_BEFORE_INTERRUPT
     assert not (run_dir / "calibration.json").exists()
 
-    resumed = run_to_end(calibrate_command(tmp_path, "--resume", str(run_dir)))
+    # the printed command runs as printed in a fresh shell: another folder, no PYTHONPATH, the user's PATH
+    fresh_env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(tmp_path)}
+    resumed = subprocess.run(["bash", "-c", resume_line + " --yes --time-scale 0"], cwd="/", env=fresh_env,
+                             capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming {run_dir}: {measured_before} poses already measured" in resumed.stdout
     check_resumed(run_dir, before)

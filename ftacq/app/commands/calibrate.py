@@ -18,6 +18,7 @@ import signal
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError
 
 log = logging.getLogger(__name__)
@@ -36,7 +37,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(moveJ at the configured speed and acceleration), average the sensor at each still pose, "
                     "then identify and validate the calibration. Writes RUN_DIR/poses.csv (one row per pose, "
                     "as measured), run.json, calibration.json and report.md. Ctrl-C stops the robot and keeps "
-                    "the data; resume with --resume RUN_DIR.")
+                    "the data; resume with --resume RUN_DIR.",
+        **examples("ftacq calibrate --sim --yes  # the whole procedure on the simulated cell",
+                   "ftacq calibrate --config CELL.toml --dry-run  # print the checked plan, move nothing",
+                   "ftacq calibrate --resume runs/20260101-120000  # finish a stopped run"))
     parser.add_argument("--config", type=Path, metavar="CELL.toml",
                         help="cell configuration (ftacq config init); with --sim, its poses, sampling and robot "
                              "model are simulated (robot.host and sensor.url are replaced by the simulated cell's)")
@@ -140,8 +144,14 @@ def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.app.config import config_from_dict, load_config
-    from procedures.calibration import CalibrationProcedure, Move, ProcedureOptions, calibration_steps, \
-        check_steps, count_measurements
+    from procedures.calibration import (
+        CalibrationProcedure,
+        Move,
+        ProcedureOptions,
+        calibration_steps,
+        check_steps,
+        count_measurements,
+    )
     from procedures.plan import Plan, format_plan, make_plan
     from procedures.progress import ProgressListener
     from procedures.run_folder import RunFolder, RunFolderWriter
@@ -164,7 +174,10 @@ def _run(args: argparse.Namespace) -> int:
         if args.config:
             _err(f"note: --resume uses the configuration stored in {folder.path}/run.json; {args.config} is ignored")
         if sim_info and not args.sim:
-            raise InputError(f"{args.resume}: this run was made with --sim; resume it with --sim --resume {args.resume}")
+            from ftacq.app.hints import ftacq_command
+
+            raise InputError(f"{args.resume}: this run was made with --sim; resume it with: "
+                             + ftacq_command("calibrate", "--sim", "--resume", Path(args.resume)))
     elif args.sim:
         config = load_config(args.config) if args.config else _sim_config(args)
         plan = None
@@ -235,7 +248,10 @@ def _run(args: argparse.Namespace) -> int:
         _err(f"run folder: {folder.path}")
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
-        progress = ProgressListener(remaining, plan.estimated_duration_s / (max(time_scale, 1.0) if args.sim else 1))
+        total = count_measurements(plan, (), drift_check)
+        estimate_s = plan.estimated_duration_s * remaining / max(total, 1)
+        progress = ProgressListener(total, estimate_s / (max(time_scale, 1.0) if args.sim else 1),
+                                    done=total - remaining)
         stack.callback(progress.close)
         listeners = [RunFolderWriter(folder), progress]
         if _wants_dashboard(args):
@@ -253,7 +269,12 @@ def _as_dict(sampling) -> dict:
 
 
 def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
-    from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
+    from ftacq.app.dashboard import (
+        Dashboard,
+        DashboardListener,
+        close_recording,
+        open_recording,
+    )
     from ftacq.kinematics import ur_model
 
     recording = open_recording(args)
@@ -305,7 +326,9 @@ def _finish(args, folder, plan, config, result, cell) -> int:
         if result.status == "done":
             raise
         log.warning("could not write the report of the %s run", result.status, exc_info=True)
-    resume = f"ftacq calibrate {'--sim ' if cell is not None else ''}--resume {folder.path}"
+    from ftacq.app.hints import ftacq_command
+
+    resume = ftacq_command("calibrate", *(["--sim"] if cell is not None else []), "--resume", folder.path)
     if result.status != "done":
         kept = len(folder.measured())  # what is on disk (a pose may be written just as the interrupt came)
         text = (f"calibration {result.status}: {result.message}\n"

@@ -7,6 +7,8 @@ import hashlib
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
+
 HELD_OUT_SETS = ("V", "D")
 """Poses of these sets (column ``set``: V validation, D the procedure's drift-check revisit) are held out of the
 fit, as the calibration procedure does, and used to report the compensation error."""
@@ -24,6 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "compensation error is reported. "
             "Nothing is written if the input is bad."
         ),
+        **examples("ftacq identify runs/20260101-120000/poses.csv -o calibration.json",
+                   "ftacq identify poses.csv -o calibration.json --mount ceiling",
+                   "ftacq identify poses.csv -o closed-form.json --no-refine  # the paper's closed form only"),
     )
     parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
@@ -63,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.calibration import Calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
-    from ftacq.posefile import read_pose_csv
     from ftacq.identification.diagnostics import MIN_POSES
+    from ftacq.posefile import read_pose_csv
     from ftacq.report import format_identification_report, validation_errors
 
     path = Path(args.poses)
