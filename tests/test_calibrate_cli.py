@@ -152,3 +152,27 @@ def test_sigterm_stops_cleanly_with_exit_130(tmp_path):
     assert "resume with:" in err
     assert json.loads((run_dir / "run.json").read_text())["status"] == "stopped"
     assert read_pose_csv(run_dir / "poses.csv").labels  # kept
+
+
+def test_verdict_is_printed_last_and_stored(tmp_path):
+    """A right run ends with its verdict (not FAIL) on stdout, in run.json, calibration.json and report.md; a
+    run whose validation poses carry a part left in the gripper ends with FAIL, the reason and exit status 1."""
+    good = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "good")))
+    assert good.returncode == 0, good.stderr
+    tail = good.stdout.rstrip().split("\n\nverdict: ")
+    assert len(tail) == 2 and tail[1].split("\n")[0] in ("PASS", "WARN"), good.stdout[-2000:]
+    run_dir = next((tmp_path / "good").iterdir())
+    stored = json.loads((run_dir / "run.json").read_text())["verdict"]
+    assert stored["status"] == tail[1].split("\n")[0]
+    assert {f["check"] for f in stored["findings"]} == {"validation", "drift", "conditioning", "outliers", "poses"}
+    assert json.loads((run_dir / "calibration.json").read_text())["verdict"]["status"] == stored["status"]
+    assert (run_dir / "report.md").read_text().split("\n")[2] == f"## Verdict: **{stored['status']}**"
+
+    bad = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "bad"), "--sim-wrong-tool"))
+    assert bad.returncode == 1, bad.stderr
+    verdict = bad.stdout.rstrip().split("\n\nverdict: ")[1]
+    assert verdict.startswith("FAIL\n  FAIL  validation   the 4 held-out poses disagree with the calibration")
+    assert "the tool, its load or the sensor changed" in verdict
+    run_dir = next((tmp_path / "bad").iterdir())
+    assert json.loads((run_dir / "run.json").read_text())["verdict"]["status"] == "FAIL"
+    assert (run_dir / "calibration.json").exists()  # kept, judged unusable

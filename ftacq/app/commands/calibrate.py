@@ -62,6 +62,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--model", default="UR5e", help="simulated UR model without --config (default %(default)s)")
     sim.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor",
                      help="simulated mount without --config (default %(default)s)")
+    sim.add_argument("--sim-wrong-tool", action="store_true",
+                     help="fault: the validation poses are measured with a part (0.2 kg) left in the gripper, "
+                          "unknown to ftacq; the verdict must be FAIL")
     viewer = parser.add_argument_group("live view")
     viewer.add_argument("--rerun", action="store_true",
                         help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
@@ -254,12 +257,14 @@ def _run(args: argparse.Namespace) -> int:
                                     done=total - remaining)
         stack.callback(progress.close)
         listeners = [RunFolderWriter(folder), progress]
+        if cell is not None and args.sim_wrong_tool:
+            listeners.insert(0, cell.wrong_tool_listener(plan))
         if _wants_dashboard(args):
             listeners.append(_dashboard_listener(args, stack, settings.model))
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell)
+        return _finish(args, folder, plan, config, result, cell, options)
 
 
 def _as_dict(sampling) -> dict:
@@ -296,15 +301,26 @@ def _input_summary(folder, result) -> dict:
             "has_std": True, "has_count": True}
 
 
-def _finish(args, folder, plan, config, result, cell) -> int:
-    """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
+def _finish(args, folder, plan, config, result, cell, options) -> int:
+    """Write calibration.json and the report, print the summary and the verdict last; raise AbortedError for a
+    stopped/failed run. Returns 1 when the verdict is FAIL (the calibration is kept but must not be used)."""
     import numpy as np
 
     from ftacq.calfile import save_calibration
+    from ftacq.verdict import FAIL, format_verdict
+    from procedures.acceptance import run_verdict
     from procedures.report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
     truth = cell.truth.calibration() if cell is not None else None
+    verdict = None
+    try:
+        verdict = run_verdict(result, plan, options)
+        folder.update(verdict=verdict.to_dict())
+    except Exception:
+        if result.status == "done":
+            raise
+        log.warning("could not judge the %s run", result.status, exc_info=True)
     if result.identification is not None:
         calibration = result.identification.calibration
         from dataclasses import replace
@@ -317,11 +333,14 @@ def _finish(args, folder, plan, config, result, cell) -> int:
         if result.drift is not None:
             metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
                                        "elapsed_s": result.drift.elapsed_s}
+        if verdict is not None:
+            metadata["verdict"] = verdict.to_dict()
         calibration = replace(calibration, metadata=metadata)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
-                              title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration")
+                              title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration",
+                              verdict=verdict)
     except Exception:
         if result.status == "done":
             raise
@@ -367,4 +386,8 @@ def _finish(args, folder, plan, config, result, cell) -> int:
     print(f"calibration: {folder.path / CALIBRATION_JSON}")
     print(f"report:      {report}")
     print(f"poses:       {folder.path / 'poses.csv'}")
-    return 0
+    if verdict is None:
+        return 0
+    print("")
+    print(format_verdict(verdict))
+    return 1 if verdict.status == FAIL else 0
