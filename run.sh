@@ -2,6 +2,7 @@
 # One entry point for a fresh machine with only Python (3.10-3.12) and pip.
 #   ./run.sh demo   full calibration against the simulated cell (robot + Net F/T on loopback)
 #   ./run.sh test   the test suite
+#   ./run.sh check  the linter (ruff) and the type checker (mypy), configured in pyproject.toml
 # Both create (once) and reuse a virtual environment in .venv.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -30,6 +31,8 @@ cmd="${1:-}"; shift || true
 case "$cmd" in
   demo) setup; exec .venv/bin/ftacq calibrate --sim --yes "$@" ;;
   test) setup; exec .venv/bin/python -m pytest -n 2 "$@" ;;
+  check) setup; .venv/bin/ruff check ftacq drivers procedures
+         if grep -q '^\[tool.mypy\]' pyproject.toml; then .venv/bin/mypy; fi ;;
   setup) setup ;;
-  *) echo "usage: ./run.sh demo|test|setup [args...]" >&2; exit 2 ;;
+  *) echo "usage: ./run.sh demo|test|check|setup [args...]" >&2; exit 2 ;;
 esac

@@ -637,7 +637,7 @@ class NetFTSensor:
             firmware=api.get("mfgdigver", ""),
             force_unit=scaling.force_unit, torque_unit=scaling.torque_unit,
             counts_per_force=scaling.counts_per_force, counts_per_torque=scaling.counts_per_torque,
-            rate_hz=rate,
+            rate_hz=rate, model=product,
             extra={"product": product, "host": self.host, "rdt_port": self.rdt_port, "tcp_port": self.tcp_port,
                    "http_port": self.http_port, "scaling_source": scaling.source,
                    "sources_missing": problems, "status_map": self.status_map, "buffered": self.buffered,

@@ -1,4 +1,5 @@
-"""The robot contract the calibration procedure uses, whatever the arm.
+"""The robot contracts, whatever the arm: :class:`Robot` (what the calibration procedure moves) and
+:class:`RobotStateSource` (what the live monitor reads).
 
 All angles in radians, lengths in metres, poses in the robot base frame as ``[x, y, z, rx, ry, rz]``
 (rotation vector of ``base_R_flange``). Implemented by :class:`drivers.ur.URRobot` over ur-rtde.
@@ -74,3 +75,13 @@ class Robot(Protocol):
 
     def close(self) -> None:
         """Disconnect. Safe to call twice."""
+
+
+class RobotStateSource(Protocol):
+    """The robot's latest state, read without blocking (implemented by :class:`drivers.ur.URStateReader`)."""
+
+    def joint_positions(self) -> np.ndarray:
+        """Return the 6 latest joint angles, rad."""
+
+    def flange_pose(self) -> np.ndarray:
+        """Return the latest flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame."""

@@ -124,7 +124,11 @@ class SensorHealth:
 
 @dataclass(frozen=True)
 class SensorInfo:
-    """What the device says about itself (units are the device's; the driver converts to SI)."""
+    """What the device says about itself (units are the device's; the driver converts to SI).
+
+    ``serial``, ``model``, ``firmware``, the units and counts per unit identify the sensor in a calibration file
+    (:func:`ftacq.provenance.sensor_record`); empty strings where the device does not tell.
+    """
 
     transport: str
     serial: str
@@ -135,6 +139,7 @@ class SensorInfo:
     counts_per_torque: float
     rate_hz: float
     extra: dict = field(default_factory=dict)
+    model: str = ""
 
 
 @runtime_checkable

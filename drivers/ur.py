@@ -1,40 +1,71 @@
-"""Universal Robots arm over ur-rtde: :class:`URRobot` (the procedure's :class:`drivers.robot.Robot`) and
-:class:`URStateReader` (receive-only, for the live monitor).
+"""A Universal Robots arm over ur-rtde: :class:`URRobot`, the procedure's :class:`drivers.robot.Robot`.
 
-ur-rtde facts this module is built around (spec ``/work/shared/specs/ur.md``):
+The driver is split by idea: this module moves and supervises the arm; :mod:`drivers.ur_state` reads its state
+(:class:`URStateReader`, also used alone by the live monitor); :mod:`drivers.ur_dashboard_server` talks to the UR
+Dashboard Server (identity, protective-stop unlock); :mod:`drivers.ur_connection` reaches the controller with
+deadlines. ``URRobot``, ``URStateReader`` and ``MotionLimits`` stay importable from here.
 
-- Its constructors hold the GIL and its connect/setup has no timeout, so every port is probed with a plain
-  socket (and a deadline) first: an unreachable controller fails fast with a clear message.
-- Blocking commands can wait up to 300 s (§4.9). Moves are therefore sent asynchronously
+The controller facts it relies on are written in docs/protocols-ur.md. In short:
+
+- ur-rtde's constructors hold the GIL and wait for RTDE setup replies with no timeout, so the RTDE handshake is
+  walked first on a plain socket with a deadline and the script port is probed: a controller that is unreachable,
+  or accepts and never answers, fails within ``connect_timeout_s`` with a message naming host and port.
+- ur-rtde's blocking commands can wait up to 300 s. Moves are therefore sent asynchronously
   (``moveJ(..., asynchronous=True)``) and this module polls the RTDE state with its own deadline; every other
   control call runs on a named worker thread with a deadline (:data:`CALL_TIMEOUT_S`).
 - A dropped connection shows as ``isConnected() == False`` (EOF) or a controller timestamp that stops advancing
-  (silence): both are detected within :data:`CONNECTION_STALE_S` (< 3 s).
+  (silence): both are detected within :data:`drivers.ur_state.CONNECTION_STALE_S` (< 3 s).
 
 The flange pose is computed from the joint angles, never read from ``actual_TCP_pose``, so a TCP offset held
 by the controller cannot leak into the calibration: :class:`URRobot` asks the controller's calibrated kinematics
 (``getForwardKinematics(q, probe_tcp)`` with the probe removed again: ur-rtde 1.6.5 treats a zero TCP argument as
-"use the active TCP") and falls back to UR's nominal DH model; :class:`URStateReader` uses the nominal DH model
-(:func:`ftacq.kinematics.flange_pose`).
+"use the active TCP") and falls back to UR's nominal DH model.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import re
-import socket
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from drivers.robot import MotionLimits, RobotStatus
+from drivers.ur_connection import (
+    DASHBOARD_SERVER_PORT,
+    PROBE_TIMEOUT_S,
+    RTDE_PORT,
+    SCRIPT_PORT,
+    call_with_deadline,
+    probe_port,
+    probe_rtde,
+)
+from drivers.ur_dashboard_server import (
+    DashboardServerClient,
+    URControllerInfo,
+    model_from_dashboard_server,
+    read_controller_info,
+)
+from drivers.ur_state import (
+    CONNECTION_STALE_S,
+    DISCONNECT_TIMEOUT_S,
+    ROBOT_MODE_NAMES,
+    ROBOT_MODE_RUNNING,
+    RUNTIME_STATE_NAMES,
+    SAFETY_BIT_SAFEGUARD,
+    SAFETY_MODE_NAMES,
+    SAFETY_NORMAL,
+    SAFETY_REDUCED,
+    STEADY_JOINT_SPEED_RAD_S,
+    URStateReader,
+)
 from ftacq.errors import (
     AbortedError,
     ConfigError,
     DeviceConnectionError,
+    DeviceError,
     DeviceTimeoutError,
     EmergencyStopError,
     MotionLimitError,
@@ -42,23 +73,16 @@ from ftacq.errors import (
     ProtectiveStopError,
     RobotError,
 )
-from ftacq.kinematics import UR_MODELS, URModel, flange_pose, ur_model
+from ftacq.kinematics import UR_MODELS, URModel, flange_pose
 from ftacq.so3 import angle_between_deg, rotation_from_rotvec, rotvec_from_rotation
 
 log = logging.getLogger(__name__)
 
-RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
-PROBE_TIMEOUT_S = 2.0
-"""Deadline of the plain TCP probe of each controller port before ur-rtde connects (ur-rtde has none)."""
-CONNECTION_STALE_S = 1.5
-"""No new RTDE data package for this long means the connection is lost (ur-rtde itself waits 2.5 s)."""
 POLL_INTERVAL_S = 0.005
-WATCHDOG_INTERVAL_S = 0.05
 STREAM_CATCH_UP_S = 0.25
 """How long the receive stream may lag the control stream (separate connections, separate client threads)."""
 CALL_TIMEOUT_S = 10.0
 """Deadline of one guarded ur-rtde control call (moves are asynchronous, so every call should take ms)."""
-DISCONNECT_TIMEOUT_S = 3.0
 LOST_DISCONNECT_TIMEOUT_S = 1.0
 SCRIPT_START_TIMEOUT_S = 8.0
 SAFETY_CLEAR_TIMEOUT_S = 8.0
@@ -66,8 +90,6 @@ SAFETY_CLEAR_TIMEOUT_S = 8.0
 UNLOCK_RETRY_S = 0.5
 JOINT_TARGET_TOLERANCE_RAD = 1e-3
 """A joint move has arrived when every joint is this close to its target (and the arm is steady)."""
-STEADY_JOINT_SPEED_RAD_S = 5e-3
-"""The arm is steady when every |actual_qd| is below this."""
 ARRIVAL_CONFIRM_S = 0.25
 """At the target and steady this long counts as arrived even while the async progress word still says running."""
 STALL_GRACE_S = 1.0
@@ -78,29 +100,10 @@ FK_CALL_TIMEOUT_S = 2.0
 FK_PROBE_TCP = (0.0, 0.0, 0.2, 0.0, 0.0, 0.0)
 """A non-zero TCP passed to ``getForwardKinematics`` and removed again (a zero one means 'use the active TCP')."""
 
-# ur-rtde's own client-side ranges (spec §4.4): limits above these could never be sent.
+# ur-rtde's own client-side ranges (docs/protocols-ur.md): limits above these could never be sent.
 UR_RTDE_MAX_JOINT_SPEED_RAD_S, UR_RTDE_MAX_JOINT_ACCELERATION_RAD_S2 = 3.14, 40.0
 UR_RTDE_MAX_TOOL_SPEED_M_S, UR_RTDE_MAX_TOOL_ACCELERATION_M_S2 = 3.0, 150.0
 
-ROBOT_MODE_RUNNING = 7
-RUNTIME_PLAYING = 2
-SAFETY_NORMAL, SAFETY_REDUCED, SAFETY_PROTECTIVE_STOP = 1, 2, 3
-SAFETY_EMERGENCY_MODES = (6, 7)  # SYSTEM_/ROBOT_EMERGENCY_STOP
-SAFETY_BIT_PROTECTIVE, SAFETY_BIT_SAFEGUARD, SAFETY_BIT_SYSTEM_ESTOP, SAFETY_BIT_ROBOT_ESTOP, SAFETY_BIT_ESTOP = 2, 4, 5, 6, 7
-ROBOT_MODE_NAMES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
-                    4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
-SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
-                     6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT",
-                     10: "VALIDATE_JOINT_ID", 11: "UNDEFINED", 12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
-                     13: "SYSTEM_THREE_POSITION_ENABLING_STOP"}
-RUNTIME_STATE_NAMES = {0: "STOPPING", 1: "STOPPED", 2: "PLAYING", 3: "PAUSING", 4: "PAUSED", 5: "RESUMING"}
-
-RECEIVE_VARIABLES = ["timestamp", "actual_q", "actual_qd", "actual_TCP_pose", "robot_mode", "safety_mode",
-                     "runtime_state", "safety_status_bits"]
-"""The receive recipe: only what ftacq reads (all in ur-rtde's decode table and in every controller's default list,
-spec §5.2). A controller answering NOT_FOUND for one of them gets ur-rtde's default list instead."""
-
-_E_SERIES_DASHBOARD_NAMES = ("UR3", "UR5", "UR10", "UR16")
 
 PROTECTIVE_STOP_MESSAGE = (
     "the robot is in a PROTECTIVE STOP (it hit something, or a joint/speed limit was exceeded). Look at the "
@@ -112,252 +115,6 @@ EMERGENCY_STOP_MESSAGE = (
 PROGRAM_STOPPED_MESSAGE = (
     "the control program on the robot is not running (Stop was pressed on the teach pendant, another program "
     "was started, or the robot was powered off). Check the pendant, then start again")
-
-
-def model_from_dashboard(reply: str, major_version: int | None) -> URModel | None:
-    """Map a dashboard ``get robot model`` reply to a :class:`URModel`.
-
-    UR's dashboard answers ``UR3``/``UR5``/``UR10``/``UR16`` for both the CB3 and the e-Series arm; software
-    major version 5 (PolyScope 5) and 10 (PolyScope X) only run on e-Series (and UR20/UR30) arms, 3 on CB3.
-    Returns None for an unknown reply.
-    """
-    name = reply.strip().upper()
-    if name.endswith("E") and name[:-1] in _E_SERIES_DASHBOARD_NAMES:
-        return ur_model(name[:-1] + "e")
-    if name in _E_SERIES_DASHBOARD_NAMES:
-        e_series = major_version is None or major_version >= 5 or name == "UR16"
-        return ur_model(name + "e" if e_series else name)
-    try:
-        return ur_model(name)
-    except ValueError:
-        return None
-
-
-def _major(version: str | None) -> int | None:
-    match = re.match(r"\s*(\d+)", version or "")
-    return int(match.group(1)) if match else None
-
-
-def probe_port(host: str, port: int, timeout_s: float = PROBE_TIMEOUT_S) -> None:
-    """Open and close a TCP connection to ``host:port``; raise DeviceConnectionError naming the port if it fails."""
-    try:
-        with socket.create_connection((host, port), timeout=timeout_s):
-            pass
-    except socket.timeout as error:
-        raise DeviceConnectionError(
-            f"robot controller {host}: no answer on port {port} within {timeout_s:.0f} s; check the IP address, "
-            "the network cable and that the robot is switched on") from error
-    except OSError as error:
-        raise DeviceConnectionError(
-            f"robot controller {host}: cannot connect to port {port} ({error.strerror or error}); check the IP "
-            "address and that the robot is switched on and booted") from error
-
-
-def _call_with_deadline(fn, *args, timeout_s: float, what: str, watchdog=None):
-    """Run ``fn(*args)`` on a named worker thread; return its result, re-raise its error, or raise
-    DeviceTimeoutError after ``timeout_s`` (the worker is left to finish on its own; ur-rtde calls release the GIL).
-
-    ``watchdog()`` is called every :data:`WATCHDOG_INTERVAL_S` while waiting; it raises to abandon the call early
-    (e.g. when the connection is lost: ur-rtde would keep waiting for a reply that never comes)."""
-    box: dict = {}
-
-    def run() -> None:
-        try:
-            box["result"] = fn(*args)
-        except BaseException as error:  # noqa: BLE001 - re-raised in the caller's thread
-            box["error"] = error
-
-    worker = threading.Thread(target=run, name=f"ur-rtde-{what}", daemon=True)
-    worker.start()
-    deadline = time.monotonic() + timeout_s
-    while worker.is_alive() and time.monotonic() < deadline:
-        worker.join(min(WATCHDOG_INTERVAL_S, max(deadline - time.monotonic(), 0.0)))
-        if worker.is_alive() and watchdog is not None:
-            watchdog()
-    if worker.is_alive():
-        raise DeviceTimeoutError(f"robot controller did not complete {what} within {timeout_s:.0f} s")
-    if "error" in box:
-        raise box["error"]
-    return box.get("result")
-
-
-@dataclass(frozen=True)
-class URControllerInfo:
-    """What the dashboard says about the controller (None where it cannot tell)."""
-
-    model_reply: str | None
-    model: URModel | None
-    software_version: str | None
-    serial_number: str | None
-    robot_mode: str | None
-    safety_status: str | None
-    program_state: str | None
-    remote_control: bool | None
-
-
-def read_controller_info(host: str, timeout_s: float = PROBE_TIMEOUT_S) -> URControllerInfo:
-    """Ask the dashboard server (port 29999) for model, software version, serial number and modes."""
-    import dashboard_client
-
-    probe_port(host, DASHBOARD_PORT, timeout_s)
-    client = dashboard_client.DashboardClient(host)
-    try:
-        try:
-            client.connect(int(timeout_s * 1000))
-        except RuntimeError as error:
-            raise DeviceConnectionError(f"robot controller {host}: dashboard server (port 29999): {error}") from error
-
-        def ask(method):
-            try:
-                return method()
-            except RuntimeError:
-                return None
-
-        version = ask(client.polyscopeVersion)
-        model_reply = ask(client.getRobotModel)
-        serial = ask(client.getSerialNumber) if (_major(version) or 0) >= 5 else None
-        remote = ask(client.isInRemoteControl) if (_major(version) or 0) >= 5 else None
-        return URControllerInfo(
-            model_reply=model_reply,
-            model=model_from_dashboard(model_reply, _major(version)) if model_reply else None,
-            software_version=version, serial_number=serial or None, robot_mode=ask(client.robotmode),
-            safety_status=ask(client.safetystatus) or ask(client.safetymode), program_state=ask(client.programState),
-            remote_control=remote)
-    finally:
-        try:
-            client.disconnect()
-        except RuntimeError:
-            pass
-
-
-def _resolve_model(model: str | URModel | None) -> URModel | None:
-    if model is None or isinstance(model, URModel):
-        return model
-    try:
-        return ur_model(model)
-    except ValueError as error:
-        raise ConfigError(f"robot model {model!r}: {error}") from error
-
-
-class URStateReader:
-    """Receive-only view of a UR controller (RTDEReceiveInterface only; never moves anything).
-
-    ``flange_pose()`` is the nominal DH forward kinematics of ``actual_q`` (TCP offset excluded). ``model`` is
-    read from the dashboard when not given (None if the dashboard cannot tell: then only ``tcp_pose()``).
-    """
-
-    def __init__(self, host: str, frequency_hz: float | None = None, model: str | URModel | None = None,
-                 connect_timeout_s: float = PROBE_TIMEOUT_S) -> None:
-        self.host = host
-        self.frequency_hz = frequency_hz
-        self.model = _resolve_model(model)
-        self.connect_timeout_s = connect_timeout_s
-        self._receive = None
-        self._last_timestamp = None
-        self._last_change_s = 0.0
-        self._timestamps_advance = False
-
-    def start(self) -> "URStateReader":
-        """Connect (probe port 30004 first). Raises DeviceConnectionError when the controller is unreachable."""
-        import rtde_receive
-
-        probe_port(self.host, RTDE_PORT, self.connect_timeout_s)
-        if self.model is None:
-            try:
-                self.model = read_controller_info(self.host, self.connect_timeout_s).model
-            except DeviceConnectionError as error:
-                log.warning("cannot read the robot model from the dashboard (%s); flange pose unavailable", error)
-        frequency = float(self.frequency_hz) if self.frequency_hz else -1.0
-        try:
-            try:
-                self._receive = rtde_receive.RTDEReceiveInterface(self.host, frequency, RECEIVE_VARIABLES)
-            except RuntimeError as error:
-                if "not found" not in str(error).lower():
-                    raise
-                log.warning("robot %s: %s; using ur-rtde's default RTDE recipe", self.host, error)
-                self._receive = rtde_receive.RTDEReceiveInterface(self.host, frequency)
-        except RuntimeError as error:
-            raise DeviceConnectionError(f"robot controller {self.host}: RTDE (port 30004): {error}") from error
-        self._last_timestamp, self._last_change_s = self._receive.getTimestamp(), time.monotonic()
-        return self
-
-    def __enter__(self) -> "URStateReader":
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def _rtde(self):
-        if self._receive is None:
-            raise DeviceConnectionError(f"robot controller {self.host}: not connected (call start())")
-        return self._receive
-
-    @property
-    def connected(self) -> bool:
-        """True while data packages keep arriving (EOF and silence > CONNECTION_STALE_S both count as lost)."""
-        if self._receive is None or not self._receive.isConnected():
-            return False
-        timestamp, now = self._receive.getTimestamp(), time.monotonic()
-        if timestamp != self._last_timestamp:
-            self._timestamps_advance = True
-            self._last_timestamp, self._last_change_s = timestamp, now
-            return True
-        # a controller whose timestamp never moves: rely on ur-rtde's own 2.5 s receive timeout
-        return not self._timestamps_advance or now - self._last_change_s < CONNECTION_STALE_S
-
-    def ensure_connected(self) -> None:
-        """Raise DeviceConnectionError if the data stream is lost."""
-        if self.connected:
-            return
-        cause = ("the controller closed the connection" if self._receive is None or not self._receive.isConnected()
-                 else f"no state received for {CONNECTION_STALE_S:.1f} s")
-        raise DeviceConnectionError(
-            f"lost the connection to the robot controller {self.host}: {cause}. Check the network cable and the "
-            "robot's power; the robot may still be moving, so watch it and use the teach pendant's stop if needed")
-
-    def joint_positions(self) -> np.ndarray:
-        """The 6 actual joint angles, rad."""
-        return np.array(self._rtde().getActualQ(), dtype=float)
-
-    def joint_speeds(self) -> np.ndarray:
-        """The 6 actual joint speeds, rad/s."""
-        return np.array(self._rtde().getActualQd(), dtype=float)
-
-    def tcp_pose(self) -> np.ndarray:
-        """``actual_TCP_pose`` as reported (includes the controller's TCP offset)."""
-        return np.array(self._rtde().getActualTCPPose(), dtype=float)
-
-    def flange_pose(self) -> np.ndarray:
-        """Flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame from the nominal FK of ``actual_q``."""
-        if self.model is None:
-            raise RobotError(f"robot controller {self.host}: unknown robot model; pass model= (e.g. 'UR5e')")
-        return flange_pose(self.model, self.joint_positions())
-
-    def controller_time_s(self) -> float:
-        """The controller's timestamp (s since it started)."""
-        return float(self._rtde().getTimestamp())
-
-    def status(self, steady: bool | None = None) -> RobotStatus:
-        rtde = self._rtde()
-        bits = int(rtde.getSafetyStatusBits())
-        safety_mode = int(rtde.getSafetyMode())
-        if steady is None:
-            steady = bool(np.max(np.abs(self.joint_speeds())) < STEADY_JOINT_SPEED_RAD_S)
-        return RobotStatus(
-            robot_mode=int(rtde.getRobotMode()), safety_mode=safety_mode,
-            protective_stop=bool(bits & (1 << SAFETY_BIT_PROTECTIVE)) or safety_mode == SAFETY_PROTECTIVE_STOP,
-            emergency_stop=bool(bits & (1 << SAFETY_BIT_ESTOP)) or safety_mode in SAFETY_EMERGENCY_MODES,
-            program_running=int(rtde.getRuntimeState()) == RUNTIME_PLAYING,
-            connected=self.connected, steady=steady)
-
-    def close(self) -> None:
-        """Disconnect (≈0.5 s inside ur-rtde). Safe to call twice."""
-        receive, self._receive = self._receive, None
-        if receive is not None:
-            try:
-                _call_with_deadline(receive.disconnect, timeout_s=DISCONNECT_TIMEOUT_S, what="receive-disconnect")
-            except (RuntimeError, DeviceTimeoutError) as error:
-                log.warning("RTDE receive disconnect from %s: %s", self.host, error)
 
 
 def _pose_matrix(pose: np.ndarray) -> np.ndarray:
@@ -395,7 +152,7 @@ class URRobot:
     """A UR arm over ur-rtde implementing :class:`drivers.robot.Robot`.
 
     ``URRobot(host, limits, model=None)`` then :meth:`start` (or ``with URRobot(...) as robot:``). ``model`` is
-    read from the dashboard when None. Every move is checked against ``limits`` (refused, never clamped) and the
+    read from the UR Dashboard Server when None. Every move is checked against ``limits`` (refused, never clamped) and the
     model's joint limits, sent asynchronously and supervised here: protective stop, emergency stop, program
     stopped and lost connection raise the matching :mod:`ftacq.errors` type; nothing waits without a deadline.
     """
@@ -420,17 +177,20 @@ class URRobot:
         return self._reader.model
 
     def start(self) -> "URRobot":
-        """Connect: dashboard (model, version), RTDE receive, RTDE control (uploads ur-rtde's control script)."""
+        """Connect: RTDE handshake probe and script port (with deadlines), UR Dashboard Server (model, version),
+        RTDE receive, RTDE control (uploads ur-rtde's control script).
+
+        Raises DeviceConnectionError naming host and port within about ``connect_timeout_s`` per port when the
+        controller is unreachable or accepts and never answers."""
         import rtde_control
 
-        for port in (RTDE_PORT, SCRIPT_PORT):
-            probe_port(self.host, port, self.connect_timeout_s)
+        probe = probe_rtde(self.host, self.connect_timeout_s)
+        probe_port(self.host, SCRIPT_PORT, self.connect_timeout_s, what="script")
         try:
             self.info = read_controller_info(self.host, self.connect_timeout_s)
-        except DeviceConnectionError as error:  # PolyScope X (10.x) has no dashboard server
-            log.warning("robot %s: no dashboard server (%s); model, version and serial number unknown", self.host,
-                        error)
-            self.info = URControllerInfo(None, None, None, None, None, None, None, None)
+        except DeviceError as error:  # PolyScope X (10.x) has no Dashboard Server
+            log.warning("robot %s: no UR Dashboard Server (%s); model and serial number unknown", self.host, error)
+            self.info = URControllerInfo.unknown(probe.version_text)
         if self._reader.model is None:
             self._reader.model = self.info.model
         if self._reader.model is None:
@@ -459,7 +219,7 @@ class URRobot:
             # after a lost connection a ur-rtde call may still be blocked inside the client: do not wait long
             timeout_s = LOST_DISCONNECT_TIMEOUT_S if self._lost else DISCONNECT_TIMEOUT_S
             try:
-                _call_with_deadline(control.disconnect, timeout_s=timeout_s, what="control-disconnect")
+                call_with_deadline(control.disconnect, timeout_s=timeout_s, what="control-disconnect")
             except (RuntimeError, DeviceTimeoutError) as error:
                 log.warning("RTDE control disconnect from %s: %s", self.host, error)
         self._reader.close()
@@ -477,7 +237,7 @@ class URRobot:
         if not self._call_lock.acquire(timeout=timeout_s):
             raise DeviceTimeoutError(f"robot controller {self.host}: a previous command is still pending")
         try:
-            return _call_with_deadline(getattr(control, method_name), *args, timeout_s=timeout_s, what=method_name,
+            return call_with_deadline(getattr(control, method_name), *args, timeout_s=timeout_s, what=method_name,
                                        watchdog=self._check_connection)
         except DeviceTimeoutError:
             self._check_connection()
@@ -598,7 +358,7 @@ class URRobot:
             raise EmergencyStopError(f"robot {host}: {EMERGENCY_STOP_MESSAGE}")
         if status.protective_stop:
             raise ProtectiveStopError(f"robot {host}: {PROTECTIVE_STOP_MESSAGE}")
-        bits = int(self._reader._rtde().getSafetyStatusBits())
+        bits = int(self._reader.safety_status_bits())
         if status.safety_mode not in (SAFETY_NORMAL, SAFETY_REDUCED) or bits & (1 << SAFETY_BIT_SAFEGUARD):
             name = SAFETY_MODE_NAMES.get(status.safety_mode, str(status.safety_mode))
             raise RobotError(f"robot {host}: safety mode is {name} (a safeguard device, door or light curtain, or a "
@@ -723,22 +483,14 @@ class URRobot:
             log.warning("robot %s: stop failed: %s", self.host, error)
 
     # ------------------------------------------------------------------ recovery
-    def _dashboard(self, *lines_and_checks) -> None:
-        import dashboard_client
-
-        probe_port(self.host, DASHBOARD_PORT, self.connect_timeout_s)
-        client = dashboard_client.DashboardClient(self.host)
+    def _dashboard_server(self, *commands: str) -> None:
+        """Run recovery commands (methods of :class:`DashboardServerClient`) on the UR Dashboard Server."""
         try:
-            client.connect(int(self.connect_timeout_s * 1000))
-            for method in lines_and_checks:
-                getattr(client, method)()
-        except RuntimeError as error:
-            raise RobotError(f"robot {self.host}: dashboard command failed: {error}") from error
-        finally:
-            try:
-                client.disconnect()
-            except RuntimeError:
-                pass
+            with DashboardServerClient(self.host, connect_timeout_s=self.connect_timeout_s) as server:
+                for command in commands:
+                    getattr(server, command)()
+        except DeviceError as error:
+            raise RobotError(f"robot {self.host}: UR Dashboard Server command failed: {error}") from error
 
     def _wait_until(self, predicate, timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -749,7 +501,7 @@ class URRobot:
             time.sleep(POLL_INTERVAL_S)
 
     def unlock_protective_stop(self, timeout_s: float = SAFETY_CLEAR_TIMEOUT_S) -> None:
-        """Unlock a protective stop through the dashboard (as the pendant's Unlock button), then make sure the
+        """Unlock a protective stop through the UR Dashboard Server (as the pendant's Unlock button), then make sure the
         control program runs again. A real controller refuses the unlock during the first 5 s after the stop:
         the request is repeated until ``timeout_s``."""
         self._check_connection()
@@ -757,7 +509,7 @@ class URRobot:
             deadline = time.monotonic() + timeout_s
             while True:
                 try:
-                    self._dashboard("closeSafetyPopup", "unlockProtectiveStop")
+                    self._dashboard_server("close_safety_popup", "unlock_protective_stop")
                     break
                 except RobotError:
                     if time.monotonic() > deadline:
@@ -777,5 +529,7 @@ class URRobot:
                          "starting the control program")
 
 
-__all__ = ["URRobot", "URStateReader", "URControllerInfo", "read_controller_info", "model_from_dashboard",
-           "probe_port", "validate_limits", "UR_MODELS"]
+__all__ = ["URRobot", "URStateReader", "MotionLimits", "URControllerInfo", "read_controller_info",
+           "model_from_dashboard_server", "probe_port", "probe_rtde", "validate_limits", "UR_MODELS", "RTDE_PORT",
+           "DASHBOARD_SERVER_PORT", "SCRIPT_PORT", "PROBE_TIMEOUT_S", "CONNECTION_STALE_S", "ROBOT_MODE_NAMES",
+           "SAFETY_MODE_NAMES", "RUNTIME_STATE_NAMES"]

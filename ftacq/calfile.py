@@ -1,6 +1,7 @@
 """The calibration file: versioned JSON, SI units, written atomically.
 
-Required keys (format ``ftacq-calibration``, ``version`` 1):
+Required keys (format ``ftacq-calibration``, ``version`` 2; version-1 files, which lack the optional provenance
+keys below, load as they are):
 
 - ``sensor_rotation`` 3×3 row-major: ``sensor_R_flange``, maps flange-frame vectors into the sensor frame;
 - ``force_bias`` [3] N, ``torque_bias`` [3] N·m (sensor frame);
@@ -12,6 +13,10 @@ Optional keys written from the identification: ``uncertainty`` (1σ per key abov
 ``method``, ``residuals`` (per pose labels and [fx..tz] residual), ``outliers``, ``warnings``,
 ``diagnostics``, ``input``, ``software_version``, ``created_utc``. Unknown keys are kept in
 ``Calibration.metadata`` on load.
+
+Optional provenance keys (version 2, :mod:`ftacq.provenance`; their types are checked on load): ``sensor``
+(serial, model, transport, counts per force and torque, units, firmware), ``tool`` (name) and ``bias_history``
+(time, method, biases, 1σ of every bias estimate, oldest first).
 """
 
 from __future__ import annotations
@@ -31,7 +36,9 @@ from ftacq.errors import InputError
 from ftacq.fileio import atomic_write
 
 FORMAT_NAME = "ftacq-calibration"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+"""Versions this ftacq reads: 2 adds optional keys only, so a version-1 file is a valid version-2 file."""
 ROTATION_ORTHONORMAL_TOLERANCE = 1e-6
 """Max |RᵀR − I| element and |det R − 1| accepted for ``sensor_rotation`` on load."""
 MASS_CONSISTENCY_TOLERANCE = 1e-6
@@ -120,9 +127,10 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     if document.get("format") != FORMAT_NAME:
         raise InputError(f"{path}: key 'format': expected {FORMAT_NAME!r}, got {document.get('format')!r}")
     version = document.get("version")
-    if version != FORMAT_VERSION:
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise InputError(
-            f"{path}: key 'version': this ftacq reads calibration version {FORMAT_VERSION}, the file has {version!r}"
+            f"{path}: key 'version': this ftacq reads calibration versions "
+            f"{', '.join(str(v) for v in READABLE_VERSIONS)}, the file has {version!r}"
         )
     for key in REQUIRED_KEYS:
         if key not in document:
@@ -144,6 +152,7 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     uncertainty = document.get("uncertainty", {})
     if not isinstance(uncertainty, dict):
         raise InputError(f"{path}: key 'uncertainty': expected an object, got {type(uncertainty).__name__}")
+    _check_provenance(path, document)
     metadata = {key: value for key, value in document.items() if key not in _MODEL_KEYS}
     return Calibration(
         sensor_rotation=rotation,
@@ -154,6 +163,37 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
         uncertainty=uncertainty,
         metadata=metadata,
     )
+
+
+def _check_provenance(path: Path, document: dict) -> None:
+    """Check the types of the optional provenance keys (``sensor``, ``tool``, ``bias_history``)."""
+    sensor = document.get("sensor")
+    if sensor is not None:
+        if not isinstance(sensor, dict):
+            raise InputError(f"{path}: key 'sensor': expected an object, got {type(sensor).__name__}")
+        for key, value in sensor.items():
+            numeric = key in ("counts_per_force", "counts_per_torque")
+            ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                  and value >= 0) if numeric else isinstance(value, str)
+            if not ok:
+                expected = "a number ≥ 0" if numeric else "a string"
+                raise InputError(f"{path}: key 'sensor.{key}': value {value!r} must be {expected}")
+    tool = document.get("tool")
+    if tool is not None and not (isinstance(tool, dict) and isinstance(tool.get("name", ""), str)):
+        raise InputError(f"{path}: key 'tool': expected an object with a string 'name', got {tool!r}")
+    history = document.get("bias_history")
+    if history is None:
+        return
+    if not isinstance(history, list):
+        raise InputError(f"{path}: key 'bias_history': expected a list, got {type(history).__name__}")
+    for index, entry in enumerate(history):
+        where = f"{path}: key 'bias_history[{index}]'"
+        if not isinstance(entry, dict):
+            raise InputError(f"{where}: expected an object, got {entry!r}")
+        for key in ("force_bias", "torque_bias"):
+            _array(path, {f"bias_history[{index}].{key}": entry.get(key)}, f"bias_history[{index}].{key}", (3,))
+        if not isinstance(entry.get("time"), (str, type(None))) or not isinstance(entry.get("method", ""), str):
+            raise InputError(f"{where}: 'time' and 'method' must be strings")
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:

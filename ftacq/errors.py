@@ -16,7 +16,8 @@
      │         ├── ProgramStoppedError                  the control script is not running
      │         └── MotionLimitError (ValueError)        a command above the configured limits
      ├── PlanError (ValueError)              a pose plan that fails reachability / collision checks
-     └── AbortedError                        the user (Ctrl-C) or a fault stopped the procedure
+     └── AbortedError                        a fault stopped the procedure, or the user declined the plan
+          └── InterruptedByUser                  Ctrl-C / SIGTERM stopped it (exit status 130)
 """
 
 from __future__ import annotations
@@ -82,4 +83,8 @@ class PlanError(FtacqError, ValueError):
 
 
 class AbortedError(FtacqError):
-    """The procedure was stopped by the user (Ctrl-C) or by a fault; recorded data are kept."""
+    """The procedure was stopped by a fault or not started (plan not confirmed); recorded data are kept."""
+
+
+class InterruptedByUser(AbortedError):
+    """The user interrupted the procedure (Ctrl-C, SIGTERM); recorded data are kept. The CLI exits 130."""

@@ -333,7 +333,7 @@ class CalibrationProcedure:
     def shutdown(self, status: str, message: str) -> None:
         """Stop the robot unless the run succeeded, and announce the final state (always called)."""
         if status != "done":
-            for attempt in range(2):  # a second Ctrl-C must not skip the stop
+            for _attempt in range(2):  # a second Ctrl-C must not skip the stop
                 try:
                     self.robot.stop()
                     break

@@ -21,10 +21,10 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 
+from drivers.robot import RobotStateSource
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
@@ -43,16 +43,6 @@ ROBOT_LOG_RATE_HZ = 30.0
 HEALTH_LOG_RATE_HZ = 2.0
 THREAD_JOIN_TIMEOUT_S = 10.0
 """How long close() waits for the dashboard and recorder threads to finish their queues."""
-
-
-class RobotStateSource(Protocol):
-    """The robot's latest state, read without blocking (implemented by :class:`drivers.ur.URStateReader`)."""
-
-    def joint_positions(self) -> np.ndarray:
-        """Return the 6 latest joint angles, rad."""
-
-    def flange_pose(self) -> np.ndarray:
-        """Return the latest flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame."""
 
 
 @dataclass

@@ -56,7 +56,7 @@ def good_document():
 @pytest.mark.parametrize(
     "change, expected",
     [
-        (lambda d: d.update(version=2), "reads calibration version 1, the file has 2"),
+        (lambda d: d.update(version=3), "reads calibration versions 1, 2, the file has 3"),
         (lambda d: d.pop("version"), "the file has None"),
         (lambda d: d.update(format="other"), "key 'format'"),
         (lambda d: d.pop("torque_bias"), "missing required key 'torque_bias'"),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from drivers.robot import MotionLimits, Robot
-from drivers.ur import URRobot, URStateReader, model_from_dashboard
+from drivers.ur import URRobot, URStateReader, model_from_dashboard_server
 from ftacq.app.cli import main as ftacq_main
 from ftacq.errors import (
     AbortedError,
@@ -186,7 +186,7 @@ def test_emergency_stop_raises_and_recovery_works_like_on_the_pendant(fake, read
         ready.move_joints(HOME_Q + 0.2, 0.5, 1.0, timeout_s=10.0)
     assert ready.status().emergency_stop
     fake.control("release_estop")
-    ready._dashboard("closeSafetyPopup", "powerOn", "brakeRelease")
+    ready._dashboard_server("close_safety_popup", "power_on", "brake_release")
     wait_until(lambda: ready.status().robot_mode == 7, what="robot running")
     ready.restart_control_script()
     ready.move_joints(HOME_Q + 0.2, 0.5, 1.0)
@@ -305,9 +305,9 @@ def test_unreachable_controller_fails_fast_with_a_clear_message():
     ("UR5", 5, "UR5e"), ("UR5", 3, "UR5"), ("UR10", 5, "UR10e"), ("UR16", 5, "UR16e"), ("UR20", 5, "UR20"),
     ("UR5e", None, "UR5e"), ("ur3", 3, "UR3"),
 ])
-def test_model_from_dashboard_maps_e_series_names(reply, major, expected):
-    assert model_from_dashboard(reply, major).name == expected
-    assert model_from_dashboard("KUKA", 5) is None
+def test_model_from_dashboard_server_maps_e_series_names(reply, major, expected):
+    assert model_from_dashboard_server(reply, major).name == expected
+    assert model_from_dashboard_server("KUKA", 5) is None
 
 
 def test_ftacq_robot_info_prints_identity_joints_and_flange_pose(fake, ready, capsys):

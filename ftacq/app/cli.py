@@ -5,7 +5,11 @@ Each module in ``COMMAND_MODULES`` exposes ``register(subparsers)``, which adds 
 ``ftacq --help`` stays fast. Library code raises :class:`ftacq.errors.FtacqError`; this is the only place
 that turns an error into a message and an exit status:
 
-- 0 success, 1 a device or procedure failure, 2 bad input (file, URL, configuration), 130 interrupted.
+- 0 success, 1 a device or procedure failure, 2 bad input (file, URL, configuration), 130 interrupted
+  (Ctrl-C, SIGTERM, :class:`ftacq.errors.InterruptedByUser`), 141 a closed standard output.
+
+The status is chosen by the exception's type (:data:`EXIT_STATUS`), never by its text. A command module that
+fails to import is an installation defect: the CLI says which one and why, and exits 1 (it is never skipped).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import sys
 
 from ftacq import __version__
 from ftacq.app.helptext import examples
-from ftacq.errors import AbortedError, FtacqError, InputError
+from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
 
 COMMAND_MODULES = (
     "ftacq.app.commands.identify",
@@ -28,9 +32,25 @@ COMMAND_MODULES = (
     "ftacq.app.commands.calibrate",
     "ftacq.app.commands.config",
     "ftacq.app.commands.monitor",
+    "ftacq.app.commands.tare",
 )
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141
+EXIT_STATUS: tuple[tuple[type[FtacqError], int], ...] = (
+    (InterruptedByUser, EXIT_INTERRUPTED),
+    (InputError, EXIT_BAD_INPUT),
+    (FtacqError, EXIT_FAILURE),
+)
+"""Exception type → exit status, first match wins (subclasses before their bases)."""
+
+
+class CommandModuleError(Exception):
+    """A command module could not be imported (a broken installation, never a user error)."""
+
+
+def exit_status(error: FtacqError) -> int:
+    """The exit status for an ftacq error, by its type."""
+    return next(status for kind, status in EXIT_STATUS if isinstance(error, kind))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,17 +68,20 @@ def build_parser() -> argparse.ArgumentParser:
     for module_name in COMMAND_MODULES:
         try:
             module = importlib.import_module(module_name)
-        except ModuleNotFoundError as error:
-            if error.name == module_name:
-                continue  # not built yet
-            raise
+        except ImportError as error:
+            raise CommandModuleError(f"cannot load the command module {module_name} ({type(error).__name__}: "
+                                     f"{error}); the installation is broken: reinstall ftacq") from error
         module.register(subparsers)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; return the exit status."""
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except CommandModuleError as error:
+        print(f"ftacq: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2),
@@ -75,15 +98,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader went away (`ftacq identify … | head`): stop quietly, as Unix tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_BROKEN_PIPE
-    except AbortedError as error:
-        print(f"ftacq: {error}", file=sys.stderr)
-        return EXIT_INTERRUPTED if "interrupt" in str(error).lower() else EXIT_FAILURE
-    except InputError as error:
-        print(f"ftacq: error: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
     except FtacqError as error:
-        print(f"ftacq: error: {error}", file=sys.stderr)
-        return EXIT_FAILURE
+        # a stopped procedure is reported as it is (it says what was kept and how to resume), not as an error
+        print(f"ftacq: {error}" if isinstance(error, AbortedError) else f"ftacq: error: {error}", file=sys.stderr)
+        return exit_status(error)
 
 
 if __name__ == "__main__":

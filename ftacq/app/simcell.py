@@ -38,3 +38,8 @@ def simulated_cell(**kwargs: Any) -> Any:
     """Start and return a :class:`tests.fakes.cell.SimulatedCell` (a context manager); see its docstring for the
     arguments. Raises :class:`InputError` with what to do when the simulator is not installed."""
     return _fakes_module("cell").SimulatedCell(**kwargs)
+
+
+def simulated_truth(**changes: Any) -> Any:
+    """Return a :class:`tests.fakes.world.CellTruth` (the simulated cell's ground truth) with some fields changed."""
+    return _fakes_module("world").CellTruth(**changes)

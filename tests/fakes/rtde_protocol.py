@@ -1,7 +1,7 @@
 """RTDE wire format (UR port 30004) for the simulated controller: framing, type table, packing.
 
 Everything is big-endian. A package is ``uint16 size (incl. header) | uint8 type | payload``
-(spec ``/work/shared/specs/ur.md`` §1). This module is pure: no sockets, no threads.
+(docs/protocols-ur.md, "RTDE framing"). This module is pure: no sockets, no threads.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-# Package types (spec §1.2).
+# Package types (docs/protocols-ur.md).
 REQUEST_PROTOCOL_VERSION = ord("V")
 GET_URCONTROL_VERSION = ord("v")
 TEXT_MESSAGE = ord("M")
@@ -26,7 +26,7 @@ MAX_PACKAGE_SIZE = 0xFFFF
 NOT_FOUND = "NOT_FOUND"
 IN_USE = "IN_USE"
 
-# struct codes and element counts of each RTDE type (spec §1.3).
+# struct codes and element counts of each RTDE type (big-endian).
 TYPE_FORMATS: dict[str, tuple[str, int]] = {
     "BOOL": ("?", 1),
     "UINT8": ("B", 1),
@@ -110,10 +110,10 @@ def _build_input_types() -> dict[str, str]:
 
 
 OUTPUT_TYPES: dict[str, str] = _build_output_types()
-"""Output variable name → RTDE type name (UR client library's table, spec §1.4)."""
+"""Output variable name → RTDE type name (the names and types UR controllers publish)."""
 
 INPUT_TYPES: dict[str, str] = _build_input_types()
-"""Input variable name → RTDE type name (spec §1.5)."""
+"""Input variable name → RTDE type name (the controller's input fields)."""
 
 
 def frame(package_type: int, payload: bytes = b"") -> bytes:
@@ -167,7 +167,7 @@ class Recipe:
         """Decode a client data package body (after the recipe id) into name → value.
 
         Fields that are not complete in a short package are left out (ur_rtde sends short packages for
-        wrong-length vectors, spec §4.3); scalars come back as Python numbers, vectors as tuples.
+        wrong-length vectors); scalars come back as Python numbers, vectors as tuples.
         """
         out: dict[str, object] = {}
         offset = 0

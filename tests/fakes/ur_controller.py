@@ -10,7 +10,7 @@ line-based control port (port 0, reported) for tests. Prints one line when liste
 
 or, when a fixed port is taken, ``BIND_ERROR {"host": ..., "port": ..., "error": ...}`` and exits with status 3
 (tests/fakes/ur_process.py then retries on another address). Why a process: ur-rtde's constructors hold the GIL,
-so a fake in the client's process deadlocks (spec ``/work/shared/specs/ur.md`` §7-§8).
+so a fake in the client's process deadlocks (docs/protocols-ur.md).
 
 Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` or ``{"ok": false, "error": ...}``):
 

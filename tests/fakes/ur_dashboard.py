@@ -1,4 +1,4 @@
-"""Dashboard server replies (UR port 29999) of the simulated controller, spec ``/work/shared/specs/ur.md`` §2.2.
+"""Dashboard server replies (UR port 29999) of the simulated controller (docs/protocols-ur.md).
 
 One ASCII line in, exactly one line out (``\\n``-terminated, no ``\\r``). :func:`dashboard_reply` is pure logic
 over a :class:`~tests.fakes.ur_simulator.URSimulator`; the socket loop lives in ur_controller.py.

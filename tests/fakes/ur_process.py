@@ -11,7 +11,7 @@ Used by tests, the procedure's tests and the ``--sim`` demo::
 The controller's ports are fixed (30004/29999/30003), so each instance binds a random 127.x.y.z (never 127.0.0.1).
 If the address is taken (EADDRINUSE on 30004, e.g. the suite runs twice at once) the subprocess reports
 ``BIND_ERROR`` and this helper retries on another address. Disconnect ur-rtde clients before :meth:`stop`
-(spec §8): otherwise ur-rtde's control interface starts reconnecting.
+(docs/protocols-ur.md): otherwise ur-rtde's control interface starts reconnecting.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 motion, fault injection and the record of executed motion commands. No sockets here (see ur_controller.py).
 
 All public methods take ``self.lock``; the network threads call them, the tick thread calls :meth:`step`.
-The control script is emulated as spec ``/work/shared/specs/ur.md`` §4.5 describes: ``input_int_register_(0+off)``
+The control script is emulated as docs/protocols-ur.md ("ur-rtde's control program") describes: ``input_int_register_(0+off)``
 carries the command id, ``output_int_register_(0+off)`` is 1 (ready) / 2 (done), results go to
 ``output_int_register_(1+off)`` / ``output_double_register_(0..5+off)``, the async progress word to
 ``output_int_register_(2+off)``.
@@ -23,7 +23,7 @@ from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
 
-# robot_mode (spec §1.4)
+# robot_mode (docs/protocols-ur.md)
 ROBOT_MODE_POWER_OFF, ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = 3, 4, 5, 7
 ROBOT_MODE_NAMES = {-1: "NO_CONTROLLER", 0: "DISCONNECTED", 1: "CONFIRM_SAFETY", 2: "BOOTING", 3: "POWER_OFF",
                     4: "POWER_ON", 5: "IDLE", 6: "BACKDRIVE", 7: "RUNNING", 8: "UPDATING_FIRMWARE"}
@@ -34,7 +34,7 @@ SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVE
 # runtime_state
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
 
-# command ids (spec §4.4)
+# command ids (docs/protocols-ur.md)
 CMD_CLEAR, CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK = 0, 1, 2, 3, 4
 CMD_SET_PAYLOAD, CMD_SET_TCP, CMD_PROTECTIVE_STOP, CMD_STOPL, CMD_STOPJ = 17, 29, 31, 33, 34
 CMD_GET_TCP_OFFSET, CMD_FK_DEFAULT, CMD_FK_ARGS, CMD_MOVE_PATH, CMD_IS_STEADY = 40, 43, 44, 45, 47

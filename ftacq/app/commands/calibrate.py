@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from ftacq.app.helptext import examples
-from ftacq.errors import AbortedError, InputError
+from ftacq.errors import AbortedError, InputError, InterruptedByUser
 
 log = logging.getLogger(__name__)
 
@@ -264,7 +264,7 @@ def _run(args: argparse.Namespace) -> int:
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell, options)
+        return _finish(args, folder, plan, config, result, cell, options, sensor.info)
 
 
 def _as_dict(sampling) -> dict:
@@ -301,12 +301,13 @@ def _input_summary(folder, result) -> dict:
             "has_std": True, "has_count": True}
 
 
-def _finish(args, folder, plan, config, result, cell, options) -> int:
+def _finish(args, folder, plan, config, result, cell, options, sensor_info=None) -> int:
     """Write calibration.json and the report, print the summary and the verdict last; raise AbortedError for a
     stopped/failed run. Returns 1 when the verdict is FAIL (the calibration is kept but must not be used)."""
     import numpy as np
 
     from ftacq.calfile import save_calibration
+    from ftacq.provenance import with_provenance
     from ftacq.verdict import FAIL, format_verdict
     from procedures.acceptance import run_verdict
     from procedures.report import format_truth_comparison, validation_dict, write_report
@@ -335,7 +336,8 @@ def _finish(args, folder, plan, config, result, cell, options) -> int:
                                        "elapsed_s": result.drift.elapsed_s}
         if verdict is not None:
             metadata["verdict"] = verdict.to_dict()
-        calibration = replace(calibration, metadata=metadata)
+        calibration = with_provenance(replace(calibration, metadata=metadata), sensor_info,
+                                      getattr(config.tool, "name", None))
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
@@ -354,7 +356,7 @@ def _finish(args, folder, plan, config, result, cell, options) -> int:
                 f"the robot was stopped; {kept} measured poses are kept in {folder.path / 'poses.csv'}\n"
                 f"resume with: {resume}")
         if result.interrupted:
-            text = "interrupted: " + text
+            raise InterruptedByUser("interrupted: " + text) from result.error
         raise AbortedError(text) from result.error
     print("")
     if result.identification is not None:

@@ -117,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
         uncertainty=result.calibration.uncertainty,
         metadata=metadata,
     )
+    from ftacq.provenance import with_provenance
+
+    calibration = with_provenance(calibration, None, None)  # a pose file does not say which sensor measured it
     report = format_identification_report(result, validation=validation)
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)

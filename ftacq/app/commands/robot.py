@@ -4,7 +4,7 @@
 
 Prints model, software version, serial number, joint angles, flange pose (from the joint angles, TCP offset
 excluded), the pose the controller reports for its TCP, and the robot, safety and program modes. Uses only the
-dashboard server and an RTDE receive connection: it never uploads a program or moves the arm.
+UR Dashboard Server and an RTDE receive connection: it never uploads a program or moves the arm.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from ftacq.app.helptext import examples
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``robot`` sub-command with its ``info`` action."""
     parser = subparsers.add_parser("robot", help="inspect a Universal Robots controller (never moves it)",
-                                   description="Read a UR controller's identity and state over the dashboard "
-                                               "server and RTDE (receive only).",
+                                   description="Read a UR controller's identity and state over the UR "
+                                               "Dashboard Server and RTDE (receive only).",
                                    **examples("ftacq robot info 192.168.1.10"))
     actions = parser.add_subparsers(dest="robot_action", metavar="ACTION", required=True)
     info = actions.add_parser("info", help="model, software, serial number, joints, flange pose, modes",
@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           "angles, flange pose and modes. Never moves the arm.",
                               **examples("ftacq robot info 192.168.1.10", "ftacq robot info ur5e.local --json"))
     info.add_argument("host", help="controller IP address or host name, e.g. 192.168.1.10")
-    info.add_argument("--model", default=None, help="UR model (e.g. UR5e) when the dashboard cannot tell")
+    info.add_argument("--model", default=None, help="UR model (e.g. UR5e) when the UR Dashboard Server cannot tell")
     info.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     info.set_defaults(func=run_info)
 
@@ -43,16 +43,16 @@ def collect_info(host: str, model: str | None = None) -> dict:
         SAFETY_MODE_NAMES,
         URControllerInfo,
         URStateReader,
-        probe_port,
+        probe_rtde,
         read_controller_info,
     )
-    from ftacq.errors import DeviceConnectionError
+    from ftacq.errors import DeviceError
 
-    probe_port(host, RTDE_PORT)
+    probe = probe_rtde(host)  # first: a controller that accepts and never answers fails here within the deadline
     try:
         info = read_controller_info(host)
-    except DeviceConnectionError:  # no dashboard server (PolyScope X): RTDE only
-        info = URControllerInfo(None, None, None, None, None, None, None, None)
+    except DeviceError:  # no UR Dashboard Server (PolyScope X): RTDE only
+        info = URControllerInfo.unknown(probe.version_text)
     reader = URStateReader(host, model=model or info.model)
     reader.start()
     try:
@@ -61,14 +61,14 @@ def collect_info(host: str, model: str | None = None) -> dict:
         status = reader.status()
         flange = reader.flange_pose() if reader.model is not None else None
         tcp = reader.tcp_pose()
-        runtime = int(reader._rtde().getRuntimeState())
+        runtime = reader.runtime_state()
         controller_time = reader.controller_time_s()
     finally:
         reader.close()
     return {
         "host": host,
         "model": reader.model.name if reader.model is not None else None,
-        "dashboard_model": info.model_reply,
+        "dashboard_server_model": info.model_reply,
         "software_version": info.software_version,
         "serial_number": info.serial_number,
         "joint_positions_rad": q.tolist(),
@@ -104,7 +104,7 @@ def run_info(args: argparse.Namespace) -> int:
     table.add_column("item", style="bold")
     table.add_column("value")
     rows = [
-        ("model", f"{data['model'] or 'unknown'} (dashboard: {data['dashboard_model']})"),
+        ("model", f"{data['model'] or 'unknown'} (Dashboard Server: {data['dashboard_server_model']})"),
         ("software version", data["software_version"] or "n/a"),
         ("serial number", data["serial_number"] or "n/a"),
         ("joint angles (deg)", _fmt(data["joint_positions_deg"], 3)),

@@ -30,6 +30,11 @@ READ_TIMEOUT_S = 1.0
 CSV_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "status", "saturated", "seq",
                "count_fx", "count_fy", "count_fz", "count_tx", "count_ty", "count_tz")
 CSV_FORMATS = ["%.6f"] + ["%.9g"] * 6 + ["%d"] * 9
+BIAS_WARNING = ("warning: this zero includes the tool's weight at the current orientation: every calibration made "
+                "before it (and every one made after it, once the box is power-cycled or biased again) no longer "
+                "fits its biases. Calibrate again, or to re-zero with the tool on while keeping a calibration "
+                "valid use `ftacq tare --config CELL.toml --calibration CAL.json -o NEW.json` instead")
+"""Printed after every ``ftacq sensor bias``."""
 HEALTH_FIELDS = ("received", "lost", "duplicate", "out_of_order", "malformed", "foreign", "stalled", "saturated",
                  "status_errors", "timeouts", "restarts", "reconnects")
 
@@ -60,8 +65,13 @@ def register(subparsers) -> None:
     record.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.csv", help="CSV file to write")
     record.set_defaults(func=run_record)
 
-    bias = commands.add_parser("bias", help="tare the sensor at the current load",
-                               **examples("ftacq sensor bias netft://192.168.1.1"))
+    bias = commands.add_parser(
+        "bias", help="zero the sensor at the current load (invalidates earlier calibrations; see ftacq tare)",
+        description="Zero the sensor at the current load (the Net F/T box's own bias, RDT command 0x0042; on CAN a "
+                    "host-side zero). The zero includes the tool's weight at this orientation, so every "
+                    "calibration made before it no longer fits: calibrate again after a box bias. To re-zero "
+                    "with the tool on and keep a calibration valid, use `ftacq tare` instead.",
+        **examples("ftacq sensor bias netft://192.168.1.1"))
     bias.add_argument("url", help=url_help)
     bias.set_defaults(func=run_bias)
 
@@ -206,7 +216,7 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_bias(args: argparse.Namespace) -> int:
-    """Tare the sensor and print the residual mean over a short window."""
+    """Zero the sensor and print the residual mean over a short window; warn that earlier calibrations no longer fit."""
     sensor = _open(args.url)
     try:
         sensor.bias()
@@ -218,4 +228,5 @@ def run_bias(args: argparse.Namespace) -> int:
     print(f"biased {args.url} {where}")
     print("residual mean: F [" + ", ".join(f"{v:.4g}" for v in average.mean[:3]) + "] N, T ["
           + ", ".join(f"{v:.4g}" for v in average.mean[3:]) + f"] N·m over {average.count} samples")
+    print(BIAS_WARNING, file=sys.stderr)
     return 0
