@@ -38,7 +38,6 @@ def collect_info(host: str, model: str | None = None) -> dict:
     """Read everything ``robot info`` prints; raises ftacq.errors.DeviceError types."""
     from drivers.ur import (
         ROBOT_MODE_NAMES,
-        RTDE_PORT,
         RUNTIME_STATE_NAMES,
         SAFETY_MODE_NAMES,
         URControllerInfo,
