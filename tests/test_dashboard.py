@@ -325,7 +325,11 @@ def test_open_recording_with_save_writes_the_file(tmp_path):
     Dashboard(recording, strict=True).log_text("hello")
     sinks.close_recording(recording)
     assert path.is_file() and layout.MONITOR_LOG in entity_paths(path)
-    assert lines == [f"rerun: saving to {path}; view it with: rerun {path}"]
+    from ftacq.app.hints import command
+
+    assert lines == [f"rerun: saving to {path}; view it with: {command('rerun', path)}"]
+    viewer = command("rerun", path).split(" ")[0]  # runs as printed: the viewer beside this Python, or on PATH
+    assert viewer == "rerun" or Path(viewer).is_file()
 
 
 # ----------------------------------------------------------------------------------------------------------------
