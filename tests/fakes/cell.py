@@ -26,6 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ftacq.kinematics import ur_model
 from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
 
 SENSORS = ("netft", "can")
@@ -94,7 +95,8 @@ class SimulatedCell:
                                                   mount=self.mount)
             self.controller.start()
             self._stack.callback(self.controller.stop)
-            self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed)
+            self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed, robot=ur_model(self.model_name),
+                                         rate_hz=self.rate_hz)
             if self.sensor_kind == "netft":
                 from tests.fakes.netft import FakeNetFT
 
