@@ -133,3 +133,13 @@ def test_provenance_names_the_input_and_what_was_identified_on(tmp_path, identif
     path = tmp_path / "cal.json"
     save_calibration(path, calibration)
     assert load_calibration(path).metadata["input"]["identified_on"] == ["A", "E"]
+
+
+def test_a_broken_file_names_plain_numbers_not_numpy_reprs(tmp_path):
+    document = good_document()
+    document["mass_kg"] = 1.3499
+    with pytest.raises(InputError) as caught:
+        load_calibration(write(tmp_path, document))
+    message = str(caught.value)
+    assert "np.float64" not in message and "float64" not in message
+    assert "1.3499 kg disagrees with ‖gravity_base‖/g = 1.35 kg" in message

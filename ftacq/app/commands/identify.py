@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
 from ftacq.mounts import MOUNTS
 
 
@@ -21,6 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "compensation error is reported. "
             "Nothing is written if the input is bad."
         ),
+        **examples("ftacq identify runs/20260101-120000/poses.csv -o calibration.json",
+                   "ftacq identify poses.csv -o calibration.json --mount ceiling",
+                   "ftacq identify poses.csv -o closed-form.json --no-refine  # the paper's closed form only"),
     )
     parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
@@ -59,11 +63,12 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.calfile import save_calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
+    from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.posefile import read_pose_csv
     from ftacq.posesets import is_identified_on
     from ftacq.provenance import input_record, with_provenance
-    from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.report import format_identification_report, validation_errors
+    from ftacq.verdict import FAIL, format_verdict
 
     from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
     from ftacq.validation import check_number, check_output_file
@@ -89,14 +94,43 @@ def run(args: argparse.Namespace) -> int:
         )
     except IdentificationError as error:
         raise InputError(f"{path}: cannot identify a calibration: {error}") from error
-    if fit_record is not record:
-        validation = validation_errors(result.calibration, record.select(held_out))
+    held_out_record = record.select(held_out) if fit_record is not record else None
+    if held_out_record is not None:
+        validation = validation_errors(result.calibration, held_out_record)
+    verdict = _verdict(result, held_out_record, record)
     calibration = with_provenance(  # a pose file does not say which sensor measured it
-        result.calibration, None, None, validation=validation,
+        result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
                            has_count=record.count is not None))
     report = format_identification_report(result, validation=validation)
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
     print(f"wrote {args.output}")
-    return 0
+    print("")
+    print(format_verdict(verdict))
+    return 1 if verdict.status == FAIL else 0
+
+
+def _verdict(result, held_out_record, record):
+    """Judge the identification: held-out poses (V, D), the drift seen by each D row against the pose it
+    revisits (label ``<first>-revisit``), conditioning and outliers (ftacq.verdict)."""
+    import numpy as np
+
+    from ftacq.app.config import SamplingConfig
+    from ftacq.posesets import DRIFT_SET
+    from ftacq.verdict import drift_finding, identification_findings, judge
+    from procedures.measured import DRIFT_SUFFIX
+
+    findings = identification_findings(result, held_out_record)
+    labels = list(record.labels)
+    for i, (label, set_name) in enumerate(zip(labels, record.sets)):
+        first = label[: -len(DRIFT_SUFFIX)] if label.endswith(DRIFT_SUFFIX) else None
+        if set_name.strip().upper() != DRIFT_SET or first not in labels:
+            continue
+        j = labels.index(first)
+        t_end = record.extra.get("t_end_s")
+        elapsed = float(t_end[i] - t_end[j]) if t_end is not None else float("nan")
+        drift = np.asarray(record.wrench[i]) - np.asarray(record.wrench[j])
+        findings.insert(1, drift_finding(drift, elapsed, SamplingConfig.drift_warn_force_n,
+                                         SamplingConfig.drift_warn_torque_nm, first))
+    return judge(findings)
