@@ -12,7 +12,8 @@ from drivers.robot import MotionLimits
 from ftacq.calfile import load_calibration
 from ftacq.app.cli import main
 from procedures import events
-from procedures.run_folder import RunFolder, RunFolderWriter, drift_label
+from procedures.measured import drift_label
+from procedures.run_folder import RunFolder, RunFolderWriter
 from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, run_calibration
 from tests.fakes.world import CellTruth
 

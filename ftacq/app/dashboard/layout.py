@@ -31,6 +31,7 @@ from typing import Any
 import rerun.blueprint as rrb
 
 from ftacq.app.dashboard.sinks import APP_ID  # noqa: F401 - the recording's id, re-exported with the layout
+from ftacq.posesets import POSE_SETS, UNKNOWN_SET_COLOUR_RGB
 
 # ------------------------------------------------------------------------------------------------ timelines
 
@@ -95,9 +96,9 @@ HEALTH_COUNT_NAMES = ("lost", "saturated", "status_errors", "dropped")
 HEALTH_COUNT_COLORS = ((230, 57, 70), (240, 160, 30), (150, 60, 200), (120, 120, 120))
 JOINT_NAMES = tuple(f"q{i}" for i in range(1, 7))
 JOINT_COLORS = ((230, 57, 70), (240, 160, 30), (200, 200, 40), (42, 157, 90), (38, 103, 230), (150, 60, 200))
-SET_COLORS = {"A": (38, 103, 230), "E": (240, 160, 30), "V": (42, 157, 90)}
-"""Plan colours by pose set: A cube rotations blue, E random cone orange, V validation green."""
-UNKNOWN_SET_COLOR = (160, 160, 160)
+SET_COLORS = {name: kind.colour_rgb for name, kind in POSE_SETS.items()}
+"""Plan colours by pose set (:data:`ftacq.posesets.POSE_SETS`: A blue, E orange, V green, D red)."""
+UNKNOWN_SET_COLOR = UNKNOWN_SET_COLOUR_RGB
 LINK_COLOR = (190, 195, 205)
 JOINT_COLOR = (60, 60, 70)
 CONTACT_COLOR = (230, 57, 70)

@@ -33,6 +33,7 @@ from ftacq.app.dashboard.layout import (
 )
 from ftacq.app.dashboard.sinks import RECORDING_FLUSH_TIMEOUT_S
 from ftacq.kinematics import URModel
+from ftacq.posesets import VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 
 
@@ -264,7 +265,7 @@ class Dashboard:
         errors = np.asarray(errors, dtype=np.float64).reshape(-1, 6)
         with self._lock:
             self._at(time_s, VALIDATION_FORCE_NORM, rr.BarChart(np.linalg.norm(errors[:, :3], axis=1),
-                                                                color=SET_COLORS["V"]))
+                                                                color=SET_COLORS[VALIDATION_SET]))
 
     def flush(self, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S) -> None:
         """Push everything logged so far to the sink, waiting at most ``timeout_s`` seconds."""
