@@ -338,3 +338,10 @@ def test_resend_schedule_is_short_while_a_box_restarts_and_backs_off_when_it_is_
     assert intervals[0][1] == 0.25 and intervals[1][1] == 0.5
     assert max(i for s, i in intervals if s < UNREACHABLE_AFTER_S) == BACKOFF_RESTARTING_MAX_S
     assert intervals[-1][1] == BACKOFF_MAX_S
+
+
+def test_benchmark_figures_are_available_from_the_driver(fake) -> None:
+    """benchmarks/stream.py reads these: they must exist on the driver."""
+    with NetFTSensor.from_url(fake.url) as sensor:
+        sensor.read(timeout_s=READ_TIMEOUT_S)
+        assert sensor.receive_buffer_bytes > 0 and sensor.delivered > 0 and sensor.overflowed == 0
