@@ -39,6 +39,9 @@ RELATIVE_TOLERANCE = 0.05
 STILL_JOINT_SPEED_RAD_S = 1e-3
 MIN_CYCLES_PER_STEP = 5
 """Each step's reading averages at least this many controller cycles (waiting longer if the controller is slow)."""
+STABLE_SPREAD = 1e-3
+"""The last cycles of a step count once actual_TCP_force varies by at most this (N or N·m) across them: the fed
+value and the still arm make it constant."""
 SETTLE_CYCLES = 3
 """A cycle counts for a step from this many controller cycles after the step's wrench can have arrived."""
 CYCLE_TIMEOUT_S = 1.0
@@ -199,9 +202,12 @@ class _Feeder:
             with self._lock:
                 forces = list(self.settled.get(step, ()))
             if len(forces) >= n:
-                return np.mean(forces, axis=0)
+                window = np.array(forces[-n:])
+                if float(np.ptp(window, axis=0).max()) <= STABLE_SPREAD:  # the report no longer changes
+                    return window.mean(axis=0)
             if time.monotonic() > deadline:
-                raise CheckAborted(f"fewer than {n} controller cycles in {timeout_s:g} s during a check step")
+                raise CheckAborted(f"the controller's actual_TCP_force did not settle over {n} cycles within "
+                                   f"{timeout_s:g} s of a check step (is the arm still, is force mode off?)")
             time.sleep(0.005)
 
     def _run(self) -> None:
