@@ -16,14 +16,15 @@ tool's 3×3 inertia about its centre of mass in the sensor axes.
   into the sensor frame by TF and ``tool.CoG`` × that force. Together: raw − bias − gravity wrench, this
   package's compensation (ftacq.calibration).
 
-Each writer maps a :class:`ftacq.calibration.Calibration` to the file's text (:data:`EXPORT_WRITERS`).
+Each writer maps a :class:`ftacq.calibration.Calibration` to the file's text; they are rows of the writer
+table, :data:`ftacq.calfile.WRITERS`.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -193,15 +194,6 @@ def ros2_parameters_text(calibration: Calibration) -> str:
     return "\n".join(lines) + "\n"
 
 
-ExportWriter = Callable[[Calibration], str]
-
-EXPORT_WRITERS: dict[str, ExportWriter] = {
-    "ur": ur_payload_text,
-    "ros2": ros2_parameters_text,
-}
-"""The export formats (rows for ftacq.calfile's writer table); ``json`` is the calibration file itself."""
-
-
 def with_sensor_offset(calibration: Calibration, offset_m) -> Calibration:
     """Return the calibration with ``sensor_offset_m`` (3,) m set (e.g. from the command line)."""
     from dataclasses import fields, replace
@@ -215,4 +207,4 @@ def with_sensor_offset(calibration: Calibration, offset_m) -> Calibration:
 
 
 __all__ = ["URPayload", "ur_payload", "ur_payload_text", "ros2_parameters_text", "sensor_offset_m", "inertia_kg_m2",
-           "with_sensor_offset", "EXPORT_WRITERS", "ROS2_VERSIONS_FOLLOWED"]
+           "with_sensor_offset", "ROS2_VERSIONS_FOLLOWED"]

@@ -157,3 +157,13 @@ def test_older_controllers_get_set_payload_and_keep_the_cog_on_zeros():
     assert [c["event"] for c in calls] == ["set_payload", "set_payload"]
     assert back.mass_kg == pytest.approx(1.5)
     np.testing.assert_allclose(back.cog_m, [0.01, 0.02, 0.05])  # the zero CoG kept the previous one
+
+
+def test_the_writer_table_has_every_export_and_refuses_an_unknown_one(tmp_path, capsys):
+    from ftacq import calfile
+
+    assert {"json", "ur", "ros2"} <= set(calfile.WRITERS)
+    path = tmp_path / "cal.json"
+    save_calibration(path, calibration())
+    assert main(["export", str(path), "--format", "urdf"]) == 2
+    assert "known: json, ur, ros2" in capsys.readouterr().err

@@ -17,9 +17,6 @@ from pathlib import Path
 
 from ftacq.app.helptext import examples
 
-FORMATS = ("ur", "ros2", "json")
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``export`` sub-command."""
     parser = subparsers.add_parser(
@@ -33,7 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "ftacq export calibration.json --format ros2 -o ft_params.yaml",
                    "ftacq export calibration.json --format ur --sensor-offset-m 0 0 0.012 -o payload.json"))
     parser.add_argument("calibration", type=Path, metavar="CAL.json", help="calibration from calibrate or identify")
-    parser.add_argument("--format", "-f", choices=FORMATS, required=True, help="what to write")
+    parser.add_argument("--format", "-f", required=True, metavar="FORMAT",
+                        help="ur, ros2 or json (the writer table of ftacq/calfile.py; an unknown name lists them)")
     parser.add_argument("-o", "--output", type=Path, metavar="FILE", help="write here (atomically, mode 0644) "
                         "instead of standard output")
     parser.add_argument("--sensor-offset-m", type=float, nargs=3, metavar=("X", "Y", "Z"),
@@ -44,25 +42,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the export; return the exit status."""
-    from ftacq.calfile import load_calibration
-    from ftacq.exports import EXPORT_WRITERS, with_sensor_offset
-    from ftacq.fileio import atomic_write
+    from ftacq.calfile import WRITERS, load_calibration, write_calibration
+    from ftacq.errors import InputError
+    from ftacq.exports import with_sensor_offset
 
+    if args.format not in WRITERS:
+        raise InputError(f"--format {args.format!r}: unknown (known: {', '.join(WRITERS)})")
     calibration = load_calibration(args.calibration)
     if args.sensor_offset_m is not None:
         calibration = with_sensor_offset(calibration, args.sensor_offset_m)
-    if args.format == "json":
-        from ftacq.calfile import calibration_to_dict
-
-        import json
-
-        text = json.dumps(calibration_to_dict(calibration), indent=2, allow_nan=False) + "\n"
-    else:
-        text = EXPORT_WRITERS[args.format](calibration)
     if args.output is None:
-        sys.stdout.write(text)
+        sys.stdout.write(WRITERS[args.format](calibration))
         return 0
-    with atomic_write(args.output) as handle:
-        handle.write(text)
+    write_calibration(args.output, calibration, args.format)
     print(f"wrote {args.output} ({args.format})", file=sys.stderr)
     return 0
