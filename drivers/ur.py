@@ -489,11 +489,6 @@ class URRobot:
             log.warning("robot %s: stop failed: %s", self.host, error)
 
     # ------------------------------------------------------------------ external F/T input and payload
-    def set_payload(self, mass_kg: float, cog_m) -> None:
-        """Set the payload (kg; centre of gravity in the flange frame, m) with ur-rtde's setPayload."""
-        if not self._call("setPayload", float(mass_kg), [float(v) for v in cog_m]):
-            raise RobotError(f"robot {self.host}: the controller refused setPayload({mass_kg:g} kg)")
-
     def enable_external_ft_input(self, enable: bool, function: str = "ft_rtde_input_enable", sensor_mass_kg: float = 0.0,
                                  sensor_measuring_offset_m=(0.0, 0.0, 0.0), sensor_cog_m=(0.0, 0.0, 0.0)) -> None:
         """Call URScript ``ft_rtde_input_enable`` (or the deprecated ``enable_external_ft_sensor``) through ur-rtde
@@ -506,6 +501,27 @@ class URRobot:
             raise RobotError(f"robot {self.host}: the controller refused {function}({enable})")
 
     # ------------------------------------------------------------------ recovery
+    def set_payload(self, mass_kg: float, cog_m, inertia_kg_m2=None) -> str:
+        """Set the payload (drivers/ur_payload.py): setTargetPayload with the inertia on PolyScope 5.10+ and X,
+        setPayload (mass and centre of gravity only) before. Returns the ur-rtde method used; raises RobotError
+        when the controller refuses."""
+        from drivers.ur_payload import takes_target_payload
+
+        cog = [float(v) for v in cog_m]
+        if takes_target_payload(self.info.software_version if self.info else None):
+            inertia = [0.0] * 6 if inertia_kg_m2 is None else [float(v) for v in inertia_kg_m2]
+            method, ok = "setTargetPayload", self._call("setTargetPayload", float(mass_kg), cog, inertia)
+        else:
+            method, ok = "setPayload", self._call("setPayload", float(mass_kg), cog)
+        if not ok:
+            raise RobotError(f"robot controller {self.host}: {method} was refused")
+        return method
+
+    def set_gravity(self, gravity_m_s2) -> None:
+        """Set the gravity direction: [m/s²] in the base frame, away from the earth's centre (setGravity)."""
+        if not self._call("setGravity", [float(v) for v in gravity_m_s2]):
+            raise RobotError(f"robot controller {self.host}: setGravity was refused")
+
     def _dashboard_server(self, *commands: str) -> None:
         """Run recovery commands (methods of :class:`DashboardServerClient`) on the UR Dashboard Server."""
         try:

@@ -33,6 +33,7 @@ COMMAND_MODULES = (
     "ftacq.app.commands.config",
     "ftacq.app.commands.monitor",
     "ftacq.app.commands.tare",
+    "ftacq.app.commands.export",
     "ftacq.app.commands.bridge",
 )
 
