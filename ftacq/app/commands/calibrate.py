@@ -335,6 +335,10 @@ def _finish(args, folder, plan, config, result, cell, options, sensor_info=None)
             validation=None if result.validation is None else validation_dict(result.validation),
             input=input_record(folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True),
             drift_check=drift_check, verdict=None if verdict is None else verdict.to_dict())
+        if config.tool.sensor_offset_m is not None:  # CELL.toml, for the exports (docs/exports.md)
+            from ftacq.exports import with_sensor_offset
+
+            calibration = with_sensor_offset(calibration, config.tool.sensor_offset_m)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
