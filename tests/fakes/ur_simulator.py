@@ -274,7 +274,7 @@ class URSimulator:
         self._event("script_started", offset=off)
 
     def stop_program(self, reason: str) -> None:
-        """Stop the running program (dashboard ``stop``, pendant stop, script end)."""
+        """Stop the running program (UR Dashboard Server ``stop``, pendant stop, script end)."""
         with self.lock:
             if self.runtime_state == RUNTIME_PLAYING:
                 self._event("program_stopped", reason=reason)
