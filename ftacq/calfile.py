@@ -175,15 +175,15 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     orthonormal_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if orthonormal_error > ROTATION_ORTHONORMAL_TOLERANCE or abs(np.linalg.det(rotation) - 1.0) > ROTATION_ORTHONORMAL_TOLERANCE:
         raise InputError(
-            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {orthonormal_error:.2e}, "
-            f"det = {np.linalg.det(rotation):.6f})"
+            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {float(orthonormal_error):.2e}, "
+            f"det = {float(np.linalg.det(rotation)):.6f})"
         )
     mass_from_gravity = np.linalg.norm(values["gravity_base"]) / STANDARD_GRAVITY_M_S2
     mass = check_number(float(values["mass_kg"]), f"{path}: key 'mass_kg'", low=0.0, high=MAX_MASS_KG,
                         low_exclusive=True)
     if abs(mass - mass_from_gravity) > MASS_CONSISTENCY_TOLERANCE * max(mass_from_gravity, 1e-9):
         raise InputError(
-            f"{path}: key 'mass_kg': {mass!r} disagrees with ‖gravity_base‖/g = {mass_from_gravity!r} kg"
+            f"{path}: key 'mass_kg': {mass:.6g} kg disagrees with ‖gravity_base‖/g = {float(mass_from_gravity):.6g} kg"
         )
     uncertainty = document.get("uncertainty", {})
     if not isinstance(uncertainty, dict):

@@ -87,6 +87,8 @@ class IdentificationResult:
         converged: refinement convergence flag (True when not refined).
         iterations: LM iterations in total.
         diagnostics: figures for the report (condition number, eigen gap, Wahba singular values, …).
+        parameter_covariance: (15, 15) covariance of the parameters (JᵀWJ)⁻¹ in refine.PARAMETER_NAMES order
+            (the rotation as a sensor-frame increment, rad); the verdict propagates it to held-out poses.
     """
 
     calibration: Calibration
@@ -106,6 +108,7 @@ class IdentificationResult:
     iterations: int = 0
     mount: str | None = None
     diagnostics: dict = field(default_factory=dict)
+    parameter_covariance: np.ndarray | None = None
 
 
 def _closed_form(
@@ -487,4 +490,5 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         iterations=iterations,
         mount=mount,
         diagnostics={**metadata["diagnostics"], "tilt_deg": list(tilt), "special_angle_deg": special_angle},
+        parameter_covariance=covariance,
     )
