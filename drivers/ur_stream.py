@@ -6,7 +6,8 @@ sensor sample for live compensation), so this client speaks RTDE itself (docs/pr
 protocol version 2, one output recipe, data packages) on its own connection and appends every package, stamped
 on arrival with the host's ``time.monotonic()``, to a fixed-size ring of numpy rows.
 
-Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qdd`` (rad, rad/s, rad/s²).
+Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``
+(rad, rad/s, rad/s²).
 The controller's timestamp maps onto the host clock through the lower envelope of (arrival − timestamp)
 (:func:`ftacq.dynamics.timing.device_to_host_clock`): :meth:`URStateStream.window` returns host times free of
 receive jitter. Every call has a deadline; a controller that stops sending is reported by :attr:`stale`.
@@ -28,7 +29,7 @@ from ftacq.errors import DeviceConnectionError, DeviceError
 log = logging.getLogger(__name__)
 
 RTDE_PORT = 30004
-OUTPUTS = ("timestamp", "actual_q", "actual_qd", "target_qdd")
+OUTPUTS = ("timestamp", "actual_q", "actual_qd", "target_qd", "target_qdd")
 _HEADER = struct.Struct(">HB")
 _V, _O, _S, _P, _U, _M = (ord(c) for c in "VOSPUM")
 CONNECT_TIMEOUT_S = 3.0
@@ -37,14 +38,14 @@ RECEIVE_TIMEOUT_S = 1.0
 JOIN_TIMEOUT_S = 2.0
 DEFAULT_CAPACITY = 1 << 18
 """Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
-_COLUMNS = 20  # arrival, timestamp, q (6), qd (6), qdd (6)
+_COLUMNS = 26  # arrival, timestamp, q (6), qd (6), target qd (6), target qdd (6)
 
 
 @dataclass(frozen=True)
 class StateWindow:
-    """Robot samples, oldest first: host times (s, host monotonic clock), q, q̇, q̈ (M, 6) (rad, rad/s, rad/s²).
-
-    ``arrival_s`` are the raw receive stamps, ``controller_time_s`` the controller's own timestamps."""
+    """Robot samples, oldest first: host times (s, host monotonic clock), q, q̇ (actual), q̇ and q̈ (target) (M, 6)
+    (rad, rad/s, rad/s²). ``arrival_s`` are the raw receive stamps, ``controller_time_s`` the controller's own
+    timestamps."""
 
     time_s: np.ndarray
     arrival_s: np.ndarray
@@ -52,6 +53,7 @@ class StateWindow:
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
+    target_qd: np.ndarray
 
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
@@ -137,7 +139,7 @@ class URStateStream:
         return self
 
     def _read_loop(self) -> None:
-        values = struct.Struct(">" + "d" * 19)
+        values = struct.Struct(">" + "d" * (_COLUMNS - 1))
         package_size = _HEADER.size + 1 + values.size
         rows, capacity, sock = self._rows, self._rows.shape[0], self._sock
         buffer = b""
@@ -198,7 +200,7 @@ class URStateStream:
         times = rows[:, 1] + (offset if np.isfinite(offset) else 0.0)
         if since_s is not None:
             rows, times = rows[times >= since_s], times[times >= since_s]
-        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 14:20])
+        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
 
     def wait_for_samples(self, count: int, timeout_s: float) -> bool:
         """Wait until at least ``count`` samples were received in total; False after ``timeout_s``."""

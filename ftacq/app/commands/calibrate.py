@@ -48,6 +48,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--yes", "-y", action="store_true", help="confirm the plan without asking")
     parser.add_argument("--resume", type=Path, metavar="RUN_DIR",
                         help="continue a stopped or failed run: same plan, measured poses are not measured again")
+    parser.add_argument("--dynamic", action="store_true",
+                        help="after the poses, run the excitation stage (a checked, confirmed motion recorded with "
+                             "the robot state) and identify the tool's inertia: the calibration then compensates "
+                             "while the arm moves (docs/dynamics.md)")
     parser.add_argument("--out", type=Path, metavar="DIR",
                         help="parent folder of the run folder (default: output.folder of the config, 'runs')")
     sim = parser.add_argument_group("simulation (--sim)")
@@ -239,7 +243,12 @@ def _run(args: argparse.Namespace) -> int:
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell, sensor.info)
+        status = _finish(args, folder, plan, config, result, cell, sensor.info)
+        if args.dynamic and status == 0:
+            from ftacq.app.commands.dynamic_stage import run_dynamic_stage
+
+            status = run_dynamic_stage(args, stack, config, settings, robot, sensor, folder, cell, _confirm)
+        return status
 
 
 def _as_dict(sampling) -> dict:

@@ -25,7 +25,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Nothing is written if the input is bad."
         ),
     )
-    parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
+    parser.add_argument("poses", metavar="POSES.csv", nargs="?",
+                        help="pose record CSV (see docs/formats.md); optional with --motion and --calibration")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
     parser.add_argument(
         "--mount",
@@ -52,14 +53,72 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
     )
+    dynamics = parser.add_argument_group("motion (docs/dynamics.md)")
+    dynamics.add_argument("--motion", metavar="MOTION.csv",
+                          help="a recorded motion (ftacq calibrate --dynamic writes RUN_DIR/motion.csv): also "
+                               "identify the tool's inertia, so the calibration compensates while the arm moves")
+    dynamics.add_argument("--calibration", metavar="CALIBRATION.json",
+                          help="with --motion and no POSES.csv: the static calibration to extend")
+    dynamics.add_argument("--model", help="UR model of the motion (default: the one named in MOTION.csv)")
+    dynamics.add_argument("--sensor-offset", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                          help="sensor origin in the flange frame, m (default: the calibration's, else CELL.toml "
+                               "tool.sensor_offset_m as recorded there, else 0)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Identify, print the report, write the calibration; return the exit status."""
+    from ftacq.calfile import load_calibration, save_calibration
+    from ftacq.errors import InputError
+
+    if args.poses is None and not (args.motion and args.calibration):
+        raise InputError("give POSES.csv, or --motion MOTION.csv with --calibration CALIBRATION.json")
+    if args.poses is not None and args.calibration:
+        raise InputError("give POSES.csv or --calibration, not both (the poses identify the static calibration)")
+    if args.poses is not None:
+        calibration, report = _static(args)
+    else:
+        calibration, report = load_calibration(args.calibration), ""
+    if args.motion:
+        calibration, motion_report = _dynamic(args, calibration)
+        report += motion_report
+    save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
+    sys.stdout.write(report)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _dynamic(args: argparse.Namespace, calibration):
+    """Identify the inertia from ``args.motion``; return (calibration with inertia, report text)."""
     import numpy as np
 
-    from ftacq.calfile import save_calibration
+    from ftacq.dynamics import identify_dynamics
+    from ftacq.dynamics.motionfile import read_motion_csv
+    from ftacq.dynamics.report import format_dynamics
+    from ftacq.errors import IdentificationError, InputError
+    from ftacq.kinematics import ur_model
+
+    record, file_model = read_motion_csv(args.motion)
+    model_name = args.model or file_model
+    if not model_name:
+        raise InputError(f"{args.motion}: the file does not name the robot model; give --model (e.g. UR5e)")
+    try:
+        model = ur_model(model_name)
+    except ValueError as error:
+        raise InputError(f"--model {model_name}: {error}") from None
+    offset = args.sensor_offset if args.sensor_offset is not None else calibration.sensor_offset
+    try:
+        result = identify_dynamics(calibration, record, model,
+                                   sensor_offset_m=None if offset is None else np.array(offset, dtype=float))
+    except (IdentificationError, np.linalg.LinAlgError) as error:
+        raise InputError(f"{args.motion}: cannot identify the inertia: {error}") from error
+    return result.calibration, "\n" + format_dynamics(result)
+
+
+def _static(args: argparse.Namespace):
+    """Identify the static calibration from ``args.poses``; return (calibration, report text)."""
+    import numpy as np
+
     from ftacq.calibration import Calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
@@ -109,8 +168,4 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.provenance import with_provenance
 
     calibration = with_provenance(calibration, None, None)  # a pose file does not say which sensor measured it
-    report = format_identification_report(result, validation=validation)
-    save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
-    sys.stdout.write(report)
-    print(f"wrote {args.output}")
-    return 0
+    return calibration, format_identification_report(result, validation=validation)
