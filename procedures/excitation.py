@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ftacq.dynamics.acceleration import joint_acceleration
 from ftacq.dynamics.identify import MotionRecord
 from ftacq.dynamics.timing import device_to_host_clock
 from ftacq.errors import PlanError
@@ -37,6 +38,10 @@ DEFAULT_MOVES = 10
 MAX_DRAWS = 200
 """Random targets tried per segment before the plan gives up."""
 SENSOR_READ_TIMEOUT_S = 0.5
+STREAM_GAP_S = 0.05
+"""Samples arriving further apart than this (a reconnect, a stall) start a new run of the sensor's clock."""
+MAX_SILENT_READS = 6
+"""Consecutive sensor reads without a sample (3 s) that end the recording as a fault."""
 
 
 def trapezoid_duration_s(distance_rad: float, speed: float, acceleration: float) -> float:
@@ -82,7 +87,7 @@ def plan_excitation(settings, start_q_rad: np.ndarray, moves: int = DEFAULT_MOVE
         for _ in range(MAX_DRAWS):
             if index == moves:
                 candidate = start
-            else:  # alternate the sign per joint so that consecutive segments reverse (more acceleration)
+            else:  # a random excursion of every joint, each with a random sign
                 candidate = start + amplitude * rng.uniform(0.4, 1.0, 6) * rng.choice((-1.0, 1.0), 6)
             problems = check_path(settings, q, candidate)
             if not problems or index == moves:
@@ -109,6 +114,12 @@ def format_excitation(plan: ExcitationPlan) -> str:
             f"  estimated duration: {plan.estimated_duration_s:.1f} s (ends where it started)")
 
 
+def counts_samples(sensor) -> bool:
+    """True when the sensor's sequence numbers count its own samples at a fixed rate (Net F/T RDT); a polled
+    sensor (CAN) numbers its polls, whose times are the arrival stamps."""
+    return getattr(getattr(sensor, "info", None), "transport", "") == "netft"
+
+
 def sensor_host_times(arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray:
     """Sample times on the host clock from the device's sequence numbers (its own, regular clock) and the
     arrival stamps: the rate from a line through (sequence, arrival), the offset from the lower envelope
@@ -116,12 +127,22 @@ def sensor_host_times(arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray
     not count samples (a polled sensor)."""
     arrival = np.asarray(arrival_s, dtype=float)
     sequence = np.asarray(sequence, dtype=float)
-    if arrival.size < 3 or np.any(np.diff(sequence) <= 0):
+    if arrival.size < 3:
         return arrival.copy()
-    period = np.polyfit(sequence - sequence[0], arrival - arrival[0], 1)[0]
+    # a restarted count or a silence (a reconnect, a stalled stream) starts a new run with its own offset
+    breaks = np.nonzero((np.diff(sequence) <= 0) | (np.diff(arrival) > STREAM_GAP_S))[0] + 1
+    runs = np.split(np.arange(arrival.size), breaks)
+    longest = max(runs, key=len)
+    if longest.size < 3:
+        return arrival.copy()
+    period = np.polyfit(sequence[longest] - sequence[longest[0]], arrival[longest] - arrival[longest[0]], 1)[0]
     if not (period > 0 and np.isfinite(period)):
         return arrival.copy()
-    return device_to_host_clock((sequence - sequence[0]) * period, arrival - arrival[0]) + arrival[0]
+    out = np.empty_like(arrival)
+    for run in runs:
+        local = (sequence[run] - sequence[run[0]]) * period
+        out[run] = device_to_host_clock(local, arrival[run] - arrival[run[0]]) + arrival[run[0]]
+    return out
 
 
 @dataclass
@@ -137,9 +158,19 @@ class _SensorRecorder:
         self._thread = threading.Thread(target=self._run, name="ftacq-excitation-sensor", daemon=True)
 
     def _run(self) -> None:
+        from ftacq.errors import DeviceTimeoutError
+
+        silent = 0
         try:
             while not self._stop.is_set():
-                batch = self.sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)
+                try:
+                    batch = self.sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)
+                except DeviceTimeoutError:
+                    silent += 1  # a late stream (the driver reconnects): the identification sees a gap
+                    if silent >= MAX_SILENT_READS:
+                        raise
+                    continue
+                silent = 0
                 if len(batch):
                     self.batches.append(batch)
         except BaseException as error:  # noqa: BLE001 - reported by the caller after the robot stopped
@@ -179,15 +210,16 @@ def record_excitation(plan: ExcitationPlan, robot, sensor, stream, move_timeout_
             robot.stop()
         finally:
             recorder.stop()
-            error.motion_record = _assemble(recorder.batches, stream, first_robot)  # type: ignore[attr-defined]
+            error.motion_record = _assemble(recorder.batches, stream, first_robot,  # type: ignore[attr-defined]
+                                            counts_samples(sensor))
         raise
     recorder.stop()
     if recorder.error is not None:
         raise recorder.error
-    return _assemble(recorder.batches, stream, first_robot)
+    return _assemble(recorder.batches, stream, first_robot, counts_samples(sensor))
 
 
-def _assemble(batches: list, stream, first_robot: int) -> MotionRecord:
+def _assemble(batches: list, stream, first_robot: int, regular: bool = True) -> MotionRecord:
     if batches:
         arrival = np.concatenate([b.time_s for b in batches])
         sequence = np.concatenate([b.sequence for b in batches])
@@ -195,5 +227,7 @@ def _assemble(batches: list, stream, first_robot: int) -> MotionRecord:
     else:
         arrival, sequence, wrench = np.empty(0), np.empty(0), np.empty((0, 6))
     window = stream.window(last=max(stream.count - first_robot, 0))
-    return MotionRecord(sensor_host_times(arrival, sequence), wrench, window.time_s, window.q, window.qd, window.qdd,
+    qdd, _ = joint_acceleration(window.time_s, window.qd, window.target_qd, window.qdd)
+    times = sensor_host_times(arrival, sequence) if regular else arrival
+    return MotionRecord(times, wrench, window.time_s, window.q, window.qd, qdd,
                         metadata={"robot_samples": len(window), "sensor_samples": int(arrival.size)})
