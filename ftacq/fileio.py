@@ -1,6 +1,7 @@
 """Atomic file writing: nothing half written, ever.
 
-Write to a temporary file in the destination folder, flush and fsync it, then rename it over the target.
+Write to a temporary file in the destination folder, flush and fsync it, then rename it over the target
+(mode 0644).
 """
 
 from __future__ import annotations
@@ -10,6 +11,10 @@ import os
 import tempfile
 from pathlib import Path
 from typing import IO, Iterator
+
+
+FILE_MODE = 0o644
+"""Permissions of every file written here (owner read-write, everyone else read)."""
 
 
 @contextlib.contextmanager
@@ -22,6 +27,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", encoding: str | None 
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
+        os.fchmod(fd, FILE_MODE)  # mkstemp creates 0600; a result file is readable by everyone, like any other
         with os.fdopen(fd, mode, encoding=None if "b" in mode else encoding, newline=None if "b" in mode else "") as handle:
             yield handle
             handle.flush()

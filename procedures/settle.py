@@ -11,6 +11,10 @@ Theory of operation (as ophyd's ``StatusBase``: always under a finite timeout):
 2. Average: collect fresh samples for ``average_time_s`` seconds with the driver's ``average`` (mean, std,
    count; saturated samples excluded and counted, lost samples counted).
 
+A silence of the sensor shorter than ``sensor_timeout_s`` never aborts a pose: settling keeps reading through it,
+and an averaging window it spoils (fewer than half the samples the rate promises) is taken again, up to
+``MAX_AVERAGE_ATTEMPTS`` times; each window may wait ``average_time_s + sensor_timeout_s`` for its samples.
+
 Both check a stop flag between reads, so a requested stop lands within one read.
 """
 

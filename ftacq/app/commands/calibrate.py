@@ -74,9 +74,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sim_config(args: argparse.Namespace):
-    from ftacq.app.config import CellConfig, RobotConfig
+    from ftacq.app.config import config_from_dict
 
-    return CellConfig(robot=RobotConfig(host="(simulated)", model=args.model, mount=args.mount), source="--sim")
+    # validated like a file's values: `--model UR99` is a one-line error, not a traceback later
+    return config_from_dict({"robot": {"host": "(simulated)", "model": args.model, "mount": args.mount}},
+                            "--sim (--model/--mount)")
 
 
 def sim_sampling(sampling, time_scale: float):
@@ -146,11 +148,14 @@ def _run(args: argparse.Namespace) -> int:
     from procedures.progress import ProgressListener
     from procedures.run_folder import RunFolder, RunFolderWriter
 
+    from ftacq.validation import check_number, check_output_file, check_output_folder
+
     if not (args.config or args.sim or args.resume):
         raise InputError("give --config CELL.toml, --sim, or --resume RUN_DIR")
     time_scale = DEFAULT_SIM_TIME_SCALE if args.time_scale is None else args.time_scale
-    if not time_scale >= 0:
-        raise InputError(f"--time-scale {args.time_scale}: must be ≥ 0")
+    check_number(time_scale, "--time-scale", low=0.0)
+    if getattr(args, "save", None) is not None:
+        check_output_file(args.save, "--save")
 
     folder: RunFolder | None = None
     sim_info: dict = {}
@@ -158,6 +163,10 @@ def _run(args: argparse.Namespace) -> int:
         folder = RunFolder.open(args.resume)
         if folder.status == "done":
             raise InputError(f"{args.resume}: this run is already done (calibration.json is there); nothing to resume")
+        if folder.status == "running" and folder.process_alive():
+            raise InputError(f"{args.resume}: this run is still {folder.status_note}; stop it before resuming")
+        if folder.status == "interrupted":
+            _err(f"note: {args.resume}: {folder.status_note}; resuming it")
         config = config_from_dict(folder.config, str(folder.path / "run.json"))
         plan = Plan.from_json(folder.plan_json)
         sim_info = dict(folder.document.get("sim") or {})
@@ -176,6 +185,8 @@ def _run(args: argparse.Namespace) -> int:
                     "model": sim_info.get("model", config.robot.model),
                     "mount": sim_info.get("mount", config.robot.mount)}
     out_parent = args.out or Path(config.output.folder)
+    if folder is None:  # a new run folder will be made there: check it before the robot is connected
+        check_output_folder(out_parent, "--out" if args.out else f"{config.source}: output.folder")
 
     with contextlib.ExitStack() as stack:
         cell = None

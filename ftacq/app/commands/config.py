@@ -39,11 +39,14 @@ def run_init(args: argparse.Namespace) -> int:
     from ftacq.app.config import example_config_text
     from ftacq.fileio import atomic_write
 
+    from ftacq.validation import check_output_file
+
     path: Path = args.path
-    if path.exists() and not args.force:
-        raise InputError(f"{path}: already exists; pass --force to overwrite it")
     if path.exists() and path.is_dir():
         raise InputError(f"{path}: is a folder; give a file name such as {path / DEFAULT_CONFIG_PATH}")
+    if path.exists() and not args.force:
+        raise InputError(f"{path}: already exists; pass --force to overwrite it")
+    check_output_file(path, "configuration file")
     with atomic_write(path) as handle:
         handle.write(example_config_text())
     print(f"wrote {path}: edit robot.host, robot.model, sensor.url and the tool cylinder, then run "

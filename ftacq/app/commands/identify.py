@@ -126,6 +126,13 @@ def _static(args: argparse.Namespace):
     from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.report import format_identification_report, validation_errors
 
+    from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
+    from ftacq.validation import check_number, check_output_file
+
+    # options and the output path first: nothing is computed for a run that cannot be kept
+    check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
+                 low_exclusive=True, high_exclusive=True)
+    check_output_file(args.output, "-o/--output")
     path = Path(args.poses)
     record = read_pose_csv(path)
     held_out = np.array([name.strip().upper() in HELD_OUT_SETS for name in record.sets])

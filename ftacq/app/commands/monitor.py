@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ftacq.errors import InputError
 
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
@@ -111,8 +110,15 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.kinematics import ur_model
     from procedures.monitor import GravityCompensator, LiveMonitor
 
-    if args.seconds is not None and not args.seconds > 0:
-        raise InputError(f"--seconds {args.seconds}: must be a positive number of seconds")
+    from ftacq.validation import check_number, check_output_file
+
+    if args.seconds is not None:
+        check_number(args.seconds, "--seconds", low=0.0, low_exclusive=True)
+    # output paths before any device is opened: a run whose record cannot be kept does not start
+    if args.record is not None:
+        check_output_file(args.record, "--record")
+    if getattr(args, "save", None) is not None:
+        check_output_file(args.save, "--save")
     with contextlib.ExitStack() as stack:
         calibration = None
         if args.calibration is not None:

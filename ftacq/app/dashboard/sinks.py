@@ -142,6 +142,14 @@ def _stop_process_group(process: subprocess.Popen, timeout_s: float = RECORDING_
     except subprocess.TimeoutExpired:
         signal_group(getattr(signal, "SIGKILL", signal.SIGTERM))
         process.wait()
+    if process.stdin is not None:
+        process.stdin.close()
+
+
+_EXIT_WITH_PARENT = ("sh", "-c", 'exec 3<&0; "$@" 3<&- & child=$!; { read -r _ <&3; kill -TERM 0; } & '
+                     'wait "$child"; kill -TERM 0', "ftacq-viewer-guard")
+"""Runs a command in its process group and ends the group when ftacq dies, however (even SIGKILL): ftacq holds
+the write end of the guard's stdin, the kernel closes it with the process, and the guard's read then returns."""
 
 
 def _serve_web(grpc_port: int, web_port: int):
@@ -151,9 +159,9 @@ def _serve_web(grpc_port: int, web_port: int):
     DeviceConnectionError when the server does not come up (e.g. a port is taken).
     """
     process = subprocess.Popen(
-        [_rerun_executable(), "--serve-web", "--bind", LOCALHOST, "--port", str(grpc_port),
+        [*_EXIT_WITH_PARENT, _rerun_executable(), "--serve-web", "--bind", LOCALHOST, "--port", str(grpc_port),
          "--web-viewer-port", str(web_port)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,  # stdin: see _EXIT_WITH_PARENT
         start_new_session=True,  # Ctrl-C stops ftacq first; close_recording then stops the server
         env={**os.environ, "RERUN_APP_ONLY": "true"})
     if not (_wait_for_port(grpc_port, process) and _wait_for_port(web_port, process)):
