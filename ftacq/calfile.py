@@ -219,7 +219,9 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     uncertainty = document.get("uncertainty", {})
     if not isinstance(uncertainty, dict):
         raise InputError(f"{path}: key 'uncertainty': expected an object, got {type(uncertainty).__name__}")
-    for name, sigma in uncertainty.items():  # 1σ: a number or a list of numbers, each ≥ 0 (null = unknown)
+    for name, sigma in uncertainty.items():  # 1σ: a number or a (nested: 3×3) list of numbers, each ≥ 0 (null = unknown)
+        if isinstance(sigma, list) and sigma and all(isinstance(row, list) for row in sigma):
+            sigma = [item for row in sigma for item in row]
         for k, item in enumerate(sigma if isinstance(sigma, list) else [sigma]):
             if item is not None:
                 check_number(item, f"{path}: key 'uncertainty.{name}'" + (f"[{k}]" if isinstance(sigma, list) else ""),

@@ -61,6 +61,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "radius_m": Key("float", 0.05, "radius of a cylinder along the flange z axis enclosing sensor and tool, m",
                         0.0, 0.5),
         "length_m": Key("float", 0.1, "length of that cylinder from the flange, m", 0.0, 1.0),
+        "sensor_offset_m": Key("vec3", None, "sensor origin in the flange frame [x, y, z], m, from the adapter drawing "
+                                             "(compensation while moving, UR payload export; absent = at the flange)",
+                               -0.5, 0.5, optional=True),
     },
     "poses": {
         "special": Key("bool", True, "include the 24 special orientations (set A; SROM needs all 24)"),
@@ -120,6 +123,7 @@ class SensorConfig:
 class ToolConfig:
     radius_m: float = 0.05
     length_m: float = 0.1
+    sensor_offset_m: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -322,6 +322,11 @@ def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
                                        "elapsed_s": result.drift.elapsed_s}
         calibration = with_provenance(replace(calibration, metadata=metadata), sensor_info,
                                       getattr(config.tool, "name", None))
+        from ftacq.app.commands.dynamic_stage import sensor_offset_from
+
+        offset, offset_source = sensor_offset_from(config, cell)
+        if not offset_source.startswith("zero"):  # CELL.toml tool.sensor_offset_m (the exports need it too)
+            calibration = replace(calibration, sensor_offset=offset)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
