@@ -21,7 +21,12 @@ mass in the sensor frame, with its 1σ as ``uncertainty.inertia_kg_m2`` (3×3). 
 
 Optional provenance keys (version 2, :mod:`ftacq.provenance`; their types are checked on load): ``sensor``
 (serial, model, transport, counts per force and torque, units, firmware), ``tool`` (name) and ``bias_history``
-(time, method, biases, 1σ of every bias estimate, oldest first).
+(time, method, biases, 1σ of every bias estimate, oldest first). :func:`ftacq.provenance.with_provenance` builds
+all of them, and the ``input`` record, for every command alike.
+
+Other file formats: :data:`WRITERS` maps a format name to a function turning a calibration into the file's text;
+:func:`write_calibration` writes any of them atomically (mode 0644). A new export format is one such function
+and one row of the table.
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -135,12 +140,37 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     return _jsonable(document)
 
 
+def calibration_json_text(calibration: Calibration) -> str:
+    """Return the calibration as the versioned JSON text of this module's format (the ``json`` writer)."""
+    return json.dumps(calibration_to_dict(calibration), indent=2, allow_nan=False) + "\n"
+
+
+CalibrationWriter = Callable[[Calibration], str]
+"""A calibration file format: the file's whole text for one calibration."""
+
+WRITERS: dict[str, CalibrationWriter] = {
+    "json": calibration_json_text,
+}
+"""Every calibration file format ftacq writes, by name (``json`` is the one it reads back)."""
+
+
+def write_calibration(path: str | os.PathLike, calibration: Calibration, format: str = "json") -> None:
+    """Write ``calibration`` in ``format`` (a key of :data:`WRITERS`) atomically: never a half-written file.
+
+    Raises InputError naming the format and the known ones.
+    """
+    try:
+        writer = WRITERS[format]
+    except KeyError:
+        raise InputError(f"calibration format {format!r}: unknown (known: {', '.join(WRITERS)})") from None
+    text = writer(calibration)
+    with atomic_write(path) as handle:
+        handle.write(text)
+
+
 def save_calibration(path: str | os.PathLike, calibration: Calibration) -> None:
     """Write the calibration as versioned JSON, atomically (never a half-written file)."""
-    document = calibration_to_dict(calibration)
-    text = json.dumps(document, indent=2, allow_nan=False)
-    with atomic_write(path) as handle:
-        handle.write(text + "\n")
+    write_calibration(path, calibration, "json")
 
 
 def _shape_text(value: Any) -> str:
@@ -192,15 +222,15 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     orthonormal_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if orthonormal_error > ROTATION_ORTHONORMAL_TOLERANCE or abs(np.linalg.det(rotation) - 1.0) > ROTATION_ORTHONORMAL_TOLERANCE:
         raise InputError(
-            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {orthonormal_error:.2e}, "
-            f"det = {np.linalg.det(rotation):.6f})"
+            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {float(orthonormal_error):.2e}, "
+            f"det = {float(np.linalg.det(rotation)):.6f})"
         )
     mass_from_gravity = np.linalg.norm(values["gravity_base"]) / STANDARD_GRAVITY_M_S2
     mass = check_number(float(values["mass_kg"]), f"{path}: key 'mass_kg'", low=0.0, high=MAX_MASS_KG,
                         low_exclusive=True)
     if abs(mass - mass_from_gravity) > MASS_CONSISTENCY_TOLERANCE * max(mass_from_gravity, 1e-9):
         raise InputError(
-            f"{path}: key 'mass_kg': {mass!r} disagrees with ‖gravity_base‖/g = {mass_from_gravity!r} kg"
+            f"{path}: key 'mass_kg': {mass:.6g} kg disagrees with ‖gravity_base‖/g = {float(mass_from_gravity):.6g} kg"
         )
     optional = {}
     for key, (name, shape) in OPTIONAL_ARRAY_KEYS.items():

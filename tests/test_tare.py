@@ -17,7 +17,7 @@ from ftacq.bias_estimate import apply_estimate, compensation_sigma, estimate_bia
 from ftacq.calfile import calibration_to_dict, load_calibration, save_calibration
 from ftacq.identification import identify
 from ftacq.so3 import rotation_from_rotvec
-from procedures.calibration import ProcedureOptions
+from procedures.calibration_procedure import ProcedureOptions
 from procedures.plan import make_plan
 from procedures.settle import SettleSettings
 from procedures.tare import TareProcedure, tare_here, tare_plan_settings

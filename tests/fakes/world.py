@@ -290,9 +290,8 @@ class SensorPhysics:
         self._noise_sigma = np.array(self.truth.force_noise_n + self.truth.torque_noise_nm)
         self._drift = np.array(self.truth.drift_n_per_s + self.truth.drift_nm_per_s)
         self._bias = np.array(self.truth.force_bias_n + self.truth.torque_bias_nm)
-        self._gravity_base = self.truth.gravity_base
         self._sensor_rotation = self.truth.sensor_rotation
-        self._com = np.array(self.truth.center_of_mass_m)
+        self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
         self._next_sample_s: float | None = None
         self.timeline_restarts = 0
 
@@ -308,11 +307,18 @@ class SensorPhysics:
         self._next_sample_s = start + n / self.rate_hz
         return start + np.arange(n) / self.rate_hz
 
+    def set_tool(self, mass_kg: float, center_of_mass_m) -> None:
+        """Put another tool on the sensor (mass kg, centre of mass m in the sensor frame) without telling anyone:
+        every later sample follows it. ``set_tool(truth.mass_kg, truth.center_of_mass_m)`` puts the true one back."""
+        gravity_base = gravity_base_from_tilt(float(mass_kg), *self.truth.base_tilt_deg)
+        self._tool = (float(mass_kg), gravity_base, np.array(center_of_mass_m, dtype=float).reshape(3))  # atomic
+
     def noiseless_wrench(self, pose: np.ndarray, elapsed_s: float = 0.0) -> np.ndarray:
         """Return the wrench (6,) without noise at a flange pose, at rest, ``elapsed_s`` seconds after start (drift)."""
+        _mass, gravity_base, com = self._tool
         base_R_flange = rotation_from_rotvec(np.asarray(pose)[3:6])
-        gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ self._gravity_base)
-        torque = np.cross(self._com, gravity_sensor)
+        gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
+        torque = np.cross(com, gravity_sensor)
         return np.concatenate([gravity_sensor, torque]) + self._bias + self._drift * elapsed_s + self.contact_wrench
 
     def tool_wrench(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -320,9 +326,10 @@ class SensorPhysics:
         if self.robot is None:
             raise ValueError("the tool's inertial wrench needs the robot model (SensorPhysics.robot)")
         truth = self.truth
+        mass, _gravity_base, com = self._tool  # the tool on the sensor now (set_tool)
         return tool_wrench_on_sensor(flange_motion(self.robot, q, qd, qdd), truth.gravity_base_m_s2,
-                                     self._sensor_rotation, np.array(truth.sensor_offset_m), truth.mass_kg,
-                                     self._com, truth.inertia)
+                                     self._sensor_rotation, np.array(truth.sensor_offset_m), mass, com,
+                                     truth.inertia)
 
     def noiseless_wrench_moving(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                                 elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:

@@ -13,6 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
+
 REQUIRED_COLUMNS = ("rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
 CONTACT_COLUMNS = ("contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz")
 
@@ -26,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "For every row of a CSV with columns rx, ry, rz (flange rotation vector, rad) and fx..tz (N, N·m), "
             "write the row followed by contact_fx..contact_tz, the compensated contact wrench."
         ),
+        **examples("ftacq compensate calibration.json poses.csv -o contact.csv",
+                   "ftacq compensate calibration.json monitor.csv | head"),
     )
     parser.add_argument("calibration", metavar="CALIBRATION.json", help="calibration written by ftacq identify")
     parser.add_argument("poses", metavar="POSES.csv", help="pose record or sensor record CSV")

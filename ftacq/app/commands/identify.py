@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 from pathlib import Path
 
-HELD_OUT_SETS = ("V", "D")
-"""Poses of these sets (column ``set``: V validation, D the procedure's drift-check revisit) are held out of the
-fit, as the calibration procedure does, and used to report the compensation error."""
+from ftacq.app.helptext import examples
+from ftacq.mounts import MOUNTS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,13 +22,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "compensation error is reported. "
             "Nothing is written if the input is bad."
         ),
+        **examples("ftacq identify runs/20260101-120000/poses.csv -o calibration.json",
+                   "ftacq identify poses.csv -o calibration.json --mount ceiling",
+                   "ftacq identify poses.csv -o closed-form.json --no-refine  # the paper's closed form only"),
     )
     parser.add_argument("poses", metavar="POSES.csv", nargs="?",
                         help="pose record CSV (see docs/formats.md); optional with --motion and --calibration")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
     parser.add_argument(
         "--mount",
-        choices=("floor", "wall", "ceiling"),
+        choices=MOUNTS,
         help="nominal robot mount: also report the base tilt relative to it",
     )
     parser.add_argument(
@@ -68,24 +69,102 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Identify, print the report, write the calibration; return the exit status."""
-    from ftacq.calfile import load_calibration, save_calibration
-    from ftacq.errors import InputError
+    import numpy as np
+
+    from ftacq.errors import InputError as _InputError
 
     if args.poses is None and not (args.motion and args.calibration):
-        raise InputError("give POSES.csv, or --motion MOTION.csv with --calibration CALIBRATION.json")
+        raise _InputError("give POSES.csv, or --motion MOTION.csv with --calibration CALIBRATION.json")
     if args.poses is not None and args.calibration:
-        raise InputError("give POSES.csv or --calibration, not both (the poses identify the static calibration)")
-    if args.poses is not None:
-        calibration, report = _static(args)
-    else:
-        calibration, report = load_calibration(args.calibration), ""
+        raise _InputError("give POSES.csv or --calibration, not both (the poses identify the static calibration)")
+    if args.poses is None:
+        from ftacq.calfile import load_calibration, save_calibration
+        from ftacq.validation import check_output_file
+
+        check_output_file(args.output, "-o/--output")
+        calibration, report = _dynamic(args, load_calibration(args.calibration))
+        save_calibration(args.output, calibration)
+        sys.stdout.write(report)
+        print(f"wrote {args.output}")
+        return 0
+
+    from ftacq.calfile import save_calibration
+    from ftacq.errors import IdentificationError, InputError
+    from ftacq.identification import identify
+    from ftacq.identification.diagnostics import MIN_POSES
+    from ftacq.posefile import read_pose_csv
+    from ftacq.posesets import is_identified_on
+    from ftacq.provenance import input_record, with_provenance
+    from ftacq.report import format_identification_report, validation_errors
+    from ftacq.verdict import FAIL, format_verdict
+
+    from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
+    from ftacq.validation import check_number, check_output_file
+
+    # options and the output path first: nothing is computed for a run that cannot be kept
+    check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
+                 low_exclusive=True, high_exclusive=True)
+    check_output_file(args.output, "-o/--output")
+    path = Path(args.poses)
+    record = read_pose_csv(path)
+    held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
+    validation = None
+    fit_record = record
+    if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
+        fit_record = record.select(~held_out)
+    try:
+        result = identify(
+            fit_record,
+            mount=args.mount,
+            method=args.method,
+            refine=not args.no_refine,
+            special_tolerance_deg=args.special_tolerance_deg,
+        )
+    except IdentificationError as error:
+        raise InputError(f"{path}: cannot identify a calibration: {error}") from error
+    held_out_record = record.select(held_out) if fit_record is not record else None
+    if held_out_record is not None:
+        validation = validation_errors(result.calibration, held_out_record)
+    verdict = _verdict(result, held_out_record, record)
+    calibration = with_provenance(  # a pose file does not say which sensor measured it
+        result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
+        input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
+                           has_count=record.count is not None))
+    report = format_identification_report(result, validation=validation)
     if args.motion:
         calibration, motion_report = _dynamic(args, calibration)
         report += motion_report
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
     print(f"wrote {args.output}")
-    return 0
+    print("")
+    print(format_verdict(verdict))
+    return 1 if verdict.status == FAIL else 0
+
+
+def _verdict(result, held_out_record, record):
+    """Judge the identification: held-out poses (V, D), the drift seen by each D row against the pose it
+    revisits (label ``<first>-revisit``), conditioning and outliers (ftacq.verdict)."""
+    import numpy as np
+
+    from ftacq.app.config import SamplingConfig
+    from ftacq.posesets import DRIFT_SET
+    from ftacq.verdict import drift_finding, identification_findings, judge
+    from procedures.measured import DRIFT_SUFFIX
+
+    findings = identification_findings(result, held_out_record)
+    labels = list(record.labels)
+    for i, (label, set_name) in enumerate(zip(labels, record.sets)):
+        first = label[: -len(DRIFT_SUFFIX)] if label.endswith(DRIFT_SUFFIX) else None
+        if set_name.strip().upper() != DRIFT_SET or first not in labels:
+            continue
+        j = labels.index(first)
+        t_end = record.extra.get("t_end_s")
+        elapsed = float(t_end[i] - t_end[j]) if t_end is not None else float("nan")
+        drift = np.asarray(record.wrench[i]) - np.asarray(record.wrench[j])
+        findings.insert(1, drift_finding(drift, elapsed, SamplingConfig.drift_warn_force_n,
+                                         SamplingConfig.drift_warn_torque_nm, first))
+    return judge(findings)
 
 
 def _dynamic(args: argparse.Namespace, calibration):
@@ -113,66 +192,3 @@ def _dynamic(args: argparse.Namespace, calibration):
     except (IdentificationError, np.linalg.LinAlgError) as error:
         raise InputError(f"{args.motion}: cannot identify the inertia: {error}") from error
     return result.calibration, "\n" + format_dynamics(result)
-
-
-def _static(args: argparse.Namespace):
-    """Identify the static calibration from ``args.poses``; return (calibration, report text)."""
-    import numpy as np
-
-    from ftacq.calibration import Calibration
-    from ftacq.errors import IdentificationError, InputError
-    from ftacq.identification import identify
-    from ftacq.posefile import read_pose_csv
-    from ftacq.identification.diagnostics import MIN_POSES
-    from ftacq.report import format_identification_report, validation_errors
-
-    from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
-    from ftacq.validation import check_number, check_output_file
-
-    # options and the output path first: nothing is computed for a run that cannot be kept
-    check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
-                 low_exclusive=True, high_exclusive=True)
-    check_output_file(args.output, "-o/--output")
-    path = Path(args.poses)
-    record = read_pose_csv(path)
-    held_out = np.array([name.strip().upper() in HELD_OUT_SETS for name in record.sets])
-    validation = None
-    fit_record = record
-    if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
-        fit_record = record.select(~held_out)
-    try:
-        result = identify(
-            fit_record,
-            mount=args.mount,
-            method=args.method,
-            refine=not args.no_refine,
-            special_tolerance_deg=args.special_tolerance_deg,
-        )
-    except IdentificationError as error:
-        raise InputError(f"{path}: cannot identify a calibration: {error}") from error
-    if fit_record is not record:
-        validation = validation_errors(result.calibration, record.select(held_out))
-    metadata = dict(result.calibration.metadata)
-    if validation is not None:
-        metadata["validation"] = validation
-    metadata["input"] = {
-        "file": str(path),
-        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
-        "poses": len(record),
-        "sets": {name: record.sets.count(name) for name in sorted(set(record.sets))},
-        "has_std": record.std is not None,
-        "has_count": record.count is not None,
-    }
-    calibration = Calibration(
-        sensor_rotation=result.calibration.sensor_rotation,
-        force_bias=result.calibration.force_bias,
-        torque_bias=result.calibration.torque_bias,
-        gravity_base=result.calibration.gravity_base,
-        center_of_mass=result.calibration.center_of_mass,
-        uncertainty=result.calibration.uncertainty,
-        metadata=metadata,
-    )
-    from ftacq.provenance import with_provenance
-
-    calibration = with_provenance(calibration, None, None)  # a pose file does not say which sensor measured it
-    return calibration, format_identification_report(result, validation=validation)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ftacq.app.helptext import examples
 
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
@@ -81,6 +82,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Stream the sensor at full rate, compensate gravity with the robot's latest orientation and "
                     "show raw and compensated wrenches, the arm in 3-D and sensor health in Rerun. Reads the "
                     "robot, never moves it. Stop with Ctrl-C or --seconds.",
+        **examples("ftacq monitor --sim --seconds 20",
+                   "ftacq monitor --config CELL.toml --calibration runs/20260101-120000/calibration.json",
+                   "ftacq monitor --config CELL.toml --calibration calibration.json --record monitor.csv --seconds 60"),
     )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--config", type=Path, metavar="CELL.toml",

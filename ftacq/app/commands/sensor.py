@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from ftacq.app.helptext import examples
 from ftacq.errors import DeviceError, InputError
 
 INFO_WINDOW_S = 0.5
@@ -48,18 +49,23 @@ def register(subparsers) -> None:
     """Add ``ftacq sensor {info,record,bias}``."""
     parser = subparsers.add_parser("sensor", help="inspect, record or bias an ATI F/T sensor",
                                    description="Look at, record and bias an ATI F/T sensor named by URL "
-                                               "(netft:// or can://).")
+                                               "(netft:// or can://).",
+                                   **examples("ftacq sensor info netft://192.168.1.1",
+                                              "ftacq sensor record can://pcan/PCAN_USBBUS1 --seconds 10 -o still.csv"))
     commands = parser.add_subparsers(dest="sensor_command", metavar="ACTION")
     url_help = ("sensor URL: netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R] or "
                 "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]")
 
-    info = commands.add_parser("info", help="serial, units, counts per unit, rate, status")
+    info = commands.add_parser("info", help="serial, units, counts per unit, rate, status",
+                               **examples("ftacq sensor info netft://192.168.1.1",
+                                          "ftacq sensor info can://socketcan/can0 --seconds 5"))
     info.add_argument("url", help=url_help)
     info.add_argument("--seconds", type=float, default=INFO_WINDOW_S, metavar="S",
                       help="measure rate and mean wrench over S seconds (default %(default)s)")
     info.set_defaults(func=run_info)
 
-    record = commands.add_parser("record", help="record samples to CSV (s, N, N·m)")
+    record = commands.add_parser("record", help="record samples to CSV (s, N, N·m)",
+                                 **examples("ftacq sensor record netft://192.168.1.1 --seconds 10 -o still.csv"))
     record.add_argument("url", help=url_help)
     record.add_argument("--seconds", type=float, required=True, metavar="S", help="record for S seconds")
     record.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.csv", help="CSV file to write")
@@ -73,7 +79,8 @@ def register(subparsers) -> None:
         description="Zero the sensor at the current load (the Net F/T box's own bias, RDT command 0x0042; on CAN a "
                     "host-side zero). The zero includes the tool's weight at this orientation, so every "
                     "calibration made before it no longer fits: calibrate again after a box bias. To re-zero "
-                    "with the tool on and keep a calibration valid, use `ftacq tare` instead.")
+                    "with the tool on and keep a calibration valid, use `ftacq tare` instead.",
+        **examples("ftacq sensor bias netft://192.168.1.1"))
     bias.add_argument("url", help=url_help)
     bias.set_defaults(func=run_bias)
 

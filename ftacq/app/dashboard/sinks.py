@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Callable
 from urllib.parse import quote
 
+from ftacq.app.hints import command
 from ftacq.errors import DeviceConnectionError
 
 log = logging.getLogger(__name__)
@@ -208,18 +209,20 @@ def _choose_sink(args: argparse.Namespace, app_id: str) -> SinkChoice:
     port = getattr(args, "viewer_port", DEFAULT_VIEWER_PORT)
     if getattr(args, "save", None) is not None:
         path = Path(args.save)
-        return SinkChoice("save", str(path), f"rerun: saving to {path}; view it with: rerun {path}")
+        return SinkChoice("save", str(path), f"rerun: saving to {path}; view it with: {command('rerun', path)}")
     if getattr(args, "connect", None):
         return SinkChoice("connect", args.connect, f"rerun: streaming to the viewer at {args.connect}")
     if getattr(args, "serve", False):
         grpc_url = f"rerun+http://{LOCALHOST}:{port}/proxy"
         web_url = f"http://{LOCALHOST}:{getattr(args, 'web_port', DEFAULT_WEB_PORT)}/?url={quote(grpc_url, safe='')}"
-        return SinkChoice("serve", grpc_url, f"rerun: web viewer at {web_url} (native: rerun {grpc_url})", web_url)
+        return SinkChoice("serve", grpc_url, f"rerun: web viewer at {web_url} (native: {command('rerun', grpc_url)})",
+                          web_url)
     if getattr(args, "spawn", False) or has_display():
         url = f"rerun+http://{LOCALHOST}:{port}/proxy"
         return SinkChoice("spawn", url, f"rerun: streaming to a native viewer on {url}")
     path = default_rrd_path(app_id)
-    return SinkChoice("save", str(path), f"rerun: no display found, saving to {path}; view it with: rerun {path} "
+    return SinkChoice("save", str(path), f"rerun: no display found, saving to {path}; view it with: "
+                                         f"{command('rerun', path)} "
                                          "(or pass --serve / --connect URL)")
 
 
