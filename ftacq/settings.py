@@ -300,9 +300,9 @@ class ToolConfig:
     length_m: float = setting(0.1, "length of that cylinder from the flange", unit="m", low=0.0, high=1.0,
                               edit=True)
     sensor_offset_m: tuple[float, float, float] | None = setting(
-        None, "the sensor origin in the flange frame [x, y, z], from the adapter drawing (stored in the calibration; "
-        "the UR payload export needs it)", kind="vec3", unit="m", low=-0.5, high=0.5, optional=True,
-        example=[0.0, 0.0, 0.012])
+        None, "sensor origin in the flange frame [x, y, z], from the adapter drawing (compensation while the arm "
+        "moves, the UR payload export; absent = at the flange)", kind="vec3", unit="m", low=-0.5, high=0.5,
+        optional=True, example=[0.0, 0.0, 0.035])
 
 
 @cell_section("poses")
