@@ -301,9 +301,9 @@ class ToolConfig:
     length_m: float = setting(0.1, "length of that cylinder from the flange", unit="m", low=0.0, high=1.0,
                               edit=True)
     sensor_offset_m: tuple[float, float, float] | None = setting(
-        None, "the sensor origin (its measuring point) in the flange frame [x, y, z], from the adapter drawing "
-        "(absent = on the flange); used by ftacq bridge", kind="vec3", unit="m", low=-0.5, high=0.5, optional=True,
-        example=[0.0, 0.0, 0.035])
+        None, "sensor origin in the flange frame [x, y, z], from the adapter drawing (compensation while the arm "
+        "moves, the UR payload export, the measuring point ftacq bridge declares; absent = at the flange)",
+        kind="vec3", unit="m", low=-0.5, high=0.5, optional=True, example=[0.0, 0.0, 0.035])
     sensor_body_mass_kg: float = setting(0.0, "mass between the flange and the sensor's measuring plane (adapter and "
                                          "sensor body, which the sensor cannot weigh); part of the payload ftacq "
                                          "bridge sets", unit="kg", low=0.0, high=20.0)
