@@ -195,7 +195,7 @@ def setting(default: T, help: str, *, kind: str | None = None, unit: str = "", l
         raise TypeError(f"setting {help!r}: kind {kind!r} is not one of {KINDS}")
     declared = Setting(kind, default, help, unit, low, high, choices, optional, edit, example, model_high,
                        model_high_why)
-    return field(default=default, metadata={SETTING: declared})  # type: ignore[no-any-return]
+    return field(default=default, metadata={SETTING: declared})
 
 
 CELL_SETTINGS: dict[str, dict[str, Setting]] = {}

@@ -25,7 +25,7 @@ def wrap_deg(angle: float | np.ndarray) -> float | np.ndarray:
 def tilt_deg(gravity_base: np.ndarray) -> tuple[float, float]:
     """Return (α, β) in degrees of a gravity_base vector (corrected eq. 48)."""
     fx, fy, fz = np.asarray(gravity_base, dtype=float)
-    beta = wrap_deg(np.degrees(np.arctan2(-fx, -fz)))
+    beta = float(wrap_deg(np.degrees(np.arctan2(-fx, -fz))))
     alpha = float(np.degrees(np.arctan2(fy, np.hypot(fx, fz))))
     return alpha, beta
 
@@ -56,7 +56,7 @@ def relative_tilt_deg(gravity_base: np.ndarray, mount: str) -> tuple[float, floa
     )
     direction = np.asarray(gravity_base, dtype=float) / np.linalg.norm(gravity_base)
     total = float(np.degrees(np.arccos(np.clip(direction @ nominal, -1.0, 1.0))))
-    return alpha - alpha_n, wrap_deg(beta - beta_n), total
+    return alpha - alpha_n, float(wrap_deg(beta - beta_n)), total
 
 
 def nearest_mount(gravity_base: np.ndarray) -> tuple[str, float]:
