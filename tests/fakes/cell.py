@@ -136,6 +136,10 @@ class SimulatedCell:
         """Add a contact wrench (6,) [N, N·m] in the sensor frame to every later sample (0 to remove)."""
         self.physics.contact_wrench = np.asarray(wrench, dtype=float).reshape(6)
 
+    def swap_tool(self, mass_kg: float, center_of_mass_m) -> None:
+        """Put another tool on the simulated sensor without telling the software (see SensorPhysics.swap_tool)."""
+        self.physics.swap_tool(mass_kg, center_of_mass_m)
+
     def with_truth(self, **changes) -> CellTruth:
         """Return the truth with some fields changed (for building a second cell)."""
         return replace(self.truth, **changes)

@@ -7,6 +7,9 @@ One :class:`CellTruth` (sensor rotation, biases, tool mass and centre of mass, b
     T = center_of_mass × (sensor_R_flange @ flange_R_base @ gravity_base) + torque_bias + drift(t)
         + contact_torque + noise
 
+with drift(t) linear plus a thermal-like exponential step (:meth:`SensorPhysics.bias_at`); the tool can be swapped
+behind the software's back (:meth:`SensorPhysics.swap_tool`).
+
 The simulated UR controller runs in its own process (ur-rtde's constructors hold the GIL), so the pose it
 reports is published through :class:`SharedPose` (a seqlock over ``multiprocessing.shared_memory``); a
 simulated sensor in another process (the CAN board on python-can's in-process virtual bus) reads it there.
@@ -44,6 +47,8 @@ class CellTruth:
         base_tilt_deg: (α, β) of the robot base against gravity (0, 0 = level floor; see gravity_base_from_tilt).
         force_noise_n, torque_noise_nm: per-channel 1σ white noise of one sample.
         drift_n_per_s, drift_nm_per_s: slow linear bias drift per channel (thermal).
+        thermal_step_n, thermal_step_nm: a thermal-like exponential step of the biases, per channel: the bias moves
+            by step × (1 − exp(−(t − thermal_step_at_s) / thermal_time_constant_s)) after thermal_step_at_s.
         motion_noise_gain: extra noise factor per rad/s of joint speed while the arm moves.
     """
 
@@ -57,6 +62,10 @@ class CellTruth:
     torque_noise_nm: tuple[float, float, float] = (0.002, 0.002, 0.0015)
     drift_n_per_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     drift_nm_per_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal_step_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal_step_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal_step_at_s: float = 0.0
+    thermal_time_constant_s: float = 600.0
     motion_noise_gain: float = 2.0
 
     @property
@@ -185,12 +194,25 @@ class SensorPhysics:
         self._sensor_rotation = self.truth.sensor_rotation
         self._com = np.array(self.truth.center_of_mass_m)
 
+    def bias_at(self, elapsed_s: float) -> np.ndarray:
+        """Return the true biases (6,) [N, N·m] ``elapsed_s`` seconds after start: linear drift plus thermal step."""
+        t = self.truth
+        step = np.array(t.thermal_step_n + t.thermal_step_nm)
+        since = max(elapsed_s - t.thermal_step_at_s, 0.0)
+        return self._bias + self._drift * elapsed_s + step * -np.expm1(-since / t.thermal_time_constant_s)
+
+    def swap_tool(self, mass_kg: float, center_of_mass_m) -> None:
+        """Put another tool on the simulated sensor (mass, centre of mass in the sensor frame) without telling
+        the software: the knob for "a calibration that no longer fits the tool"."""
+        self._gravity_base = gravity_base_from_tilt(mass_kg, *self.truth.base_tilt_deg)
+        self._com = np.array(center_of_mass_m, dtype=float)
+
     def noiseless_wrench(self, pose: np.ndarray, elapsed_s: float = 0.0) -> np.ndarray:
         """Return the wrench (6,) without noise at a flange pose, ``elapsed_s`` seconds after start (drift)."""
         base_R_flange = rotation_from_rotvec(np.asarray(pose)[3:6])
         gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ self._gravity_base)
         torque = np.cross(self._com, gravity_sensor)
-        return np.concatenate([gravity_sensor, torque]) + self._bias + self._drift * elapsed_s + self.contact_wrench
+        return np.concatenate([gravity_sensor, torque]) + self.bias_at(elapsed_s) + self.contact_wrench
 
     def sample(self, n: int) -> np.ndarray:
         """Return ``n`` noisy samples (n, 6) at the current pose and time."""
