@@ -132,3 +132,63 @@ def test_a_swapped_tool_is_flagged_within_5_s_of_stillness(calibration) -> None:
     assert warnings[0].time_s - still_from <= 5.0
     assert "not drift" in warnings[0].text and "tool" in warnings[0].text
     assert feeder.health.tracker.rejected_gate > 0  # and it was not absorbed as a bias
+
+
+# ------------------------------------------------------------------------------------ the monitor's seam
+
+class _Batch:
+    def __init__(self, time_s, wrench):
+        self.time_s, self.wrench = time_s, wrench
+        self.saturated = np.zeros(len(time_s), dtype=bool)
+
+
+class _Robot:
+    def __init__(self, time_s, q):
+        self.time_s, self.joint_positions_rad, self.flange_pose = time_s, q, POSE
+
+
+class _Samples:
+    def __init__(self, batch):
+        self.batch = batch
+
+
+def test_still_detector_needs_the_joints_still_for_its_window() -> None:
+    from procedures.bias_health import StillDetector
+
+    detector = StillDetector(tolerance_rad=2e-4, window_s=0.25)
+    q = np.zeros(6)
+    assert not detector.update(0.0, q)
+    assert not detector.update(0.1, q + 1e-5)
+    assert detector.update(0.3, q - 1e-5)
+    assert not detector.update(0.4, q + [0, 0, 0, 0, 0, 1e-3])  # the wrist turned
+    assert not detector.update(0.6, q + [0, 0, 0, 0, 0, 1e-3])  # still inside the window of the motion
+    assert detector.update(0.7, q + [0, 0, 0, 0, 0, 1e-3])
+    assert not detector.update(0.8, None)  # no robot state: not known to be still
+
+
+def test_drift_compensator_applies_the_tracked_offset_only_with_auto_tare(calibration) -> None:
+    """With --auto-tare the compensated stream at rest loses a bias offset the tracker found; without it the
+    stream is the calibration's compensation, unchanged, and the tracker still reports the offset."""
+    from procedures.bias_health import BiasDrift, DriftCheck, DriftCompensator
+
+    offset = np.array([0.03, -0.02, 0.025, 0.001, -0.0005, 0.0008])  # drifted since the file, within the gate
+    truth = replace(CellTruth(), force_bias_n=tuple(np.add(CellTruth().force_bias_n, offset[:3])),
+                    torque_bias_nm=tuple(np.add(CellTruth().torque_bias_nm, offset[3:])))
+    physics = SensorPhysics(truth, SettablePose(POSE), seed=9)
+    rng = np.random.default_rng(9)
+    results = {}
+    for auto_tare in (False, True):
+        compensator = DriftCompensator(BiasHealth(calibration, DriftSettings(), age_s=3600.0, auto_tare=auto_tare))
+        check = DriftCheck(compensator, period_s=1.0)
+        drift_events, out = [], []
+        for k in range(200):  # 10 s still at 2 kHz in 0.05 s batches
+            t = k * BATCH_S + np.arange(int(RATE_HZ * BATCH_S)) / RATE_HZ
+            wrench = physics.noiseless_wrench(POSE) + rng.standard_normal((len(t), 6)) * physics._noise_sigma
+            batch = _Batch(t, wrench)
+            out.append(compensator.compensate(batch, _Robot(t[-1], np.zeros(6))))
+            drift_events += [e for e in check.check(_Samples(batch)) if isinstance(e, BiasDrift)]
+        results[auto_tare] = np.concatenate(out[-40:]).mean(axis=0)
+        assert drift_events and drift_events[-1].applied == auto_tare
+        np.testing.assert_allclose(drift_events[-1].offset[:3], offset[:3], atol=0.003)
+    np.testing.assert_allclose(results[False][:3], offset[:3], atol=0.003)  # untouched: the drift shows
+    np.testing.assert_allclose(results[True][:3], 0.0, atol=0.003)  # auto-tare removed it
