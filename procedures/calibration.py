@@ -16,7 +16,8 @@ seen as KeyboardInterrupt) ends the run at once or at the next checkpoint with s
 Both stop the robot and keep every pose measured so far; there is no "halt" that skips cleanup.
 
 The procedure never writes files or draws: it emits :mod:`procedures.events` to its listeners (the run-folder
-writer, the progress bar, the Rerun dashboard).
+writer, the progress bar, the Rerun dashboard), including every batch it reads from the sensor
+(:class:`procedures.tap.SensorTap`).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from ftacq.errors import FtacqError, MotionLimitError, PlanError, RobotError
 from procedures import events
 from procedures.run_folder import DRIFT_SET, MeasuredPose, drift_label
 from procedures.settle import SettleSettings, StopRequested, average_at_pose, wait_until_settled
+from procedures.tap import SensorTap
 
 log = logging.getLogger(__name__)
 
@@ -233,7 +235,7 @@ class CalibrationProcedure:
 
     # ------------------------------------------------------------------ events and states
 
-    def _emit(self, event: events.ProcedureEvent) -> None:
+    def _emit(self, event: events.Event) -> None:
         for listener in self.listeners:
             try:
                 listener(event)
@@ -255,8 +257,9 @@ class CalibrationProcedure:
         """Execute the plan; always returns a result (the robot is stopped on any exit but success)."""
         status, message, error, interrupted = "failed", "", None, False
         try:
-            self.startup()
-            self.execute()
+            with SensorTap(self.sensor, self._emit):  # every sample read reaches the listeners (raw stream)
+                self.startup()
+                self.execute()
             status, message = "done", "calibration finished"
         except StopRequested as exc:
             if self._abort_reason is not None:

@@ -1,13 +1,19 @@
-"""What the calibration procedure tells its subscribers (file writer, progress bar, Rerun dashboard).
+"""What the procedures tell their subscribers (file writer, progress bar, Rerun dashboard, live readout).
 
-The procedure never calls a writer or the dashboard directly: it emits these records to a list of
-listeners (callables taking one event). A listener must not block and must not raise; the procedure
+The calibration procedure and the live monitor never call a writer or the dashboard directly: they emit these
+records to a list of listeners (callables taking one event); the application decides who listens. A listener must not block and must not raise; the procedure
 catches and logs listener errors so a broken viewer can never stop the robot mid-plan. Listeners should
 ignore event types they do not know (new ones may be added). A listener may declare ``critical = True``
 (the run-folder writer does): its error then stops the procedure, because data that cannot be recorded
 must not be measured.
 All poses are flange poses in the robot base frame [x, y, z (m), rx, ry, rz (rad)]; wrenches are
-sensor-frame [Fx, Fy, Fz (N), Tx, Ty, Tz (N·m)].
+sensor-frame [Fx, Fy, Fz (N), Tx, Ty, Tz (N·m)]. Times named ``time_s`` are seconds on the host's monotonic clock
+(``time.monotonic``, the clock of :attr:`drivers.sensor.WrenchBatch.time_s`).
+
+Two families: the calibration's steps (:data:`ProcedureEvent`) and the sample stream (:data:`StreamEvent`: the
+monitor emits all of them, the calibration procedure emits :class:`WrenchSamples` for every sensor read).
+Stream events come at up to the sensor's read rate: a listener that does real work on them belongs behind a
+:class:`procedures.delivery.BackgroundListener`.
 """
 
 from __future__ import annotations
@@ -16,6 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+
+from drivers.sensor import SensorHealth, WrenchBatch
 
 
 @dataclass(frozen=True)
@@ -93,4 +101,71 @@ class Validated:
 
 
 ProcedureEvent = PlanReady | StateChanged | PoseMeasured | DriftChecked | Identified | Validated
-Listener = Callable[[ProcedureEvent], None]
+
+
+# ------------------------------------------------------------------------------------------------ the sample stream
+
+
+@dataclass(frozen=True)
+class WrenchSamples:
+    """Samples as the sensor delivered them, in time order (one read, or consecutive reads joined).
+
+    ``compensated`` (N, 6) is the contact wrench after compensation (sensor frame), or None when it is not known
+    (no calibration, no robot state). ``flange_pose`` (6,) and ``joint_positions_rad`` (6,) are the robot's latest
+    state when the samples were read (the one compensation used), or None without a robot.
+    """
+
+    batch: WrenchBatch
+    compensated: np.ndarray | None = None
+    flange_pose: np.ndarray | None = None
+    joint_positions_rad: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.batch)
+
+    @staticmethod
+    def join(parts: "list[WrenchSamples]") -> "WrenchSamples":
+        """Join consecutive parts that all have, or all lack, a compensated wrench; the robot state is the last's."""
+        if len(parts) == 1:
+            return parts[0]
+        with_compensation = [part.compensated is not None for part in parts]
+        if any(with_compensation) and not all(with_compensation):
+            raise ValueError("cannot join samples with and without a compensated wrench")
+        compensated = np.concatenate([part.compensated for part in parts]) if with_compensation[0] else None
+        return WrenchSamples(batch=WrenchBatch.concatenate([part.batch for part in parts]), compensated=compensated,
+                             flange_pose=parts[-1].flange_pose, joint_positions_rad=parts[-1].joint_positions_rad)
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """The arm at ``time_s``: joint angles (6,) rad and the flange pose (6,) as the controller reports it."""
+
+    time_s: float
+    joint_positions_rad: np.ndarray
+    flange_pose: np.ndarray
+
+
+@dataclass(frozen=True)
+class SensorStatus:
+    """A snapshot of the stream's health at ``time_s``; ``dropped`` samples were not delivered to the background
+    listeners so far (their queue was full: a slow viewer), never to the record."""
+
+    time_s: float
+    health: SensorHealth
+    dropped: int = 0
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A line for the operator: ``level`` "INFO", "WARN" or "ERROR"; ``source`` says who speaks ("monitor",
+    "health", …); ``time_s`` None means now."""
+
+    text: str
+    level: str = "INFO"
+    source: str = "monitor"
+    time_s: float | None = None
+
+
+StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice
+Event = ProcedureEvent | StreamEvent
+Listener = Callable[[Event], None]

@@ -1,16 +1,28 @@
-"""The live monitor: sensor batches → gravity compensation with the latest robot orientation → dashboard.
+"""The live monitor: sensor batches → compensation with the robot's latest state → events for the listeners.
 
 Three threads, each with one job::
 
-    caller's thread ("acquisition")   sensor.read() → Calibration.compensate(…, flange_R_base) → hand-off
-    "ftacq-dashboard"                 bounded queue → Dashboard (coalesced batches, robot, health)
+    caller's thread ("acquisition")   sensor.read() → compensator → health checks → publish events
+    "ftacq-listeners"                 a BackgroundListener: bounded queue → the listeners (dashboard, readout, …)
     "ftacq-record"                    unbounded queue → CSV file (optional; never drops)
 
-Acquisition never waits for the viewer: batches go to the dashboard through a bounded queue that drops (and
-counts) when full, so a slow or vanished viewer costs frames on screen, never samples. The optional CSV
-recorder gets every batch. The robot's state is read by its own reader at its own rate
+The monitor publishes :mod:`procedures.events` as the calibration procedure does (it never calls a viewer):
+every read as :class:`~procedures.events.WrenchSamples`, the arm as :class:`~procedures.events.RobotState`
+(``robot_rate_hz``), the stream's health as :class:`~procedures.events.SensorStatus` (``status_rate_hz``) and
+lines for the operator as :class:`~procedures.events.Notice`. The application chooses the listeners.
+
+Acquisition never waits for a listener: events go through a :class:`procedures.delivery.BackgroundListener`,
+whose bounded queue drops (and counts) samples when a viewer is slow: frames on screen are lost, never samples.
+The optional CSV recorder gets every batch. The robot's state is read by its own reader at its own rate
 (:class:`drivers.ur.URStateReader`); the monitor only asks it for the latest joint angles and flange pose.
 Ctrl-C (KeyboardInterrupt in the acquisition thread) ends the run cleanly: threads joined, file finished.
+
+Two seams, for what is added to the monitor without touching its loop:
+
+- a :class:`Compensator` turns raw samples into the contact wrench given the robot's state
+  (:class:`GravityCompensator`: the static gravity compensation of a calibration);
+- :class:`HealthCheck` objects see every read (compensated) in the acquisition thread and return notices
+  (warnings are also kept in :attr:`MonitorSummary.warnings`).
 """
 
 from __future__ import annotations
@@ -21,6 +33,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol, Sequence
 
 import numpy as np
 
@@ -28,6 +41,8 @@ from drivers.robot import RobotStateSource
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
+from procedures import events
+from procedures.delivery import DEFAULT_MAX_QUEUED, DEFAULT_PERIOD_S, BackgroundListener
 
 log = logging.getLogger(__name__)
 
@@ -35,14 +50,51 @@ BATCH_PERIOD_S = 0.01
 """The acquisition loop reads the sensor at most this often (the driver buffers samples in between)."""
 READ_TIMEOUT_S = 1.0
 """Longest wait for the sensor's next samples before counting a timeout and trying again."""
-DASHBOARD_QUEUE_BATCHES = 500
-"""Batches the dashboard may lag behind (≈ 5 s at BATCH_PERIOD_S) before batches are dropped for the viewer."""
-DASHBOARD_PERIOD_S = 0.05
-"""The dashboard thread sends at most this often, coalescing the batches queued meanwhile (fewer, larger sends)."""
-ROBOT_LOG_RATE_HZ = 30.0
-HEALTH_LOG_RATE_HZ = 2.0
+ROBOT_RATE_HZ = 30.0
+"""RobotState events per second (the arm in 3-D)."""
+STATUS_RATE_HZ = 2.0
+"""SensorStatus events per second (health plots, the live readout)."""
 THREAD_JOIN_TIMEOUT_S = 10.0
-"""How long close() waits for the dashboard and recorder threads to finish their queues."""
+"""How long the end of a run waits for the listeners to finish their queue."""
+
+
+def flange_R_base_from_pose(flange_pose: np.ndarray) -> np.ndarray:
+    """Return flange_R_base (3, 3) = base_R_flangeᵀ from a UR pose [x, y, z, rx, ry, rz] (rotation vector)."""
+    return rotation_from_rotvec(np.asarray(flange_pose, dtype=float)[3:6]).T
+
+
+# ------------------------------------------------------------------------------------------------ seams
+
+
+class Compensator(Protocol):
+    """Turns raw sensor-frame samples into the contact wrench (N, 6) [N, N·m], sensor frame."""
+
+    def compensate(self, batch: WrenchBatch, robot: events.RobotState | None) -> np.ndarray | None:
+        """Return the contact wrench of ``batch`` given the robot's latest state, or None when it cannot
+        (e.g. no robot state)."""
+
+
+@dataclass(frozen=True)
+class GravityCompensator:
+    """Static gravity compensation with a :class:`ftacq.calibration.Calibration` and the latest flange orientation
+    (:meth:`ftacq.calibration.Calibration.compensate`: raw − bias − tool weight in the sensor frame)."""
+
+    calibration: object
+
+    def compensate(self, batch: WrenchBatch, robot: events.RobotState | None) -> np.ndarray | None:
+        if robot is None:
+            return None
+        return self.calibration.compensate(batch.wrench, flange_R_base_from_pose(robot.flange_pose))
+
+
+class HealthCheck(Protocol):
+    """Looks at every read in the acquisition thread (keep it to a few numpy operations per batch)."""
+
+    def check(self, samples: events.WrenchSamples) -> Sequence[events.Notice]:
+        """Return notices to publish (usually none); WARN and ERROR ones are kept in the run's summary."""
+
+
+# ------------------------------------------------------------------------------------------------ summary
 
 
 @dataclass
@@ -50,154 +102,51 @@ class MonitorSummary:
     """What a monitor run did.
 
     Attributes:
-        samples: wrench samples the driver delivered (all of them went to the dashboard queue or were counted
-            in ``viewer_dropped_samples``, and all went to the record file if any).
+        samples: wrench samples the driver delivered (every one was published, or counted in
+            ``dropped_samples``, and went to the record file if any).
         batches: sensor reads that returned samples.
-        compensated_samples: samples compensated (0 without a calibration or a robot).
+        compensated_samples: samples compensated (0 without a compensator or a robot).
+        first_sample_s, last_sample_s: receive times of the first and last sample (host monotonic clock, s).
         lost: samples the sensor stream lost (driver health, since the driver started).
-        rate_hz: the sensor's sample rate as the driver measured it at the end of the run.
+        driver_rate_hz: the sample rate the driver measured at the end of the run.
         timeouts: reads that timed out.
-        viewer_dropped_batches, viewer_dropped_samples: dropped for the viewer only (queue full or viewer failed).
+        dropped_batches, dropped_samples: not delivered to the listeners (queue full, or every listener failed);
+            never dropped from the record.
         duration_s: wall time of the run. interrupted: stopped by Ctrl-C. record_path: the CSV written, if any.
-        dashboard_error: the dashboard thread's exception text, if it failed (acquisition went on).
+        listener_error: the first listener failure ("Type: message"), if any (acquisition went on).
+        warnings: the WARN/ERROR notices of the health checks and of the robot state stream.
     """
 
     samples: int = 0
     batches: int = 0
     compensated_samples: int = 0
+    first_sample_s: float | None = None
+    last_sample_s: float | None = None
     lost: int = 0
-    rate_hz: float = 0.0
+    driver_rate_hz: float = 0.0
     timeouts: int = 0
-    viewer_dropped_batches: int = 0
-    viewer_dropped_samples: int = 0
+    dropped_batches: int = 0
+    dropped_samples: int = 0
     duration_s: float = 0.0
     interrupted: bool = False
     record_path: Path | None = None
-    dashboard_error: str | None = None
+    listener_error: str | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def span_s(self) -> float:
+        """Seconds from the first to the last sample received (host monotonic clock); 0 with fewer than 2."""
+        if self.first_sample_s is None or self.last_sample_s is None:
+            return 0.0
+        return max(0.0, self.last_sample_s - self.first_sample_s)
+
+    @property
+    def rate_hz(self) -> float:
+        """samples / :attr:`span_s`: the rate the samples arrived at over the run, Hz (0 if unknown)."""
+        return self.samples / self.span_s if self.span_s > 0 else 0.0
 
 
-@dataclass(frozen=True)
-class _Item:
-    """One batch as the acquisition thread hands it on."""
-
-    batch: WrenchBatch
-    compensated: np.ndarray | None  # (N, 6) or None
-    flange_pose: np.ndarray | None  # (6,) pose used for compensation
-    joint_positions_rad: np.ndarray | None  # (6,)
-
-
-_STOP = object()
-
-
-class _DashboardWorker:
-    """Owns the "ftacq-dashboard" thread: drains the bounded queue into the dashboard."""
-
-    def __init__(self, dashboard, sensor: ForceTorqueSensor, model, queue_batches: int,
-                 robot_log_rate_hz: float, health_log_rate_hz: float, period_s: float = DASHBOARD_PERIOD_S,
-                 robot: RobotStateSource | None = None) -> None:
-        self.dashboard = dashboard
-        self.sensor = sensor
-        self.robot = robot
-        self._robot_connected = True
-        self.model = model
-        self.queue: queue.Queue = queue.Queue(maxsize=queue_batches)
-        self.dropped_batches = 0
-        self.dropped_samples = 0
-        self.error: BaseException | None = None
-        self._robot_period_s = 1.0 / robot_log_rate_hz
-        self._health_period_s = 1.0 / health_log_rate_hz
-        self._period_s = period_s
-        # Daemon: a sink stuck in a dead network connection must not keep the process alive after Ctrl-C;
-        # close() still joins it (with a deadline) and re-raises its error.
-        self._thread = threading.Thread(target=self._run, name="ftacq-dashboard", daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def offer(self, item: _Item) -> None:
-        """Hand a batch to the viewer without waiting; count it as dropped if the queue is full or the viewer failed."""
-        if self.error is None:
-            try:
-                self.queue.put_nowait(item)
-                return
-            except queue.Full:
-                pass
-        self.dropped_batches += 1
-        self.dropped_samples += len(item.batch)
-
-    def close(self, timeout_s: float = THREAD_JOIN_TIMEOUT_S) -> None:
-        """Let the thread log what is queued, then stop it (waiting at most ``timeout_s`` seconds)."""
-        deadline = time.monotonic() + timeout_s
-        if self._thread.is_alive():
-            try:
-                self.queue.put(_STOP, timeout=max(0.0, deadline - time.monotonic()))
-            except queue.Full:
-                log.warning("dashboard thread is not draining its queue; leaving it")
-            self._thread.join(max(0.0, deadline - time.monotonic()))
-            if self._thread.is_alive():
-                log.warning("dashboard thread did not finish within %.1f s", timeout_s)
-
-    def _run(self) -> None:
-        last_robot_s = last_health_s = -np.inf
-        stopping = False
-        while not stopping:
-            items = [self.queue.get()]
-            send_at_s = time.monotonic() + self._period_s
-            while items[-1] is not _STOP:  # coalesce the batches of one period into one send
-                try:
-                    items.append(self.queue.get(timeout=max(0.0, send_at_s - time.monotonic())))
-                except queue.Empty:
-                    break
-            if any(item is _STOP for item in items):
-                stopping = True
-                items = [item for item in items if item is not _STOP]
-            if not items or self.error is not None:
-                self._count_dropped(items)
-                continue
-            try:
-                last_robot_s, last_health_s = self._log(items, last_robot_s, last_health_s)
-            except BaseException as error:  # noqa: BLE001 - kept and re-raised by the monitor, acquisition goes on
-                self.error = error
-                log.warning("dashboard failed; acquisition continues without it: %s", error)
-                self._count_dropped(items)
-
-    def _count_dropped(self, items: list) -> None:
-        self.dropped_batches += len(items)
-        self.dropped_samples += sum(len(item.batch) for item in items)
-
-    def _check_robot(self, now_s: float) -> None:
-        """Say on the dashboard when the robot's state stream is lost or back (compensation needs it)."""
-        connected = bool(getattr(self.robot, "connected", True)) if self.robot is not None else True
-        if connected != self._robot_connected:
-            self._robot_connected = connected
-            if connected:
-                self.dashboard.log_text("robot state stream is back", time_s=now_s)
-            else:
-                log.warning("robot state stream lost: compensation uses the last orientation received")
-                self.dashboard.log_text("robot state stream lost: compensation uses the last orientation received",
-                                        level="WARN", time_s=now_s)
-
-    def _log(self, items: list[_Item], last_robot_s: float, last_health_s: float) -> tuple[float, float]:
-        time_s = np.concatenate([item.batch.time_s for item in items])
-        raw = np.concatenate([item.batch.wrench for item in items])
-        with_compensation = [item for item in items if item.compensated is not None]
-        if len(with_compensation) == len(items):
-            self.dashboard.log_wrench_batch(time_s, raw, np.concatenate([item.compensated for item in items]))
-        else:  # a calibration without robot state for some batches: log the raw stream, compensated where known
-            self.dashboard.log_wrench_batch(time_s, raw, None)
-            for item in with_compensation:
-                self.dashboard.log_wrench_batch(item.batch.time_s, item.batch.wrench, item.compensated)
-        latest = items[-1]
-        now_s = float(latest.batch.time_s[-1])
-        if (self.model is not None and latest.joint_positions_rad is not None and latest.flange_pose is not None
-                and now_s - last_robot_s >= self._robot_period_s):
-            self.dashboard.log_robot(now_s, latest.joint_positions_rad, latest.flange_pose, self.model)
-            last_robot_s = now_s
-        if now_s - last_health_s >= self._health_period_s:
-            self.dashboard.log_health(now_s, self.sensor.health(), viewer_dropped=self.dropped_samples)
-            self._check_robot(now_s)
-            last_health_s = now_s
-        return last_robot_s, last_health_s
+# ------------------------------------------------------------------------------------------------ record
 
 
 RECORD_COLUMNS = (
@@ -210,6 +159,8 @@ used for compensation (m, rad; base frame, rotation vector; empty without a robo
 (N, N·m); the compensated contact wrench (empty without a calibration); the device's sequence number, status
 word and saturation flag. The pose and wrench columns are named as in a pose record (:mod:`ftacq.posefile`), so
 ``ftacq compensate`` reads a monitor record as it is."""
+
+_STOP = object()
 
 
 class _Recorder:
@@ -226,8 +177,8 @@ class _Recorder:
     def start(self) -> None:
         self._thread.start()
 
-    def put(self, item: _Item) -> None:
-        self._queue.put(item)
+    def put(self, samples: events.WrenchSamples) -> None:
+        self._queue.put(samples)
 
     def close(self) -> None:
         """Write what is queued, finish the file and join the thread; re-raise its error."""
@@ -244,18 +195,18 @@ class _Recorder:
                 for line in self._header:
                     handle.write(f"# {line}\n")
                 handle.write(",".join(RECORD_COLUMNS) + "\n")
-                while (item := self._queue.get()) is not _STOP:
-                    handle.write(self._format(item))
-                    self.rows += len(item.batch)
+                while (samples := self._queue.get()) is not _STOP:
+                    handle.write(self._format(samples))
+                    self.rows += len(samples)
         except BaseException as error:  # noqa: BLE001 - re-raised by close()
             self.error = error
 
     @staticmethod
-    def _format(item: _Item) -> str:
-        batch = item.batch
+    def _format(samples: events.WrenchSamples) -> str:
+        batch = samples.batch
         n = len(batch)
-        pose = np.full((n, 6), np.nan) if item.flange_pose is None else np.broadcast_to(item.flange_pose, (n, 6))
-        contact = np.full((n, 6), np.nan) if item.compensated is None else item.compensated
+        pose = np.full((n, 6), np.nan) if samples.flange_pose is None else np.broadcast_to(samples.flange_pose, (n, 6))
+        contact = np.full((n, 6), np.nan) if samples.compensated is None else samples.compensated
         numbers = np.column_stack([batch.time_s, pose, batch.wrench, contact, batch.sequence, batch.status,
                                    batch.saturated.astype(np.int64)])
         cells = np.char.mod(["%.9f"] + ["%.9g"] * 6 + ["%.9g"] * 12 + ["%d"] * 3, numbers)
@@ -263,38 +214,38 @@ class _Recorder:
         return "\n".join(",".join(row) for row in cells) + "\n"
 
 
-def flange_R_base_from_pose(flange_pose: np.ndarray) -> np.ndarray:
-    """Return flange_R_base (3, 3) = base_R_flangeᵀ from a UR pose [x, y, z, rx, ry, rz] (rotation vector)."""
-    return rotation_from_rotvec(np.asarray(flange_pose, dtype=float)[3:6]).T
+# ------------------------------------------------------------------------------------------------ the monitor
 
 
 @dataclass
 class LiveMonitor:
-    """Streams a started sensor through compensation to a dashboard and an optional CSV.
+    """Streams a started sensor through a compensator to listeners (events) and an optional CSV.
 
     Args:
         sensor: a started :class:`drivers.sensor.ForceTorqueSensor`.
-        calibration: a :class:`ftacq.calibration.Calibration`, or None (raw only).
-        robot: the robot's latest state (:class:`RobotStateSource`), or None (no compensation, no 3-D arm).
-        dashboard: a :class:`ftacq.app.dashboard.Dashboard`, or None.
-        model: the :class:`ftacq.kinematics.URModel` drawn in 3-D.
+        robot: the robot's latest state (:class:`drivers.robot.RobotStateSource`), or None (no compensation that
+            needs the arm, no RobotState events).
+        compensator: a :class:`Compensator` (e.g. :class:`GravityCompensator`), or None (raw only).
+        listeners: called with every event, from the "ftacq-listeners" thread (never from acquisition).
+        checks: :class:`HealthCheck` objects, called in the acquisition thread with every read.
         record_path: write every sample to this CSV (see :data:`RECORD_COLUMNS`), or None.
-        strict: re-raise a dashboard failure at the end of :meth:`run` (tests); live, it is only reported.
+        strict: re-raise a listener's failure at the end of :meth:`run` (tests); live, it is only reported.
+        queue_batches, listener_period_s: the BackgroundListener's queue bound and delivery period.
     """
 
     sensor: ForceTorqueSensor
-    calibration: object | None = None
     robot: RobotStateSource | None = None
-    dashboard: object | None = None
-    model: object | None = None
+    compensator: Compensator | None = None
+    listeners: Sequence[events.Listener] = ()
+    checks: Sequence[HealthCheck] = ()
     record_path: Path | None = None
     strict: bool = False
     batch_period_s: float = BATCH_PERIOD_S
     read_timeout_s: float = READ_TIMEOUT_S
-    queue_batches: int = DASHBOARD_QUEUE_BATCHES
-    dashboard_period_s: float = DASHBOARD_PERIOD_S
-    robot_log_rate_hz: float = ROBOT_LOG_RATE_HZ
-    health_log_rate_hz: float = HEALTH_LOG_RATE_HZ
+    queue_batches: int = DEFAULT_MAX_QUEUED
+    listener_period_s: float = DEFAULT_PERIOD_S
+    robot_rate_hz: float = ROBOT_RATE_HZ
+    status_rate_hz: float = STATUS_RATE_HZ
     record_header: list[str] = field(default_factory=list)
 
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> MonitorSummary:
@@ -304,15 +255,13 @@ class LiveMonitor:
         """
         stop = stop or threading.Event()
         summary = MonitorSummary(record_path=self.record_path)
-        worker = None
-        if self.dashboard is not None:
-            worker = _DashboardWorker(self.dashboard, self.sensor, self.model, self.queue_batches,
-                                      self.robot_log_rate_hz, self.health_log_rate_hz, self.dashboard_period_s,
-                                      robot=self.robot)
-            worker.start()
+        publisher = BackgroundListener(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
         recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
         if recorder is not None:
             recorder.start()
+        self._publisher = publisher
+        self._last_robot_s = self._last_status_s = -np.inf
+        self._robot_connected = True
         start_s = time.monotonic()
         deadline_s = None if duration_s is None else start_s + duration_s
         try:
@@ -334,41 +283,94 @@ class LiveMonitor:
                     continue
                 if len(batch) == 0:
                     continue
-                item = self._process(batch)
-                summary.samples += len(batch)
-                summary.batches += 1
-                if item.compensated is not None:
-                    summary.compensated_samples += len(batch)
-                if worker is not None:
-                    worker.offer(item)
+                samples = self._process(batch)
+                self._count(summary, samples)
+                publisher(samples)
                 if recorder is not None:
-                    recorder.put(item)
+                    recorder.put(samples)
+                self._run_checks(samples, summary)
+                self._publish_periodic(samples, summary)
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:
             summary.duration_s = time.monotonic() - start_s
-            if worker is not None:
-                worker.close()
-                summary.viewer_dropped_batches = worker.dropped_batches
-                summary.viewer_dropped_samples = worker.dropped_samples
-                if worker.error is not None:
-                    summary.dashboard_error = f"{type(worker.error).__name__}: {worker.error}"
-            if recorder is not None:
-                recorder.close()
             try:
                 health = self.sensor.health()
-                summary.lost, summary.rate_hz = int(health.lost), float(health.rate_hz)
+                summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
+                if summary.last_sample_s is not None:
+                    publisher(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
             except FtacqError:
                 log.warning("could not read the sensor's health at the end of the run", exc_info=True)
-        if worker is not None and worker.error is not None and self.strict:
-            raise worker.error
+            publisher.close(THREAD_JOIN_TIMEOUT_S)
+            summary.dropped_batches, summary.dropped_samples = publisher.dropped_batches, publisher.dropped_samples
+            if publisher.first_error is not None:
+                summary.listener_error = f"{type(publisher.first_error).__name__}: {publisher.first_error}"
+            if recorder is not None:
+                recorder.close()
+        if publisher.first_error is not None and self.strict:
+            raise publisher.first_error
         return summary
 
-    def _process(self, batch: WrenchBatch) -> _Item:
-        pose = q = compensated = None
-        if self.robot is not None:
-            pose = np.asarray(self.robot.flange_pose(), dtype=float)
-            q = np.asarray(self.robot.joint_positions(), dtype=float)
-            if self.calibration is not None:
-                compensated = self.calibration.compensate(batch.wrench, flange_R_base_from_pose(pose))
-        return _Item(batch=batch, compensated=compensated, flange_pose=pose, joint_positions_rad=q)
+    # -- steps of the acquisition loop ------------------------------------------------------------------------
+
+    def _robot_state(self, time_s: float) -> events.RobotState | None:
+        if self.robot is None:
+            return None
+        return events.RobotState(time_s=time_s,
+                                 joint_positions_rad=np.asarray(self.robot.joint_positions(), dtype=float),
+                                 flange_pose=np.asarray(self.robot.flange_pose(), dtype=float))
+
+    def _process(self, batch: WrenchBatch) -> events.WrenchSamples:
+        robot = self._robot_state(float(batch.time_s[-1]))
+        compensated = None if self.compensator is None else self.compensator.compensate(batch, robot)
+        return events.WrenchSamples(batch=batch, compensated=compensated,
+                                    flange_pose=None if robot is None else robot.flange_pose,
+                                    joint_positions_rad=None if robot is None else robot.joint_positions_rad)
+
+    @staticmethod
+    def _count(summary: MonitorSummary, samples: events.WrenchSamples) -> None:
+        summary.samples += len(samples)
+        summary.batches += 1
+        if samples.compensated is not None:
+            summary.compensated_samples += len(samples)
+        if summary.first_sample_s is None:
+            summary.first_sample_s = float(samples.batch.time_s[0])
+        summary.last_sample_s = float(samples.batch.time_s[-1])
+
+    def _notify(self, notice: events.Notice, summary: MonitorSummary) -> None:
+        if notice.level != "INFO":
+            summary.warnings.append(notice.text)
+        self._publisher(notice)
+
+    def _run_checks(self, samples: events.WrenchSamples, summary: MonitorSummary) -> None:
+        for check in self.checks:
+            for notice in check.check(samples):
+                self._notify(notice, summary)
+
+    def _publish_periodic(self, samples: events.WrenchSamples, summary: MonitorSummary) -> None:
+        """Publish the arm (``robot_rate_hz``) and the stream's health (``status_rate_hz``) on the sensor clock."""
+        now_s = float(samples.batch.time_s[-1])
+        if samples.flange_pose is not None and now_s - self._last_robot_s >= 1.0 / self.robot_rate_hz:
+            self._publisher(events.RobotState(now_s, samples.joint_positions_rad, samples.flange_pose))
+            self._last_robot_s = now_s
+        if now_s - self._last_status_s >= 1.0 / self.status_rate_hz:
+            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples))
+            self._check_robot(now_s, summary)
+            self._last_status_s = now_s
+
+    def _check_robot(self, now_s: float, summary: MonitorSummary) -> None:
+        """Say when the robot's state stream is lost or back (compensation needs it)."""
+        connected = bool(getattr(self.robot, "connected", True)) if self.robot is not None else True
+        if connected == self._robot_connected:
+            return
+        self._robot_connected = connected
+        if connected:
+            self._notify(events.Notice("robot state stream is back", time_s=now_s), summary)
+        else:
+            log.warning("robot state stream lost: compensation uses the last orientation received")
+            self._notify(events.Notice("robot state stream lost: compensation uses the last orientation received",
+                                       level="WARN", time_s=now_s), summary)
+
+
+__all__ = ["LiveMonitor", "MonitorSummary", "Compensator", "GravityCompensator", "HealthCheck", "RECORD_COLUMNS",
+           "flange_R_base_from_pose"]

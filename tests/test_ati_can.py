@@ -33,6 +33,7 @@ from drivers.sensor import ForceTorqueSensor, open_sensor
 from ftacq.errors import DeviceConnectionError, DeviceTimeoutError, InputError, SensorFaultError
 from tests.fakes.netcanoem import FakeCanCalibration, FakeNetCanOem, FakeSlcanAdapter, default_calibration_matrix
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose, SharedPose
+from tests.conftest import wait_until
 
 WAIT_TIMEOUT_S = 10.0
 """Deadline of every condition a test waits for, seconds (generous: CI machines are loaded)."""
@@ -49,15 +50,6 @@ POSES = [
     np.array([0.4, -0.1, 0.3, 0.0, np.pi / 2, 0.0]),
     np.array([0.4, 0.1, 0.3, 1.2, -0.7, 0.4]),
 ]
-
-
-def wait_until(predicate, what: str, timeout_s: float = WAIT_TIMEOUT_S) -> None:
-    """Wait until ``predicate()`` is true, or fail naming ``what`` after ``timeout_s`` seconds."""
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.005)
 
 
 def fresh_samples(sensor: AtiCanSensor, count: int = FRESH_SAMPLES):
@@ -519,7 +511,6 @@ def test_fake_enforces_board_rules(channel, physics):
 
 
 def test_ftacq_sensor_info_reads_a_fake_board_in_process(channel, fake, capsys):
-    pytest.importorskip("ftacq.app.commands.sensor", reason="ftacq sensor is built by the Net F/T engineer")
     from ftacq.app.cli import main
 
     assert main(["sensor", "info", f"can://virtual/{channel}"]) == 0

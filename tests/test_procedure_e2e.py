@@ -3,12 +3,10 @@ or NETCANOEM on a virtual CAN bus) recovers the cell's true parameters within th
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 
 import numpy as np
-import pytest
 
 from drivers.robot import MotionLimits
 from ftacq.calfile import load_calibration
@@ -20,11 +18,6 @@ from tests.fakes.world import CellTruth
 
 SIGMAS = 6.0
 """Identified parameters must lie within this many reported 1σ of the truth (plus a small absolute floor)."""
-
-needs_netft = pytest.mark.skipif(importlib.util.find_spec("drivers.netft") is None
-                                 or importlib.util.find_spec("tests.fakes.netft") is None,
-                                 reason="the Net F/T driver or fake has not landed")
-
 
 def assert_recovers_truth(calibration, truth: CellTruth) -> None:
     unc = calibration.uncertainty
@@ -91,7 +84,6 @@ def test_procedure_with_can_sensor_recovers_the_truth(tmp_path):
     run_and_check(tmp_path, "can")
 
 
-@needs_netft
 def test_procedure_with_netft_sensor_recovers_the_truth(tmp_path):
     run_and_check(tmp_path, "netft")
 
@@ -142,11 +134,21 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
                    "--save", str(tmp_path / "view.rrd")])
     out = capsys.readouterr().out
     assert status == 0
-    from ftacq.app.dashboard import entity_paths
+    from ftacq.app.dashboard import layout
+    from tests.rrd_reader import entity_paths, read_scalars
 
     paths = entity_paths(tmp_path / "view.rrd")  # the dashboard listener was attached and drew the run
     assert {"world/plan/A", "calibration/measured/force", "calibration/residuals/force",
             "calibration/validation_norm/force"} <= paths
+    # the four wrench plots: every sample the procedure read (raw), compensated once the calibration is known
+    raw_time_s, raw_force = read_scalars(tmp_path / "view.rrd", layout.RAW_FORCE)
+    _, raw_torque = read_scalars(tmp_path / "view.rrd", layout.RAW_TORQUE)
+    compensated_time_s, compensated_force = read_scalars(tmp_path / "view.rrd", layout.COMPENSATED_FORCE)
+    _, compensated_torque = read_scalars(tmp_path / "view.rrd", layout.COMPENSATED_TORQUE)
+    assert raw_time_s.size > 35 * 10 and raw_torque.shape == raw_force.shape  # 35 poses, many samples each
+    assert 0 < compensated_time_s.size <= raw_time_s.size and compensated_torque.shape == compensated_force.shape
+    assert np.median(np.abs(raw_force)) > 1.0  # the tool's weight ...
+    assert np.median(np.linalg.norm(compensated_force, axis=1)) < 0.2  # ... is gone: no contact while calibrating
     (run_dir,) = list((tmp_path / "runs").iterdir())
     calibration = load_calibration(run_dir / "calibration.json")
     assert_recovers_truth(calibration, CellTruth())

@@ -3,7 +3,6 @@ controller's record shows that nothing left the plan or exceeded the limits."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import numpy as np
@@ -79,8 +78,7 @@ def _silence_sensor_during(cell, plan_index: int):
     return listener
 
 
-@pytest.mark.parametrize("sensor", ["can", pytest.param("netft", marks=pytest.mark.skipif(
-    importlib.util.find_spec("drivers.netft") is None, reason="the Net F/T driver has not landed"))])
+@pytest.mark.parametrize("sensor", ["can", "netft"])
 def test_sensor_going_silent_mid_move(tmp_path, sensor):
     with SimulatedCell(sensor=sensor, time_scale=4.0) as cell:
         config = fast_config(cell, sensor_timeout_s=0.3)

@@ -9,13 +9,13 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from ftacq.app.cli import main
+from tests.conftest import wait_until
 from tests.fakes.netft import FakeNetFT
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
 
@@ -120,10 +120,10 @@ def test_ctrl_c_keeps_what_was_recorded(tmp_path) -> None:
         recorder = subprocess.Popen([sys.executable, "-m", "ftacq.app.cli", "sensor", "record", url, "--seconds", "60",
                                      "-o", str(path)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                     text=True)
-        deadline = time.monotonic() + SUBPROCESS_TIMEOUT_S
-        while not any(p.stat().st_size > 4096 for p in tmp_path.glob(".interrupted.csv.*")):
-            assert time.monotonic() < deadline and recorder.poll() is None, recorder.communicate()
-            time.sleep(0.05)  # polling a file another process writes; bounded by the deadline above
+        wait_until(lambda: recorder.poll() is not None
+                   or any(p.stat().st_size > 4096 for p in tmp_path.glob(".interrupted.csv.*")),
+                   "the recorder writing samples", timeout_s=SUBPROCESS_TIMEOUT_S)
+        assert recorder.poll() is None, recorder.communicate()
         recorder.send_signal(signal.SIGINT)
         out, err = recorder.communicate(timeout=SUBPROCESS_TIMEOUT_S)
         assert recorder.returncode == 130, err

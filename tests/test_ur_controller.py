@@ -8,7 +8,6 @@ Every controller binds its own random 127.x.y.z, so the suite runs under ``pytes
 from __future__ import annotations
 
 import random
-import time
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from ftacq.kinematics import flange_pose, forward_kinematics, ur_model
 from ftacq.so3 import rotation_from_rotvec
 from tests.fakes import ur_process
 from tests.fakes.ur_process import URControllerProcess, random_loopback_address
+from tests.conftest import wait_until
 
 rtde_control = pytest.importorskip("rtde_control")
 rtde_receive = pytest.importorskip("rtde_receive")
@@ -27,17 +27,6 @@ UR5E = ur_model("UR5e")
 POSE_TOLERANCE = 1e-9
 HOME_Q = [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0]
 WAIT_S = 5.0
-
-
-def wait_until(predicate, timeout_s: float = WAIT_S, what: str = "condition"):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.005)
 
 
 def assert_same_pose(actual, expected, tol: float = POSE_TOLERANCE) -> None:

@@ -28,6 +28,7 @@ from ftacq.errors import (
 from ftacq.kinematics import flange_pose, ur_model
 from ftacq.so3 import rotation_from_rotvec
 from tests.fakes.ur_process import URControllerProcess, random_loopback_address
+from tests.conftest import wait_until
 
 pytest.importorskip("rtde_control")
 
@@ -38,17 +39,6 @@ LIMITS = MotionLimits(joint_speed_rad_s=1.0, joint_acceleration_rad_s2=1.4, tool
 POSE_TOLERANCE = 1e-9
 DROP_DETECTION_LIMIT_S = 3.0
 """Functional requirement (issue 4): a lost connection is reported within 3 s."""
-
-
-def wait_until(predicate, timeout_s: float = 5.0, what: str = "condition"):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.005)
 
 
 def assert_same_pose(actual, expected, tol: float = POSE_TOLERANCE) -> None:

@@ -16,6 +16,9 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
 
 - ``ping`` · ``state`` · ``commands`` (every motion command executed: kind, target, speed, acceleration, async,
   time, accepted, reason, source, move) · ``events`` · ``clear_commands``
+- ``external_ft`` (the external F/T input: enable state and arguments, counts of received values and controller
+  cycles fed/missed, watchdog trips) · ``external_ft_records`` (every received value with its arrival time, every
+  counted cycle; tests/fakes/ur_external_ft.py)
 - ``fault KIND [now | after S | move_after S [move K] | move_fraction F [move K]]`` with KIND one of
   ``protective_stop``, ``emergency_stop``, ``program_stop``, ``drop`` (close every client connection and
   refuse new ones until ``restore``), ``freeze`` (keep connections, stop sending data and answering: a pulled
@@ -62,6 +65,18 @@ def _listener(host: str, port: int) -> socket.socket:
     sock.bind((host, port))
     sock.listen(8)
     return sock
+
+
+def _alive(connection: "RTDEConnection") -> bool:
+    """False once the peer closed its end (a pending EOF), even before the connection's thread has read it."""
+    if connection.closed:
+        return False
+    try:
+        return connection.sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) != b""
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
 
 
 def _recv_exact(sock: socket.socket, n: int) -> bytes | None:
@@ -192,7 +207,14 @@ class RTDEConnection:
                 self.period_s = 1.0 / frequency
             self.send(rp.CONTROL_PACKAGE_SETUP_OUTPUTS, recipe.setup_reply())
         elif package_type == rp.CONTROL_PACKAGE_SETUP_INPUTS:
-            recipe = rp.Recipe.build(len(self.inputs) + 1, rp.split_names(body), rp.INPUT_TYPES)
+            names = rp.split_names(body)
+            taken = self.server.claim_inputs(self, names)
+            if taken:
+                # RTDE guide: only one client may control a variable at a time; the recipe is refused
+                types = [rp.IN_USE if name in taken else rp.INPUT_TYPES.get(name, rp.NOT_FOUND) for name in names]
+                self.send(rp.CONTROL_PACKAGE_SETUP_INPUTS, bytes([0]) + ",".join(types).encode("ascii"))
+                return
+            recipe = rp.Recipe.build(len(self.inputs) + 1, names, rp.INPUT_TYPES)
             self.inputs[recipe.recipe_id] = recipe
             self.send(rp.CONTROL_PACKAGE_SETUP_INPUTS, recipe.setup_reply())
         elif package_type == rp.CONTROL_PACKAGE_START:
@@ -211,6 +233,9 @@ class RTDEConnection:
             recipe = self.inputs.get(body[0])
             if recipe is None or not recipe.known:
                 return
+            if len(body) - 1 != recipe.codec.size:
+                with sim.lock:  # ur-rtde sends short packages for wrong-length vectors (setExternalForceTorque)
+                    sim._event("short_package", recipe=recipe.recipe_id, bytes=len(body) - 1, expected=recipe.codec.size)
             values = recipe.unpack_partial(body[1:])
             doubles = sum(c for t, c in zip(recipe.types, recipe.counts) if rp.TYPE_FORMATS[t][0] == "d")
             sim.apply_inputs(values, doubles)
@@ -226,6 +251,7 @@ class ControllerServer:
         self.dropped = False
         self.lock = threading.Lock()
         self.rtde_connections: list[RTDEConnection] = []
+        self.input_owners: dict[str, RTDEConnection] = {}
         self.other_sockets: list[socket.socket] = []
         self.threads: list[threading.Thread] = []
         self.listeners: dict[str, socket.socket] = {}
@@ -291,7 +317,21 @@ class ControllerServer:
         with self.lock:
             if connection in self.rtde_connections:
                 self.rtde_connections.remove(connection)
+            for name in [n for n, owner in self.input_owners.items() if owner is connection]:
+                del self.input_owners[name]
         self.update_stream_period()
+
+    def claim_inputs(self, connection: RTDEConnection, names: list[str]) -> set[str]:
+        """Give ``connection`` the input variables ``names``; return those another live connection owns (then
+        nothing is claimed). A connection whose peer has already closed (EOF not yet read by its thread) is gone."""
+        with self.lock:
+            taken = {name for name in names if name in rp.INPUT_TYPES and self.input_owners.get(name) not in
+                     (None, connection) and _alive(self.input_owners[name])}
+            if not taken:
+                for name in names:
+                    if name in rp.INPUT_TYPES:
+                        self.input_owners[name] = connection
+            return taken
 
     def update_stream_period(self) -> None:
         with self.lock:
@@ -316,6 +356,9 @@ class ControllerServer:
                 for connection in connections:
                     if now >= connection.next_send_s:
                         connection.send_data(snap)
+                        if self.input_owners.get("external_force_torque") is connection:
+                            with self.sim.lock:
+                                self.sim.external_ft.count_cycle(now, snap["fields"]["timestamp"])
                         connection.last_sent_seq = snap["seq"]
                         connection.next_send_s += connection.period_s
                         if connection.next_send_s < now:
@@ -422,6 +465,12 @@ class ControllerServer:
         if command == "events":
             with sim.lock:
                 return {"events": list(sim.events)}
+        if command == "external_ft":
+            with sim.lock:
+                return {"external_ft": sim.external_ft.summary()}
+        if command == "external_ft_records":
+            with sim.lock:
+                return sim.external_ft.records()
         if command == "clear_commands":
             with sim.lock:
                 sim.commands.clear()

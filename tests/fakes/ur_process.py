@@ -27,6 +27,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ftacq.errors import DeviceError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -218,6 +220,18 @@ class URControllerProcess:
             if move is not None:
                 line += f" move {int(move)}"
         return self.control(line)
+
+    def external_ft(self) -> dict:
+        """The external F/T input as the controller holds it: enabled, function, sensor_mass,
+        sensor_measuring_offset, sensor_cog, wrench, received, cycles, cycles_fed, cycles_missed, watchdog_trips,
+        enable_calls."""
+        return self.control("external_ft")["external_ft"]
+
+    def external_ft_records(self) -> dict:
+        """Every value the controller received (rows: arrival monotonic s, controller time s, Fx..Tz) and every
+        controller cycle counted while enabled (rows: controller time s, fed 0/1, age of the held value s)."""
+        reply = self.control("external_ft_records")
+        return {"received": np.array(reply["received"]).reshape(-1, 8), "cycles": np.array(reply["cycles"]).reshape(-1, 3)}
 
     def set_time_scale(self, time_scale: float) -> None:
         self.control(f"set time_scale {float(time_scale)!r}")

@@ -21,6 +21,7 @@ import numpy as np
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from tests.fakes.rtde_protocol import REGISTER_COUNT
+from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
 
 # robot_mode (docs/protocols-ur.md)
@@ -32,13 +33,16 @@ SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, SAFETY_ROBOT_EMERGENCY_STOP = 1, 3, 7
 SAFETY_MODE_NAMES = {1: "NORMAL", 2: "REDUCED", 3: "PROTECTIVE_STOP", 4: "RECOVERY", 5: "SAFEGUARD_STOP",
                      6: "SYSTEM_EMERGENCY_STOP", 7: "ROBOT_EMERGENCY_STOP", 8: "VIOLATION", 9: "FAULT"}
 # runtime_state
-RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2
+RUNTIME_STOPPED, RUNTIME_PLAYING, RUNTIME_PAUSED = 1, 2, 4
 
 # command ids (docs/protocols-ur.md)
 CMD_CLEAR, CMD_MOVEJ, CMD_MOVEJ_IK, CMD_MOVEL, CMD_MOVEL_FK = 0, 1, 2, 3, 4
 CMD_SET_PAYLOAD, CMD_SET_TCP, CMD_PROTECTIVE_STOP, CMD_STOPL, CMD_STOPJ = 17, 29, 31, 33, 34
 CMD_GET_TCP_OFFSET, CMD_FK_DEFAULT, CMD_FK_ARGS, CMD_MOVE_PATH, CMD_IS_STEADY = 40, 43, 44, 45, 47
 CMD_GET_FLANGE_POSE, CMD_STOP_SCRIPT = 58, 255
+CMD_SET_EXTERNAL_FORCE_TORQUE, CMD_FT_RTDE_INPUT_ENABLE, CMD_ENABLE_EXTERNAL_FT_SENSOR = 55, 56, 57
+FT_RTDE_INPUT_ENABLE_SINCE = (5, 9)
+"""ur-rtde's script calls ft_rtde_input_enable only on controllers from 5.9 (a ``$5.9`` line)."""
 REALTIME_COMMANDS = frozenset({6, 9, 10, 11, 24, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
 REALTIME_NAMES = {9: "speedj", 10: "speedl", 11: "servoj", 24: "servol", 66: "direct_torque"}
 
@@ -161,6 +165,7 @@ class URSimulator:
         self._pose_cache: tuple[np.ndarray, np.ndarray] = (np.zeros(6), np.zeros(6))
         self._tcp_pose_prev = self.tcp_pose()
         self.tcp_speed = np.zeros(6)
+        self.external_ft = ExternalFTInput()
 
     # ------------------------------------------------------------------ geometry
     def controller_time_s(self, now: float | None = None) -> float:
@@ -205,8 +210,12 @@ class URSimulator:
     # ------------------------------------------------------------------ inputs
     def apply_inputs(self, values: dict[str, object], double_count: int) -> None:
         """Apply a decoded client data package (name → value)."""
+        arrival_s = time.monotonic()
         with self.lock:
             for name, value in values.items():
+                if name == "external_force_torque":
+                    self.external_ft.receive(value, arrival_s, self.controller_time_s(arrival_s))
+                    continue
                 if name.startswith("input_int_register_"):
                     self.in_int[int(name.rsplit("_", 1)[1])] = int(value)
                 elif name.startswith("input_double_register_"):
@@ -540,7 +549,23 @@ class URSimulator:
             self.payload_kg, self.payload_cog = d[off], np.array(d[off + 1:off + 4])
         elif cmd == CMD_PROTECTIVE_STOP:
             self._fire(Fault("protective_stop"))
+        elif cmd in (CMD_FT_RTDE_INPUT_ENABLE, CMD_ENABLE_EXTERNAL_FT_SENSOR):
+            self._external_ft_enable(cmd, off)
+        elif cmd == CMD_SET_EXTERNAL_FORCE_TORQUE:
+            # ur-rtde's control script has no branch for 55: it falls through to 'done' and nothing is applied
+            self._event("unhandled_command", cmd=cmd)
         return False
+
+    def _external_ft_enable(self, cmd: int, off: int) -> None:
+        """ur-rtde's script branches 56/57: enable = int1, sensor_mass = dbl0, offset = dbl1..3, cog = dbl4..6."""
+        function = "ft_rtde_input_enable" if cmd == CMD_FT_RTDE_INPUT_ENABLE else "enable_external_ft_sensor"
+        if cmd == CMD_FT_RTDE_INPUT_ENABLE and tuple(self.version[:2]) < FT_RTDE_INPUT_ENABLE_SINCE:
+            self._event("external_ft_not_called", function=function, reason="script line dropped below 5.9")
+            return
+        d, now = self.in_dbl, time.monotonic()
+        self.external_ft.enable(function, self.in_int[off + 1] == 1, d[off], d[off + 1:off + 4], d[off + 4:off + 7],
+                                self.controller_time_s(now), now)
+        self._event("external_ft", function=function, enable=self.external_ft.enabled)
 
     # ------------------------------------------------------------------ tick
     def step(self, now: float | None = None) -> dict:
@@ -560,6 +585,11 @@ class URSimulator:
                     self._fire(fault)
             self._advance_motion(now, dt)
             self._run_script(now)
+            if self.external_ft.watchdog(now, self.controller_time_s(now)):
+                self._event("external_ft_watchdog", reason="no external_force_torque input for 0.1 s")
+                if self.runtime_state == RUNTIME_PLAYING:
+                    self._halt_motion()
+                    self.runtime_state = RUNTIME_PAUSED
             return self.snapshot(now, dt)
 
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:
@@ -583,10 +613,15 @@ class URSimulator:
         joint_mode = 253 if running else (255 if self.robot_mode == ROBOT_MODE_IDLE else 239)
         gravity = {"floor": (0.0, 0.0, -9.81), "wall": (-9.81, 0.0, 0.0), "ceiling": (0.0, 0.0, 9.81)}[self.mount]
         safety_ok = self.safety_mode == SAFETY_NORMAL
+        tcp_force = (0.0,) * 6  # the built-in sensor is not simulated
+        if self.external_ft.enabled:
+            tcp_force = self.external_ft.tcp_force(rotation_from_rotvec(flange[3:6]), self.tcp_offset[:3],
+                                                   self.payload_kg, self.payload_cog, np.array(gravity))
         fields = {
             "timestamp": now - self.start_s,
             "actual_q": q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": (0.0,) * 6,
             "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(tcp.tolist()),
+            "actual_TCP_force": tcp_force,
             "actual_TCP_speed": tuple(self.tcp_speed.tolist()), "target_TCP_speed": tuple(self.tcp_speed.tolist()),
             "tcp_offset": tuple(self.tcp_offset.tolist()),
             "joint_temperatures": (31.0, 32.0, 33.0, 34.0, 35.0, 36.0),

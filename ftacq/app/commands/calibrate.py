@@ -18,6 +18,7 @@ import signal
 import sys
 from pathlib import Path
 
+from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 
 log = logging.getLogger(__name__)
@@ -61,12 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     viewer = parser.add_argument_group("live view")
     viewer.add_argument("--rerun", action="store_true",
                         help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
-    try:
-        from ftacq.app.dashboard import add_sink_args
-
-        add_sink_args(parser)
-    except ImportError:  # pragma: no cover - dashboard not installed
-        pass
+    add_sink_args(parser)
     parser.set_defaults(func=run)
 
 
@@ -253,8 +249,11 @@ def _as_dict(sampling) -> dict:
 
 
 def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
+    """Return the dashboard as a listener in its own thread (drawing never slows the procedure; the raw stream's
+    batches are dropped for the viewer rather than queued without bound), closed with the stack."""
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.kinematics import ur_model
+    from procedures.delivery import BackgroundListener
 
     recording = open_recording(args)
     stack.callback(close_recording, recording)
@@ -262,7 +261,11 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, m
         model = ur_model(model_name)
     except Exception:  # noqa: BLE001 - without a model the dashboard draws the flange frames only
         model = None
-    return DashboardListener(Dashboard(recording), model=model)
+    listener = DashboardListener(Dashboard(recording), model=model)
+    background = BackgroundListener([listener], name="ftacq-dashboard")
+    stack.callback(listener.flush)
+    stack.callback(background.close)  # runs first: deliver what is queued, then flush the arm
+    return background
 
 
 def _input_summary(folder, result) -> dict:

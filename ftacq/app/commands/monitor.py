@@ -74,7 +74,7 @@ class SimulatedTechnician:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``monitor`` sub-command."""
-    from ftacq.app.dashboard import add_sink_args
+    from ftacq.app.dashboard.sinks import add_sink_args
 
     parser = subparsers.add_parser(
         "monitor",
@@ -104,10 +104,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the monitor; return 0 when it stopped as asked (--seconds or Ctrl-C)."""
     from drivers.sensor import open_sensor
+    from drivers.ur import URStateReader
     from ftacq import __version__
-    from ftacq.app.dashboard import Dashboard, close_recording, open_recording
+    from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
+    from ftacq.app.readout import LiveReadout, format_summary
     from ftacq.kinematics import ur_model
-    from procedures.monitor import LiveMonitor
+    from procedures.monitor import GravityCompensator, LiveMonitor
 
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds {args.seconds}: must be a positive number of seconds")
@@ -134,40 +136,39 @@ def run(args: argparse.Namespace) -> int:
             source = str(args.config)
         model = ur_model(model_name)
 
+        # the viewer first (spawning one takes seconds): the sensor's samples are counted from its start
+        recording = open_recording(args)
+        stack.callback(close_recording, recording)
+        dashboard = DashboardListener(Dashboard(recording), model=model)
+        dashboard.set_calibration(calibration)
+
         sensor = open_sensor(sensor_url)
         stack.callback(sensor.close)
-        sensor.start()
-        from drivers.ur import URStateReader
-
         robot = URStateReader(robot_host, model=model)
         stack.callback(robot.close)
         robot.start()
         if args.sim and not args.sim_still:
             stack.callback(SimulatedTechnician(cell).start().close)
+        sensor.start()
 
-        recording = open_recording(args)
-        stack.callback(close_recording, recording)
-        dashboard = Dashboard(recording)
-        dashboard.set_calibration(calibration)
-        dashboard.log_text(f"ftacq {__version__} monitor: {source}, sensor {sensor_url}, robot {robot_host} "
-                           f"({model.name}), " + ("compensating" if calibration is not None else
-                                                  "no calibration: raw only"))
+        dashboard.dashboard.log_text(
+            f"ftacq {__version__} monitor: {source}, sensor {sensor_url}, robot {robot_host} ({model.name}), "
+            + ("compensating" if calibration is not None else "no calibration: raw only"))
         if calibration is None:
             print("ftacq monitor: no --calibration given: showing raw wrenches only", file=sys.stderr)
         header = [f"ftacq {__version__} monitor recording", f"source: {source}", f"sensor: {sensor_url}",
                   f"robot: {robot_host} ({model.name})",
                   f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
-        monitor = LiveMonitor(sensor, calibration=calibration, robot=robot, dashboard=dashboard, model=model,
-                              record_path=args.record, record_header=header)
+        readout = LiveReadout()
+        stack.callback(readout.close)
+        monitor = LiveMonitor(sensor, robot=robot,
+                              compensator=GravityCompensator(calibration) if calibration is not None else None,
+                              listeners=[dashboard, readout], record_path=args.record, record_header=header)
         summary = monitor.run(duration_s=args.seconds)
-        dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
-                           f"{summary.viewer_dropped_samples} dropped for the viewer")
-    print(f"ftacq monitor: {summary.samples} samples in {summary.duration_s:.1f} s "
-          f"(sensor at {summary.rate_hz:.0f} Hz), "
-          f"{summary.lost} lost, {summary.timeouts} read timeouts, "
-          f"{summary.viewer_dropped_samples} dropped for the viewer"
-          + (f", dashboard failed: {summary.dashboard_error}" if summary.dashboard_error else "")
-          + (f"; recorded {summary.record_path}" if summary.record_path else "")
-          + ("; stopped by Ctrl-C" if summary.interrupted else ""))
+        readout.close()
+        dashboard.flush()
+        dashboard.dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
+                                     f"{summary.dropped_samples} dropped for the viewer")
+    print(format_summary(summary))
     return 0

@@ -1,0 +1,271 @@
+"""The recorder: ftacq's data as Rerun logs, with the layout of :mod:`ftacq.app.dashboard.layout`.
+
+Everything is logged to a :class:`rerun.RecordingStream` handed in explicitly (never the global one), so a
+test records to a file and a live run to a viewer with the same code. Streams go as numpy columns
+(``send_columns``: one call per plot per batch, never one Python object per sample); fixed things are logged
+once, static (axis names and colours, the arm's link shapes, arrow styles), so a recording shows them whatever
+the time cursor, as recorded.
+
+Strict mode (``Dashboard(recording, strict=True)``) turns Rerun API misuse into exceptions (tests); the
+default is warn-only, so a visualisation problem never stops acquisition or the robot.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Sequence
+
+import numpy as np
+import rerun as rr
+
+from ftacq.app.dashboard.arm import label_anchors, link_frames, link_shapes
+from ftacq.app.dashboard.layout import (
+    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
+    FLANGE, FORCE_ARROW_SCALE_M_PER_N, FORCE_AXES, FRAME_AXIS_LENGTH_M, GRAVITY, GRAVITY_COLOR, HEALTH_COUNT_COLORS,
+    HEALTH_COUNT_NAMES, HEALTH_COUNTS, HEALTH_RATE, HEALTH_STATUS, JOINT_ANGLES, JOINT_COLOR, JOINT_COLORS,
+    JOINT_NAMES, LABEL_COLORS, LABELS, LINK_COLOR, LINK_FRAMES, LINK_SHAPES, MEASURED_FORCE, MEASURED_TORQUE,
+    MONITOR_LOG, PLAN, PLAN_AXIS_LENGTH_M, POSE_TIMELINE, RESIDUAL_FORCE, RESIDUAL_FORCE_NORM, RESIDUAL_TORQUE,
+    RESIDUAL_TORQUE_NORM, SENSOR, SENSOR_TIMELINE, SET_COLORS, TORQUE_AXES, UNKNOWN_SET_COLOR,
+    VALIDATION_FORCE_NORM, WORLD, WRENCH_PATHS, blueprint,
+)
+from ftacq.app.dashboard.sinks import RECORDING_FLUSH_TIMEOUT_S
+from ftacq.kinematics import URModel
+from ftacq.so3 import rotation_from_rotvec
+
+
+class Dashboard:
+    """Logs ftacq's data to a Rerun recording with the layout of :func:`~ftacq.app.dashboard.layout.blueprint`.
+
+    The constructor sends the blueprint and the static styles once. Every method is thread-safe (one lock) and
+    stamps data explicitly on the ``sensor_time`` timeline (seconds, host monotonic clock).
+
+    Args:
+        recording: the stream to log to (from :func:`~ftacq.app.dashboard.sinks.open_recording`, or a test's own).
+        strict: raise on Rerun API misuse (tests) instead of warning (live).
+        send_blueprint: send the layout now (False when the sink already carries it).
+    """
+
+    def __init__(self, recording: rr.RecordingStream, *, strict: bool = False, send_blueprint: bool = True) -> None:
+        self.recording = recording
+        self.strict = strict
+        self.model: URModel | None = None
+        self._lock = threading.Lock()
+        self._sensor_rotation: np.ndarray | None = None  # sensor_R_flange
+        self._gravity_base: np.ndarray | None = None  # the tool's weight, base frame, N
+        self._contact_sensor = np.zeros(3)  # the latest compensated force, sensor frame, N
+        if send_blueprint:
+            recording.send_blueprint(blueprint())
+        self._log_static_styles()
+
+    # -- helpers ---------------------------------------------------------------------------------------------
+
+    def _static(self, path: str, *archetypes: Any) -> None:
+        self.recording.log(path, *archetypes, static=True, strict=self.strict)
+
+    def _at(self, time_s: float, path: str, *archetypes: Any) -> None:
+        """Log ``archetypes`` at ``time_s`` (s, sensor clock). Caller holds the lock (time is per thread)."""
+        self.recording.set_time(SENSOR_TIMELINE, duration=float(time_s))
+        self.recording.log(path, *archetypes, strict=self.strict)
+
+    def _send(self, path: str, time_s: np.ndarray, columns: Any, pose_index: np.ndarray | None = None) -> None:
+        indexes = [rr.TimeColumn(SENSOR_TIMELINE, duration=np.asarray(time_s, dtype=np.float64))]
+        if pose_index is not None:
+            indexes.append(rr.TimeColumn(POSE_TIMELINE, sequence=np.asarray(pose_index, dtype=np.int64)))
+        self.recording.send_columns(path, indexes=indexes, columns=columns, strict=self.strict)
+
+    def _scalars(self, path: str, time_s: np.ndarray, values: np.ndarray, pose_index: np.ndarray | None = None) -> None:
+        self._send(path, time_s, rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)), pose_index)
+
+    def _log_static_styles(self) -> None:
+        for path in WRENCH_PATHS:
+            names = FORCE_AXES if path.endswith("force") else TORQUE_AXES
+            self._static(path, rr.SeriesLines(colors=AXIS_COLORS, names=names))
+        for path in (MEASURED_FORCE, MEASURED_TORQUE, RESIDUAL_FORCE, RESIDUAL_TORQUE):
+            names = FORCE_AXES if path.endswith("force") else TORQUE_AXES
+            self._static(path, rr.SeriesPoints(colors=AXIS_COLORS, names=names, marker_sizes=[3.0] * 3))
+        self._static(HEALTH_RATE, rr.SeriesLines(colors=[(38, 103, 230)], names=["rate [Hz]"]))
+        self._static(HEALTH_COUNTS, rr.SeriesLines(colors=HEALTH_COUNT_COLORS, names=HEALTH_COUNT_NAMES))
+        self._static(HEALTH_STATUS, rr.SeriesLines(colors=[(60, 60, 70)], names=["status word"]))
+        self._static(JOINT_ANGLES, rr.SeriesLines(colors=JOINT_COLORS, names=JOINT_NAMES))
+        self._static(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP)
+        self._static(BASE_AXES, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M * 1.5))
+        self._static(FLANGE, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M))
+        self._static(SENSOR, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M * 0.75))
+        self._static(CONTACT_FORCE, rr.Arrows3D.from_fields(colors=[CONTACT_COLOR], radii=[ARROW_RADIUS_M],
+                                                            show_labels=False))
+        self._static(GRAVITY, rr.Arrows3D.from_fields(colors=[GRAVITY_COLOR], radii=[ARROW_RADIUS_M],
+                                                      show_labels=False))
+        self._static(LABELS, rr.Points3D.from_fields(colors=LABEL_COLORS, radii=[0.002], show_labels=True))
+
+    # -- what stays fixed --------------------------------------------------------------------------------------
+
+    def set_arm(self, model: URModel) -> None:
+        """Log the arm's six links once (static), each in its DH frame; :meth:`log_arm` then moves the frames."""
+        shapes = link_shapes(model)
+        with self._lock:
+            self.model = model
+            for shape_path, shape in zip(LINK_SHAPES, shapes):
+                self._static(shape_path,
+                             rr.LineStrips3D([shape], radii=[model.link_radius_m * 0.4], colors=[LINK_COLOR]),
+                             rr.Points3D([shape[-1]], radii=[model.link_radius_m * 0.6], colors=[JOINT_COLOR]))
+
+    def set_calibration(self, calibration) -> None:
+        """Show the sensor frame (``flange_R_sensor`` = sensor_rotationᵀ) and remember the tool's weight.
+
+        ``calibration`` is an :class:`ftacq.calibration.Calibration`, or None (sensor frame = flange frame).
+        """
+        with self._lock:
+            if calibration is None:
+                self._sensor_rotation, self._gravity_base = None, None
+                flange_R_sensor = np.eye(3)
+            else:
+                self._sensor_rotation = np.array(calibration.sensor_rotation)
+                self._gravity_base = np.array(calibration.gravity_base)
+                flange_R_sensor = self._sensor_rotation.T
+            self._static(SENSOR, rr.Transform3D(mat3x3=flange_R_sensor))
+
+    @property
+    def has_calibration(self) -> bool:
+        return self._sensor_rotation is not None
+
+    # -- streams ---------------------------------------------------------------------------------------------
+
+    def log_wrench_batch(self, batch_time_s: np.ndarray, raw: np.ndarray | None,
+                         compensated: np.ndarray | None) -> None:
+        """Log N samples: ``batch_time_s`` (N,) s on the sensor clock, ``raw`` and ``compensated`` (N, 6)
+        [N, N·m] sensor frame (either None when not known or already logged). One ``send_columns`` per plot;
+        the last compensated force is drawn as the contact-force arrow at the sensor."""
+        time_s = np.asarray(batch_time_s, dtype=np.float64)
+        if time_s.shape[0] == 0:
+            return
+        with self._lock:
+            if raw is not None:
+                raw = np.asarray(raw, dtype=np.float64)
+                self._scalars(WRENCH_PATHS[0], time_s, raw[:, :3])
+                self._scalars(WRENCH_PATHS[1], time_s, raw[:, 3:])
+            if compensated is not None:
+                compensated = np.asarray(compensated, dtype=np.float64)
+                self._scalars(WRENCH_PATHS[2], time_s, compensated[:, :3])
+                self._scalars(WRENCH_PATHS[3], time_s, compensated[:, 3:])
+                self._contact_sensor = compensated[-1, :3].copy()
+                self._at(time_s[-1], CONTACT_FORCE,
+                         rr.Arrows3D.from_fields(vectors=[self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N]))
+
+    def log_arm(self, time_s: np.ndarray, flange_pose: np.ndarray, q_rad: np.ndarray | None = None) -> None:
+        """Log N states of the arm as columns: ``time_s`` (N,) s (sensor clock), ``flange_pose`` (N, 6)
+        [x, y, z (m), rx, ry, rz (rad)] as the controller reports it, ``q_rad`` (N, 6) joint angles (None: the
+        flange frame only). Moves the DH frames of :meth:`set_arm`, the flange frame, the joint-angle plot, the
+        tool's weight arrow (at the flange, base frame) and the two force labels."""
+        time_s = np.atleast_1d(np.asarray(time_s, dtype=np.float64))
+        flange_pose = np.asarray(flange_pose, dtype=np.float64).reshape(-1, 6)
+        n = time_s.shape[0]
+        if n == 0:
+            return
+        base_R_flange = rotation_from_rotvec(flange_pose[:, 3:6]).reshape(n, 3, 3)
+        with self._lock:
+            if q_rad is not None:
+                q_rad = np.asarray(q_rad, dtype=np.float64).reshape(-1, 6)
+                self._scalars(JOINT_ANGLES, time_s, q_rad)
+                if self.model is not None:
+                    frames = link_frames(self.model, q_rad)  # (N, 6, 4, 4)
+                    for i, path in enumerate(LINK_FRAMES):
+                        self._send(path, time_s, rr.Transform3D.columns(translation=frames[:, i, :3, 3],
+                                                                         mat3x3=frames[:, i, :3, :3]))
+            self._send(FLANGE, time_s, rr.Transform3D.columns(translation=flange_pose[:, :3], mat3x3=base_R_flange))
+            if self._gravity_base is not None:
+                weight = np.broadcast_to(self._gravity_base * FORCE_ARROW_SCALE_M_PER_N, (n, 3))
+                self._send(GRAVITY, time_s, rr.Arrows3D.columns(origins=flange_pose[:, :3], vectors=weight))
+                self._log_labels(time_s, flange_pose[:, :3], base_R_flange, weight)
+
+    def _log_labels(self, time_s: np.ndarray, origins: np.ndarray, base_R_flange: np.ndarray,
+                    weight: np.ndarray) -> None:
+        """The "tool weight" and "contact" labels, placed clear of both arrows (:func:`arm.label_anchors`)."""
+        flange_R_sensor = np.eye(3) if self._sensor_rotation is None else self._sensor_rotation.T
+        contact_n = float(np.linalg.norm(self._contact_sensor))
+        texts = [f"tool weight {np.linalg.norm(self._gravity_base):.1f} N", f"contact {contact_n:.1f} N"]
+        anchors = np.empty((time_s.shape[0], 2, 3))
+        for k in range(time_s.shape[0]):  # per arm state (30 Hz), not per sample
+            contact = base_R_flange[k] @ flange_R_sensor @ self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N
+            anchors[k] = label_anchors(origins[k], weight[k], contact)
+        columns = rr.Points3D.columns(positions=anchors.reshape(-1, 3), labels=texts * time_s.shape[0])
+        self._send(LABELS, time_s, columns.partition(np.full(time_s.shape[0], 2)))
+
+    def log_health(self, time_s: float, health, dropped: int = 0) -> None:
+        """Log a :class:`drivers.sensor.SensorHealth` snapshot at ``time_s`` (s, sensor clock): receive rate [Hz],
+        lost / saturated / status-error counts, the last status word, and samples not delivered to the viewer."""
+        counts = np.array([[health.lost, health.saturated, health.status_errors, dropped]], dtype=np.float64)
+        with self._lock:
+            t = np.array([time_s])
+            self._scalars(HEALTH_RATE, t, np.array([[health.rate_hz]]))
+            self._scalars(HEALTH_COUNTS, t, counts)
+            self._scalars(HEALTH_STATUS, t, np.array([[float(health.last_status)]]))
+
+    def log_text(self, text: str, *, level: str = "INFO", time_s: float | None = None, path: str = MONITOR_LOG) -> None:
+        """Append a line to the text log (``path`` under ``log/``) at ``time_s`` (s, sensor clock; default now)."""
+        with self._lock:
+            self._at(time.monotonic() if time_s is None else time_s, path, rr.TextLog(text, level=level))
+
+    # -- calibration procedure -------------------------------------------------------------------------------
+
+    def log_plan(self, time_s: float, poses: np.ndarray, labels: Sequence[str], set_names: Sequence[str]) -> None:
+        """Draw every planned flange pose (N, 6) as a small frame coloured by its set (A, E, V)."""
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 6)
+        rotations = rotation_from_rotvec(poses[:, 3:6]).reshape(-1, 3, 3)  # base_R_flange (N, 3, 3)
+        with self._lock:
+            for set_name in sorted(set(set_names)):
+                mask = np.array([s == set_name for s in set_names])
+                color = SET_COLORS.get(set_name, UNKNOWN_SET_COLOR)
+                origins = np.repeat(poses[mask, :3], 3, axis=0)
+                vectors = np.concatenate([rotations[mask][:, :, k] for k in range(3)], axis=1).reshape(-1, 3)
+                shades = np.array([1.0, 0.75, 0.5])[None, :, None] * np.array(color)[None, None, :]
+                colors = np.repeat(shades, int(mask.sum()), axis=0).reshape(-1, 3).astype(np.uint8)
+                self._at(time_s, f"{PLAN}/{set_name}", rr.Arrows3D(
+                    origins=origins, vectors=vectors * PLAN_AXIS_LENGTH_M, colors=colors, radii=[0.002]))
+                self._at(time_s, f"{PLAN}/{set_name}/labels", rr.Points3D(
+                    poses[mask, :3], radii=[0.006], colors=[color],
+                    labels=[label for label, keep in zip(labels, mask) if keep], show_labels=False))
+
+    def log_current_pose(self, time_s: float, pose: np.ndarray, text: str) -> None:
+        """Highlight the pose the procedure is working on ([x, y, z, rx, ry, rz], base frame)."""
+        pose = np.asarray(pose, dtype=np.float64)
+        with self._lock:
+            self._at(time_s, CURRENT_POSE, rr.Points3D([pose[:3]], radii=[0.015], colors=[CURRENT_POSE_COLOR],
+                                                       labels=[text], show_labels=True))
+
+    def log_pose_measured(self, time_s: float, index: int, mean: np.ndarray) -> None:
+        """Log the averaged wrench (6,) [N, N·m] of pose ``index`` on both timelines."""
+        mean = np.asarray(mean, dtype=np.float64)
+        with self._lock:
+            self._scalars(MEASURED_FORCE, np.array([time_s]), mean[None, :3], np.array([index]))
+            self._scalars(MEASURED_TORQUE, np.array([time_s]), mean[None, 3:], np.array([index]))
+
+    def log_residuals(self, time_s: float, residuals: np.ndarray, pose_indices: np.ndarray | None = None) -> None:
+        """Log identification residuals (N, 6) [N, N·m] per pose: per axis on the ``pose`` timeline and as bar
+        charts of their norms."""
+        residuals = np.asarray(residuals, dtype=np.float64).reshape(-1, 6)
+        n = residuals.shape[0]
+        indices = np.arange(n) if pose_indices is None else np.asarray(pose_indices)
+        with self._lock:
+            if n:
+                times = np.full(n, float(time_s))
+                self._scalars(RESIDUAL_FORCE, times, residuals[:, :3], indices)
+                self._scalars(RESIDUAL_TORQUE, times, residuals[:, 3:], indices)
+            self._at(time_s, RESIDUAL_FORCE_NORM, rr.BarChart(np.linalg.norm(residuals[:, :3], axis=1),
+                                                              color=AXIS_COLORS[2]))
+            self._at(time_s, RESIDUAL_TORQUE_NORM, rr.BarChart(np.linalg.norm(residuals[:, 3:], axis=1),
+                                                               color=AXIS_COLORS[0]))
+
+    def log_validation(self, time_s: float, errors: np.ndarray) -> None:
+        """Log the compensation errors (M, 6) on the validation poses as a bar chart of force-error norms."""
+        errors = np.asarray(errors, dtype=np.float64).reshape(-1, 6)
+        with self._lock:
+            self._at(time_s, VALIDATION_FORCE_NORM, rr.BarChart(np.linalg.norm(errors[:, :3], axis=1),
+                                                                color=SET_COLORS["V"]))
+
+    def flush(self, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S) -> None:
+        """Push everything logged so far to the sink, waiting at most ``timeout_s`` seconds."""
+        self.recording.flush(timeout_sec=timeout_s)
+
+
+__all__ = ["Dashboard"]

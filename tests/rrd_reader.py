@@ -1,0 +1,85 @@
+"""Read a recording back with Rerun's own reader (:class:`rerun.chunk.RrdReader`): what the tests and benchmarks
+check a dashboard recording against."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from rerun.chunk import RrdReader
+
+from ftacq.app.dashboard.layout import SENSOR_TIMELINE
+
+
+def _chunks(rrd_path: str | os.PathLike):
+    return RrdReader(rrd_path).stream().to_chunks()
+
+
+def read_scalars(rrd_path: str | os.PathLike, entity_path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(time_s, values)`` of a Scalars entity: (N,) seconds on the ``sensor_time`` timeline and (N, k)
+    values, in time order."""
+    wanted = "/" + entity_path.strip("/")
+    times, values = [], []
+    for chunk in _chunks(rrd_path):
+        if chunk.entity_path != wanted or chunk.is_static or chunk.num_rows == 0:
+            continue
+        batch = chunk.to_record_batch()
+        names = batch.schema.names
+        if SENSOR_TIMELINE not in names or "Scalars:scalars" not in names:
+            continue
+        times.append(batch.column(SENSOR_TIMELINE).cast("int64").to_numpy())
+        column = batch.column("Scalars:scalars")
+        values.append(column.flatten().to_numpy().reshape(len(column), -1))
+    if not times:
+        return np.empty(0), np.empty((0, 0))
+    time_ns = np.concatenate(times)
+    order = np.argsort(time_ns, kind="stable")
+    return time_ns[order] * 1e-9, np.concatenate(values)[order]
+
+
+def entity_paths(rrd_path: str | os.PathLike) -> set[str]:
+    """Return the entity paths (without the leading "/") that hold data in an .rrd file's recording."""
+    return {chunk.entity_path.lstrip("/") for chunk in _chunks(rrd_path)}
+
+
+def static_paths(rrd_path: str | os.PathLike, component: str) -> set[str]:
+    """Return the entity paths holding ``component`` (e.g. "LineStrips3D:strips") as static data."""
+    found = set()
+    for chunk in _chunks(rrd_path):
+        if chunk.is_static and component in chunk.to_record_batch().schema.names:
+            found.add(chunk.entity_path.lstrip("/"))
+    return found
+
+
+def read_column(rrd_path: str | os.PathLike, entity_path: str, component: str) -> tuple[np.ndarray, list]:
+    """Return ``(time_s, rows)`` of a temporal component: (N,) s on ``sensor_time`` and N Python rows, time order."""
+    wanted = "/" + entity_path.strip("/")
+    times, rows = [], []
+    for chunk in _chunks(rrd_path):
+        if chunk.entity_path != wanted or chunk.is_static:
+            continue
+        batch = chunk.to_record_batch()
+        if SENSOR_TIMELINE not in batch.schema.names or component not in batch.schema.names:
+            continue
+        times.append(batch.column(SENSOR_TIMELINE).cast("int64").to_numpy())
+        rows += batch.column(component).to_pylist()
+    if not times:
+        return np.empty(0), []
+    time_ns = np.concatenate(times)
+    order = np.argsort(time_ns, kind="stable")
+    return time_ns[order] * 1e-9, [rows[i] for i in order]
+
+
+def read_texts(rrd_path: str | os.PathLike, entity_path: str) -> list[str]:
+    """Return the TextLog lines logged to ``entity_path``."""
+    texts: list[str] = []
+    for chunk in _chunks(rrd_path):
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == "/" + entity_path and "TextLog:text" in batch.schema.names:
+            texts += [row[0] for row in batch.column("TextLog:text").to_pylist()]
+    return texts
+
+
+def count_chunks(rrd_path: str | os.PathLike, entity_path: str) -> int:
+    """Return how many chunks hold data of ``entity_path``."""
+    return sum(chunk.entity_path == "/" + entity_path.strip("/") for chunk in _chunks(rrd_path))
