@@ -68,7 +68,7 @@ class DriftSettings:
 
     window_s: float = 0.5
     settle_s: float = 0.5
-    rate_prior_per_h: tuple[float, ...] = (1.0, 1.0, 1.0, 0.03, 0.03, 0.03)
+    rate_prior_per_h: tuple[float, ...] = (3.0, 3.0, 3.0, 0.1, 0.1, 0.1)
     rate_walk_per_h: tuple[float, ...] = (10.0, 10.0, 10.0, 0.3, 0.3, 0.3)
     bias_walk_per_sqrt_h: tuple[float, ...] = (0.005, 0.005, 0.005, 0.0002, 0.0002, 0.0002)
     gate_chi2: float = 22.46

@@ -3,7 +3,7 @@
 :class:`DriftCompensator` compensates each batch with the calibration as on file, hands the residual to a
 :class:`ftacq.drift.BiasHealth` together with the arm's stillness (:class:`StillDetector`) and orientation, and
 returns the residual minus the tracker's correction when ``auto_tare`` is on (unchanged otherwise). The notices
-it causes (an at-rest warning, its clearing) and a periodic :class:`BiasDrift` snapshot (for the dashboard's bias
+it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.events.BiasDrift` snapshot (for the dashboard's bias
 drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
 acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window.
 
@@ -21,6 +21,7 @@ import numpy as np
 
 from ftacq.drift import BiasHealth, HealthNotice
 from ftacq.so3 import rotation_from_rotvec
+from procedures.events import BiasDrift, Notice
 
 STILL_TOLERANCE_RAD = 2e-4
 """Largest joint excursion (rad, about 0.01°) over the still window that still counts as still (encoder jitter)."""
@@ -51,22 +52,6 @@ class StillDetector:
             return False  # not enough history yet
         angles = np.array([item[1] for item in self._history])
         return bool(np.all(angles.max(axis=0) - angles.min(axis=0) <= self.tolerance_rad))
-
-
-@dataclass(frozen=True)
-class BiasDrift:
-    """The tracker's estimate at ``time_s`` (sample clock, s): bias offset from the calibration file (6,) [N, N·m],
-    its 1σ, the drift rate (6,) [N/h, N·m/h], whether ``--auto-tare`` applies it, and the window counts."""
-
-    time_s: float
-    offset: np.ndarray
-    sigma: np.ndarray
-    rate_per_h: np.ndarray
-    applied: bool
-    accepted: int
-    rejected_contact: int
-    rejected_gate: int
-    warning: bool
 
 
 @dataclass
@@ -114,26 +99,19 @@ class DriftCompensator:
 
 
 class DriftCheck:
-    """The monitor's health check for the drift tracker: the compensator's notices, and a :class:`BiasDrift`
-    snapshot every ``period_s`` of sample time.
+    """The monitor's health check for the drift tracker: the compensator's notices (as
+    :class:`procedures.events.Notice`, source "health"), and a :class:`procedures.events.BiasDrift` snapshot every
+    ``period_s`` of sample time."""
 
-    ``make_notice(text, level, time_s)`` builds the monitor's notice event (the application passes
-    ``procedures.events.Notice``-like constructors; default: the :class:`ftacq.drift.HealthNotice` itself).
-    """
-
-    def __init__(self, compensator: DriftCompensator, period_s: float = DRIFT_EVENT_PERIOD_S,
-                 make_notice=None) -> None:
+    def __init__(self, compensator: DriftCompensator, period_s: float = DRIFT_EVENT_PERIOD_S) -> None:
         self.compensator = compensator
         self.period_s = float(period_s)
         self._last_s = -np.inf
-        self._make_notice = make_notice
 
     def check(self, samples) -> list:
         """Return the notices caused since the last call, plus a BiasDrift snapshot when one is due."""
-        out: list = []
-        for notice in self.compensator.notices:
-            out.append(notice if self._make_notice is None else self._make_notice(notice.text, notice.level,
-                                                                                 notice.time_s))
+        out: list = [Notice(n.text, level=n.level, source="health", time_s=n.time_s)
+                     for n in self.compensator.notices]
         self.compensator.notices.clear()
         now_s = float(samples.batch.time_s[-1])
         if now_s - self._last_s >= self.period_s and self.compensator.health.observations:
@@ -142,4 +120,4 @@ class DriftCheck:
         return out
 
 
-__all__ = ["StillDetector", "DriftCompensator", "DriftCheck", "BiasDrift", "STILL_TOLERANCE_RAD", "STILL_WINDOW_S"]
+__all__ = ["StillDetector", "DriftCompensator", "DriftCheck", "STILL_TOLERANCE_RAD", "STILL_WINDOW_S"]

@@ -166,6 +166,24 @@ class Notice:
     time_s: float | None = None
 
 
-StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice
+@dataclass(frozen=True)
+class BiasDrift:
+    """The live drift tracker's estimate at ``time_s`` (sample clock, s): the biases' offset from the calibration
+    file (6,) [N, N·m] and its 1σ, the drift rate (6,) [N/h, N·m/h], whether ``--auto-tare`` applies it, the rest
+    windows used and refused (contact, innovation gate), and whether the at-rest warning stands
+    (:mod:`procedures.bias_health`)."""
+
+    time_s: float
+    offset: np.ndarray
+    sigma: np.ndarray
+    rate_per_h: np.ndarray
+    applied: bool
+    accepted: int
+    rejected_contact: int
+    rejected_gate: int
+    warning: bool
+
+
+StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | BiasDrift
 Event = ProcedureEvent | StreamEvent
 Listener = Callable[[Event], None]

@@ -169,7 +169,8 @@ def test_still_detector_needs_the_joints_still_for_its_window() -> None:
 def test_drift_compensator_applies_the_tracked_offset_only_with_auto_tare(calibration) -> None:
     """With --auto-tare the compensated stream at rest loses a bias offset the tracker found; without it the
     stream is the calibration's compensation, unchanged, and the tracker still reports the offset."""
-    from procedures.bias_health import BiasDrift, DriftCheck, DriftCompensator
+    from procedures.bias_health import DriftCheck, DriftCompensator
+    from procedures.events import BiasDrift
 
     offset = np.array([0.03, -0.02, 0.025, 0.001, -0.0005, 0.0008])  # drifted since the file, within the gate
     truth = replace(CellTruth(), force_bias_n=tuple(np.add(CellTruth().force_bias_n, offset[:3])),

@@ -77,6 +77,10 @@ RESIDUAL_FORCE_NORM = "calibration/residual_norm/force"
 RESIDUAL_TORQUE_NORM = "calibration/residual_norm/torque"
 VALIDATION_FORCE_NORM = "calibration/validation_norm/force"
 
+BIAS_DRIFT = "bias_drift"
+BIAS_DRIFT_FORCE = "bias_drift/force"
+BIAS_DRIFT_TORQUE = "bias_drift/torque"
+"""The live tracker's bias offset from the calibration file (N, N·m) with ±1σ bands (ftacq monitor)."""
 LOG = "log"
 MONITOR_LOG = "log/monitor"
 CALIBRATION_LOG = "log/calibration"
@@ -146,6 +150,7 @@ def blueprint() -> rrb.Blueprint:
                 rrb.Tabs(
                     rrb.TextLogView(origin=LOG, name="log"),
                     rrb.TimeSeriesView(origin=HEALTH, name="sensor health"),
+                    rrb.TimeSeriesView(origin=BIAS_DRIFT, name="bias drift since the calibration [N, N·m]"),
                     rrb.TimeSeriesView(origin=JOINT_ANGLES, name="joints [rad]"),
                     rrb.TimeSeriesView(origin=MEASURED, name="averaged wrench per pose"),
                     rrb.BarChartView(origin=RESIDUAL_FORCE_NORM, name="|force residual| per pose [N]"),
