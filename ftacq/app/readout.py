@@ -81,7 +81,7 @@ class LiveReadout:
 def format_summary(summary) -> str:
     """Return the run's last line from a :class:`procedures.monitor.MonitorSummary`: samples / seconds = rate,
     all three on the samples' receive clock."""
-    text = (f"ftacq monitor: {summary.samples} samples received over {summary.span_s:.3f} s "
+    text = (f"ftacq monitor: {summary.samples} samples received over {summary.span_s:.4f} s "
             f"(first to last sample, host monotonic clock) = {summary.rate_hz:.0f} Hz; {summary.lost} lost, "
             f"{summary.timeouts} read timeouts, {summary.dropped_samples} dropped for the viewer")
     if summary.listener_error:
