@@ -1,4 +1,5 @@
-"""ATI NETCANOEM ("F/T CAN Bus and Serial Bus Network Interface for OEM") over python-can (specs/ati.md §4.1).
+"""ATI NETCANOEM ("F/T CAN Bus and Serial Bus Network Interface for OEM") over python-can (docs/protocols-ati.md,
+"CAN").
 
 The board answers requests only: the host sends ``ID = (base << 4) | opcode`` and the board replies on the IDs of
 the reply opcodes, big-endian. It computes no wrench and no bias: the host reads the raw strain gages, subtracts
@@ -16,6 +17,11 @@ driver ignores its own frames (``is_rx`` False) and checks each reply's opcode a
 Threads: ``start()`` reads the board's identity and calibration in the caller's thread, then one named poll
 thread requests gages at ``rate_hz`` and is the bus's only reader. The poll loop never raises: timeouts,
 partial replies, late replies, foreign and malformed frames are counted in :class:`SensorHealth`.
+
+Lifecycle, ``read`` and ``average`` come from :class:`drivers.sensor.SensorBase`; units from :mod:`drivers.units`.
+Why one module of ~750 lines: the start-up requests, the poll loop and the host-side bias share one bus, one lock
+and one frame classifier (the board answers on the IDs the host sends on), and splitting them would pass that
+state between modules; the protocol tables at the top are the only part another module could use, and none does.
 """
 
 from __future__ import annotations
@@ -25,25 +31,27 @@ import logging
 import struct
 import threading
 import time
-import warnings
 from dataclasses import dataclass
-from urllib.parse import parse_qsl, unquote, urlsplit
+from urllib.parse import unquote, urlsplit
 
 import numpy as np
 
 from drivers.sensor import (
     STATUS_SATURATION,
     STATUS_SUMMARY,
+    SensorBase,
     SensorHealth,
     SensorInfo,
-    WrenchAverage,
     WrenchBatch,
+    check_range,
+    query_items,
 )
+from drivers.units import FORCE_UNIT_CODES, FORCE_UNITS, TORQUE_UNIT_CODES, TORQUE_UNITS
 from ftacq.errors import DeviceConnectionError, DeviceError, DeviceTimeoutError, InputError, SensorFaultError
 
 logger = logging.getLogger(__name__)
 
-# ------------------------------------------------------------------------ protocol (specs/ati.md §4.1)
+# ------------------------------------------------------------------------ protocol (docs/protocols-ati.md, "CAN")
 OP_GAGES = 0x0
 """Request gages; replies op 0x0 (u16 status, i16 sg0, sg2, sg4) then op 0x1 (i16 sg1, sg3, sg5)."""
 OP_GAGES_SECOND = 0x1
@@ -94,7 +102,7 @@ STATUS_BIT_NAMES = {
     14: "CAN bus error",
     15: "any error",
 }
-"""NETCANOEM u16 status bits (specs/ati.md §4.1)."""
+"""NETCANOEM u16 status bits."""
 STATUS_CRITICAL_MASK = sum(1 << b for b in (1, 2, 3, 4, 5, 6, 7, 11, 12))
 """Bits the manual calls critical: the board keeps sending data, so the host must act on them."""
 STATUS_ERROR_MASK = STATUS_CRITICAL_MASK | (1 << 15)
@@ -104,12 +112,6 @@ HOST_STATUS_GAGE_SATURATED = STATUS_SUMMARY | STATUS_SATURATION
 """Set by this driver in bits 31 and 17 of ``WrenchBatch.status`` when a gage reads +32767 or −32768 (the
 board's own u16 status is in bits 0–15); the same bits as the Net F/T saturation status."""
 
-FORCE_UNITS = {1: ("lbf", 4.4482216152605), 2: ("N", 1.0), 3: ("klbf", 4448.2216152605), 4: ("kN", 1000.0),
-               5: ("kgf", 9.80665), 6: ("gf", 0.00980665)}
-"""Force unit code → (name, newtons per unit) (specs/ati.md §2)."""
-TORQUE_UNITS = {1: ("lbf-in", 0.112984829027617), 2: ("lbf-ft", 1.3558179483314), 3: ("N-m", 1.0),
-                4: ("N-mm", 0.001), 5: ("kgf-cm", 0.0980665), 6: ("kN-m", 1000.0)}
-"""Torque unit code → (name, N·m per unit)."""
 
 # ------------------------------------------------------------------------ defaults
 DEFAULT_BASE = 0x20
@@ -127,8 +129,6 @@ DEFAULT_STARTUP_TIMEOUT_S = 0.5
 to schedule, and start-up happens once)."""
 DEFAULT_BIAS_SAMPLES = 32
 DEFAULT_BIAS_TIMEOUT_S = 2.0
-AVERAGE_GRACE_S = 1.0
-"""Extra time ``average`` allows beyond its window before giving up, seconds."""
 MAX_PENDING_SAMPLES = 1_000_000
 """Samples kept for ``read`` if nobody reads (oldest dropped beyond this; ~33 min at 500 Hz)."""
 RATE_WINDOW_S = 1.0
@@ -186,7 +186,7 @@ class _BiasRequest:
         self.done = threading.Event()
 
 
-class AtiCanSensor:
+class AtiCanSensor(SensorBase):
     """ATI NETCANOEM on a python-can bus, implementing :class:`drivers.sensor.ForceTorqueSensor`.
 
     Args:
@@ -220,16 +220,17 @@ class AtiCanSensor:
         assume_unit_codes: tuple[int, int] = (2, 3),
         bus_options: dict | None = None,
     ) -> None:
-        _check_range("base", base, 0, 0x7F)
-        _check_range("calibration_index", calibration_index, 0, 15)
-        _check_range("bitrate", bitrate, 1, MAX_BITRATE)
+        super().__init__()
+        check_range("base", base, 0, 0x7F)
+        check_range("calibration_index", calibration_index, 0, 15)
+        check_range("bitrate", bitrate, 1, MAX_BITRATE)
         if rate_hz is not None:
-            _check_range("rate_hz", rate_hz, 1e-3, MAX_RATE_HZ)
-        _check_range("reply_timeout_s", reply_timeout_s, 1e-4, 60.0)
-        _check_range("startup_timeout_s", startup_timeout_s, 1e-4, 60.0)
-        if assume_unit_codes[0] not in FORCE_UNITS or assume_unit_codes[1] not in TORQUE_UNITS:
+            check_range("rate_hz", rate_hz, 1e-3, MAX_RATE_HZ)
+        check_range("reply_timeout_s", reply_timeout_s, 1e-4, 60.0)
+        check_range("startup_timeout_s", startup_timeout_s, 1e-4, 60.0)
+        if assume_unit_codes[0] not in FORCE_UNIT_CODES or assume_unit_codes[1] not in TORQUE_UNIT_CODES:
             raise InputError(f"assume_unit_codes {assume_unit_codes!r}: force code must be one of "
-                             f"{sorted(FORCE_UNITS)}, torque code one of {sorted(TORQUE_UNITS)}")
+                             f"{sorted(FORCE_UNIT_CODES)}, torque code one of {sorted(TORQUE_UNIT_CODES)}")
         if bus is None and not channel:
             raise InputError("AtiCanSensor needs a python-can bus or a channel to open one")
         self._bus = bus
@@ -256,15 +257,20 @@ class AtiCanSensor:
         self._sequence = 0
         self._last_board_status = 0
         self._silent = False
+        self._last_sample_s: float | None = None
         self.send_errors = 0
         self.overflowed = 0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._thread_error: BaseException | None = None
-        self._started = False
-        self._closed = False
 
     # ------------------------------------------------------------------ construction from a URL
+
+    URL_FORM = URL_FORM
+
+    @classmethod
+    def parse_url(cls, url: str) -> dict:
+        """Return the constructor keyword arguments named by a ``can://`` URL (no I/O)."""
+        return parse_can_url(url)
 
     @classmethod
     def from_url(cls, url: str, bus=None, **options) -> "AtiCanSensor":
@@ -283,37 +289,27 @@ class AtiCanSensor:
 
     # ------------------------------------------------------------------ lifecycle
 
-    def start(self) -> None:
+    @property
+    def label(self) -> str:
+        return f"ATI CAN board (base {self.base:#04x}, {self.interface} {self.channel!r})"
+
+    def _open(self) -> None:
         """Open the bus, read the board's identity and calibration, and start polling.
 
         Raises DeviceConnectionError when the bus cannot be opened, DeviceTimeoutError when the board does not
         answer, DeviceError when its answers are inconsistent (calibration echo, unit codes, counts per unit).
         """
-        if self._closed:
-            raise DeviceError("AtiCanSensor.start() after close(); make a new driver")
-        if self._started:
-            return
         if self._bus is None:
             self._bus = self._open_bus()
-        try:
-            self._discover()
-        except BaseException:
-            self._shutdown_owned_bus()
-            raise
+        self._discover()
         self._started = True
         self._thread = threading.Thread(
             target=self._run, name=f"AtiCanSensor-{self.interface}-{self.channel}-{self.base:#04x}", daemon=False
         )
         self._thread.start()
 
-    def close(self) -> None:
-        """Stop polling, join the poll thread and shut down a bus this driver opened. Safe to call twice.
-
-        Re-raises (as DeviceError) an unexpected error that ended the poll thread.
-        """
-        if self._closed:
-            return
-        self._closed = True
+    def _shutdown(self) -> None:
+        """Stop polling, join the poll thread and shut down a bus this driver opened."""
         self._stop.set()
         with self._lock:
             self._lock.notify_all()
@@ -322,19 +318,6 @@ class AtiCanSensor:
             if self._thread.is_alive():
                 logger.error("%s did not stop within %.1f s", self._thread.name, CLOSE_JOIN_TIMEOUT_S)
         self._shutdown_owned_bus()
-        if self._thread_error is not None:
-            raise DeviceError(f"CAN poll thread failed: {self._thread_error!r}") from self._thread_error
-
-    def __enter__(self) -> "AtiCanSensor":
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        if getattr(self, "_started", False) and not getattr(self, "_closed", True):
-            warnings.warn(f"{self!r} was not closed", ResourceWarning, stacklevel=2)
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "polling" if self._started else "not started"
@@ -344,90 +327,51 @@ class AtiCanSensor:
 
     # ------------------------------------------------------------------ the sensor contract
 
-    def read(self, timeout_s: float | None = 1.0) -> WrenchBatch:
-        """Return every sample polled since the last call, oldest first; wait up to ``timeout_s`` seconds
-        (None = forever) for at least one. Raises DeviceTimeoutError when none arrives in time."""
-        self._require_started()
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    def describe_status(self, status: int) -> str:
+        names = decode_status(status & 0xFFFF)
+        if status & STATUS_SATURATION:
+            names = ["gage saturated", *names]
+        return f"{status:#010x} ({', '.join(names) or 'ok'})"
+
+    def _take(self) -> WrenchBatch:
         with self._lock:
-            while not self._pending:
-                self._raise_if_dead()
-                remaining = None if deadline is None else deadline - time.monotonic()
-                if remaining is not None and remaining <= 0:
-                    health = self._health
-                    raise DeviceTimeoutError(
-                        f"no sample from the ATI CAN board (base {self.base:#04x}, {self.interface} "
-                        f"{self.channel!r}) within {timeout_s} s: {health.timeouts} polls unanswered, "
-                        f"{health.received} samples received so far")
-                self._lock.wait(remaining)
             rows = list(self._pending)
             self._pending.clear()
         return self._to_batch(rows)
 
-    def average(self, duration_s: float, timeout_s: float | None = None) -> WrenchAverage:
-        """Poll for ``duration_s`` seconds of fresh samples and return their mean and sample standard deviation.
+    def _wait_for_data(self, timeout_s: float) -> None:
+        with self._lock:
+            if not self._pending and not self._stop.is_set():
+                self._lock.wait(timeout_s)
 
-        Only polls requested after the call count (samples waiting or in flight are discarded). Saturated samples and samples with an error status are excluded
-        and counted in ``saturated``; ``lost`` counts polls in the window left unanswered (wholly or partly).
-        Raises DeviceTimeoutError when no sample arrives by ``timeout_s`` (default duration + 1 s) and
-        SensorFaultError when every sample was saturated or had an error status.
-        """
-        self._require_started()
-        _check_range("duration_s", duration_s, 0.0, 3600.0)
-        timeout_s = duration_s + AVERAGE_GRACE_S if timeout_s is None else timeout_s
+    def _silence_message(self, timeout_s: float | None) -> str:
+        health = self.health()
+        return (f"no sample from the {self.label} within {timeout_s} s: {health.timeouts} polls unanswered, "
+                f"{health.received} samples received so far")
+
+    def _begin_average(self) -> int:
+        """Only polls requested after the call count (samples waiting or in flight are discarded)."""
         with self._lock:
             self._pending.clear()
-            before = self._health.snapshot()
-            first_sequence = self._sequence + 1  # a poll already in flight was requested before this call
-        start = time.monotonic()
-        batches, fresh_count = [], 0
-        while True:
-            now = time.monotonic()
-            if now - start >= duration_s and fresh_count:
-                break
-            if now - start >= timeout_s:
-                break
-            wait = min(max(start + duration_s - now, 0.0), start + timeout_s - now)
-            try:
-                batches.append(self.read(timeout_s=max(wait, 1e-3)))
-                fresh_count += int((batches[-1].sequence >= first_sequence).sum())
-            except DeviceTimeoutError:
-                if time.monotonic() - start >= timeout_s:
-                    break
-        batch = WrenchBatch.concatenate(batches)
+            return self._sequence + 1  # a poll already in flight was requested before this call
+
+    def _fresh(self, batch: WrenchBatch, first_sequence: int) -> WrenchBatch:
         fresh = batch.sequence >= first_sequence
-        if not fresh.all():
-            batch = WrenchBatch(batch.time_s[fresh], batch.wrench[fresh], batch.counts[fresh], batch.status[fresh],
-                                batch.sequence[fresh], batch.saturated[fresh])
-        batch_time = batch.time_s
-        after = self.health()
-        lost = (after.timeouts - before.timeouts) + (after.lost - before.lost)
-        if len(batch) == 0:
-            raise DeviceTimeoutError(
-                f"no sample from the ATI CAN board (base {self.base:#04x}) within {timeout_s:.3g} s "
-                f"while averaging: {lost} polls unanswered")
-        good = ~batch.saturated
-        count = int(good.sum())
-        if count == 0:
-            raise SensorFaultError(
-                f"all {len(batch)} samples in the {duration_s} s window were saturated or had an error status "
-                f"(last status {int(batch.status[-1]):#010x}: {', '.join(decode_status(int(batch.status[-1]) & 0xFFFF)) or 'gage saturated'})")
-        wrench = batch.wrench[good]
-        return WrenchAverage(
-            mean=wrench.mean(axis=0),
-            std=wrench.std(axis=0, ddof=1) if count > 1 else np.zeros(6),
-            count=count,
-            saturated=int(len(batch) - count),
-            lost=int(lost),
-            duration_s=float(batch_time[-1] - batch_time[0]) if len(batch) > 1 else 0.0,
-        )
+        if fresh.all():
+            return batch
+        return WrenchBatch(batch.time_s[fresh], batch.wrench[fresh], batch.counts[fresh], batch.status[fresh],
+                           batch.sequence[fresh], batch.saturated[fresh])
+
+    def _lost_between(self, before: SensorHealth, after: SensorHealth) -> int:
+        """Polls in the window left unanswered, wholly (timeouts) or partly (lost)."""
+        return (after.timeouts - before.timeouts) + (after.lost - before.lost)
 
     def bias(self, samples: int = DEFAULT_BIAS_SAMPLES, timeout_s: float = DEFAULT_BIAS_TIMEOUT_S) -> None:
         """Tare on the host: average the gages of the next ``samples`` valid polls (requested after this call)
         and subtract them from every later sample (the board computes no bias). Raises DeviceTimeoutError if they do not arrive within
         ``timeout_s`` seconds, SensorFaultError if the gages are saturated or the status reports an error."""
         self._require_started()
-        _check_range("samples", samples, 1, 100_000)
+        check_range("samples", samples, 1, 100_000)
         with self._lock:
             request = _BiasRequest(samples, self._sequence + 1)
             self._bias_request = request
@@ -456,7 +400,8 @@ class AtiCanSensor:
 
     def health(self) -> SensorHealth:
         """Return a snapshot of the counters: received, timeouts (polls with no reply), lost (polls with a
-        partial reply), out_of_order (late replies to an earlier poll), duplicate, malformed (our IDs, wrong
+        partial reply), gaps (runs of unanswered polls) and longest_gap_s (host time across the longest),
+        out_of_order (late replies to an earlier poll), duplicate, malformed (our IDs, wrong
         length), foreign (other IDs), saturated, status_errors, restarts (watchdog-reset bit rising),
         last_status and the measured poll rate_hz."""
         with self._lock:
@@ -508,12 +453,12 @@ class AtiCanSensor:
                            "per unit and unit codes %s", firmware, self.assume_unit_codes)
         if cpf <= 0 or cpt <= 0:
             raise DeviceError(f"ATI CAN board reports counts per unit CpF={cpf}, CpT={cpt}; both must be > 0")
-        if force_code not in FORCE_UNITS or torque_code not in TORQUE_UNITS:
+        if force_code not in FORCE_UNIT_CODES or torque_code not in TORQUE_UNIT_CODES:
             raise DeviceError(f"ATI CAN board reports unknown unit codes force={force_code}, torque={torque_code} "
-                              f"(known: force {sorted(FORCE_UNITS)}, torque {sorted(TORQUE_UNITS)})")
+                              f"(known: force {sorted(FORCE_UNIT_CODES)}, torque {sorted(TORQUE_UNIT_CODES)})")
         serial = self._request(OP_SERIAL, b"", "serial number")[OP_SERIAL].rstrip(b"\x00 ").decode("ascii", "replace")
-        force_unit, force_si = FORCE_UNITS[force_code]
-        torque_unit, torque_si = TORQUE_UNITS[torque_code]
+        force_unit, torque_unit = FORCE_UNIT_CODES[force_code], TORQUE_UNIT_CODES[torque_code]
+        force_si, torque_si = FORCE_UNITS[force_unit], TORQUE_UNITS[torque_unit]
         self.calibration = CanCalibration(matrix, float(cpf), float(cpt), force_unit, torque_unit, force_si, torque_si)
         self._gages_to_si = self.calibration.gages_to_si
         self.info = SensorInfo(
@@ -684,6 +629,11 @@ class AtiCanSensor:
         if self._silent:
             self._silent = False
             logger.info("ATI CAN board (base %#04x) answers again", self.base)
+            with self._lock:  # a run of unanswered polls between two samples is one gap
+                self._health.gaps += 1
+                if self._last_sample_s is not None:
+                    self._health.longest_gap_s = max(self._health.longest_gap_s, received_at - self._last_sample_s)
+        self._last_sample_s = received_at
         status, sg0, sg2, sg4 = struct.unpack(">Hhhh", replies[OP_GAGES])
         sg1, sg3, sg5 = struct.unpack(">hhh", replies[OP_GAGES_SECOND])
         gages = (sg0, sg1, sg2, sg3, sg4, sg5)
@@ -762,23 +712,6 @@ class AtiCanSensor:
             saturated=table[:, 10].astype(bool),
         )
 
-    # ------------------------------------------------------------------ helpers
-
-    def _require_started(self) -> None:
-        if not self._started or self._closed:
-            raise DeviceError(f"{self!r}: call start() before reading (and not after close())")
-
-    def _raise_if_dead(self) -> None:
-        if self._thread_error is not None:
-            raise DeviceError(f"CAN poll thread failed: {self._thread_error!r}") from self._thread_error
-
-
-def _check_range(name: str, value, low, high) -> None:
-    """Raise InputError naming ``name`` when ``value`` is not a number in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or not low <= value <= high:
-        raise InputError(f"{name} = {value!r} is out of range {low}..{high}")
-
-
 _URL_KEYS = {
     "base": ("base", lambda v: int(v, 0)),
     "bitrate": ("bitrate", int),
@@ -795,7 +728,10 @@ def parse_can_url(url: str) -> dict:
     """
     import can
 
-    parts = urlsplit(url)
+    try:
+        parts = urlsplit(url)
+    except ValueError as error:
+        raise InputError(f"sensor URL {url!r}: {error}; expected {URL_FORM}") from None
     if parts.scheme != "can":
         raise InputError(f"sensor URL {url!r}: scheme must be 'can'; expected {URL_FORM}")
     interface = parts.netloc
@@ -808,13 +744,7 @@ def parse_can_url(url: str) -> dict:
     if not channel:
         raise InputError(f"sensor URL {url!r}: missing CHANNEL after the interface; expected {URL_FORM}")
     kwargs: dict = {"interface": interface, "channel": channel}
-    seen = set()
-    for key, value in parse_qsl(parts.query, keep_blank_values=True):
-        if key not in _URL_KEYS:
-            raise InputError(f"sensor URL {url!r}: unknown query key {key!r}; allowed: {', '.join(_URL_KEYS)}")
-        if key in seen:
-            raise InputError(f"sensor URL {url!r}: query key {key!r} given twice")
-        seen.add(key)
+    for key, value in query_items(url, parts.query, _URL_KEYS):
         name, convert = _URL_KEYS[key]
         try:
             kwargs[name] = convert(value)

@@ -1,32 +1,46 @@
-"""The force/torque sensor contract every transport implements, and the URL factory.
+"""The force/torque sensor contract every transport implements, its value types, a shared base and the registry.
 
 Samples travel in numpy batches (:class:`WrenchBatch`), never one Python object per sample: at 7 kHz on two
 cores a per-sample object costs more than the protocol itself.
 
-Sensors are named by URL:
+Sensors are named by URL; the scheme picks the driver from :data:`SENSOR_TYPES` (modelled on python-can's
+interface table: ``scheme → (module, class)``, imported only when a URL of that scheme is opened):
 
-- ``netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R&buffered=0&buffer_size=N&timeout_s=T]`` — ATI Net F/T
-  (defaults 49152, 49151, 80; more keys in :mod:`drivers.netft`)
-- ``can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]`` — ATI NETCANOEM on a python-can bus
+- ``netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R&…]`` — ATI Net F/T (:mod:`drivers.netft`)
+- ``can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000&…]`` — ATI NETCANOEM on a python-can bus
+  (:mod:`drivers.ati_can`)
+
+A new sensor type is one driver module (a :class:`SensorBase` subclass with ``from_url``, ``parse_url`` and
+``URL_FORM``) plus one row of :data:`SENSOR_TYPES`. Units come from :mod:`drivers.units` (one table for all).
+This module imports none of its implementations.
 """
 
 from __future__ import annotations
 
+import importlib
+import threading
+import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
-from urllib.parse import urlsplit
+from urllib.parse import parse_qsl, urlsplit
 
 import numpy as np
 
-from ftacq.errors import InputError
+from ftacq.errors import DeviceError, DeviceTimeoutError, InputError, SensorFaultError
 
-# Net F/T status word bits (specs/ati.md §1.8)
+# Status word bits every driver uses in WrenchBatch.status (the Net F/T's layout, docs/protocols-ati.md "Status")
 STATUS_SUMMARY = 0x8000_0000
 STATUS_SATURATION = 0x0002_0000
 STATUS_MONITOR_LATCH = 0x0001_0000
 STATUS_HEALTHY_MASK = STATUS_SUMMARY | STATUS_MONITOR_LATCH
 """A status whose bits all lie in this mask is healthy (0, or the informational latch 0x80010000)."""
 
+SENSOR_TYPES: dict[str, tuple[str, str, str]] = {
+    "netft": ("drivers.netft", "NetFTSensor", "netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R]"),
+    "can": ("drivers.ati_can", "AtiCanSensor", "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]"),
+}
+"""URL scheme → (module, class, short URL form). The module is imported only when a URL of its scheme is used."""
 
 @dataclass(frozen=True)
 class WrenchBatch:
@@ -100,10 +114,16 @@ class WrenchAverage:
 
 @dataclass
 class SensorHealth:
-    """Counters of what a stream did wrong since the driver started (all monotonic counts)."""
+    """Counters of what a stream did wrong since the driver started (counts, except as noted).
+
+    ``lost`` counts samples the device produced that were never delivered; ``gaps`` the losses (one run of
+    consecutive lost samples is one gap) and ``longest_gap_s`` the longest host time across one gap, seconds.
+    """
 
     received: int = 0
     lost: int = 0
+    gaps: int = 0
+    longest_gap_s: float = 0.0
     duplicate: int = 0
     out_of_order: int = 0
     malformed: int = 0
@@ -172,21 +192,233 @@ class ForceTorqueSensor(Protocol):
         """Stop streaming and release sockets / the bus. Safe to call twice."""
 
 
+POLL_S = 0.05
+"""Longest a reader blocks before re-checking the driver's state, seconds."""
+AVERAGE_GRACE_S = 1.0
+"""Extra time ``average`` allows beyond its window before giving up, seconds."""
+
+
+def check_range(name: str, value: object, low: float, high: float) -> None:
+    """Raise InputError naming ``name`` when ``value`` is not a real number in [low, high] (bools are not)."""
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
+            or not low <= value <= high):
+        raise InputError(f"{name} = {value!r} is out of range {low}..{high}")
+
+
+def query_items(url: str, query: str, known: "dict | set | tuple") -> list[tuple[str, str]]:
+    """Return the ``key=value`` pairs of a sensor URL's query, refusing unknown and repeated keys (InputError)."""
+    seen: set[str] = set()
+    items = parse_qsl(query, keep_blank_values=True)
+    for key, _ in items:
+        if key not in known:
+            raise InputError(f"sensor URL {url!r}: unknown query key {key!r}; known keys: {', '.join(known)}")
+        if key in seen:
+            raise InputError(f"sensor URL {url!r}: query key {key!r} given twice")
+        seen.add(key)
+    return items
+
+
+class SensorBase:
+    """What every driver shares: lifecycle, ``read`` with a deadline, ``average``, and the status text.
+
+    Lifecycle: the constructor does no I/O; :meth:`start` calls the driver's ``_open`` (connect, discover, start
+    its thread) and, if that fails, :meth:`close`; :meth:`close` is idempotent, calls ``_shutdown`` and re-raises
+    (as DeviceError) an unexpected error that ended the driver's thread. Also a context manager.
+
+    A driver implements ``_open``, ``_shutdown``, ``_take`` (every sample received since the last call, oldest
+    first, as one batch), ``_wait_for_data(timeout_s)``, ``health``, ``describe_status`` and ``label`` (for
+    messages); it may refine ``_begin_average`` / ``_fresh`` / ``_lost_between`` (what counts as a fresh sample and
+    as lost while averaging).
+    """
+
+    info: SensorInfo
+    URL_FORM = ""
+
+    def __init__(self) -> None:
+        self._started = False
+        self._closed = False
+        self._thread_error: BaseException | None = None
+        self._lifecycle_lock = threading.Lock()
+
+    # ------------------------------------------------------------------ hooks
+
+    @property
+    def label(self) -> str:
+        """The device as messages name it, e.g. ``Net F/T 192.168.1.1:49152``."""
+        return type(self).__name__
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _shutdown(self) -> None:
+        raise NotImplementedError
+
+    def _take(self) -> WrenchBatch:
+        raise NotImplementedError
+
+    def _wait_for_data(self, timeout_s: float) -> None:
+        raise NotImplementedError
+
+    def health(self) -> SensorHealth:
+        raise NotImplementedError
+
+    def describe_status(self, status: int) -> str:
+        """Return ``0x… (names)`` of a status word (drivers name their bits)."""
+        return f"{status:#010x}"
+
+    def _begin_average(self) -> object:
+        """Discard what is waiting; return a token :meth:`_fresh` uses to keep only samples requested after."""
+        self._take()
+        return None
+
+    def _fresh(self, batch: WrenchBatch, token: object) -> WrenchBatch:
+        return batch
+
+    def _lost_between(self, before: SensorHealth, after: SensorHealth) -> int:
+        return after.lost - before.lost
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> None:
+        """Connect, read units and counts per unit, and start streaming. Raises DeviceError and subclasses."""
+        if self._closed:
+            raise DeviceError(f"{type(self).__name__}.start() after close(); make a new driver")
+        if self._started:
+            return
+        try:
+            self._open()
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        """Stop streaming and release sockets / the bus. Safe to call twice."""
+        with self._lifecycle_lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._shutdown()
+        if self._thread_error is not None:
+            raise DeviceError(f"{self.label}: driver thread failed: {self._thread_error!r}") from self._thread_error
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if getattr(self, "_started", False) and not getattr(self, "_closed", True):
+            warnings.warn(f"{self!r} was not closed", ResourceWarning, stacklevel=2)
+
+    def _require_started(self) -> None:
+        if not self._started or self._closed:
+            raise DeviceError(f"{self!r}: call start() before reading (and not after close())")
+
+    def _raise_if_dead(self) -> None:
+        if self._thread_error is not None:
+            raise DeviceError(f"{self.label}: driver thread failed: {self._thread_error!r}") from self._thread_error
+
+    def _silence_message(self, timeout_s: float | None) -> str:
+        health = self.health()
+        return (f"no sample from the {self.label} within {timeout_s} s ({health.received} received so far, "
+                f"{health.timeouts} timeouts, {health.reconnects} reconnects)")
+
+    # ------------------------------------------------------------------ the contract
+
+    def read(self, timeout_s: float | None = 1.0) -> WrenchBatch:
+        """Return every sample received since the last call, oldest first; wait up to ``timeout_s`` seconds
+        (None = forever) for at least one. Raises DeviceTimeoutError when none arrives in time."""
+        self._require_started()
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            batch = self._take()
+            if len(batch):
+                return batch
+            self._raise_if_dead()
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                raise DeviceTimeoutError(self._silence_message(timeout_s))
+            self._wait_for_data(POLL_S if remaining is None else min(remaining, POLL_S))
+
+    def average(self, duration_s: float, timeout_s: float | None = None) -> WrenchAverage:
+        """Collect fresh samples for ``duration_s`` seconds and return their mean and sample standard deviation.
+
+        Samples already waiting are discarded. Samples with an error status (saturation included) are excluded
+        and counted in ``saturated``; ``lost`` counts samples lost during the window. Raises DeviceTimeoutError
+        when no sample arrives by ``timeout_s`` (default duration + 1 s) and SensorFaultError when every sample
+        was flagged.
+        """
+        self._require_started()
+        check_range("duration_s", duration_s, 0.0, 3600.0)
+        timeout_s = duration_s + AVERAGE_GRACE_S if timeout_s is None else timeout_s
+        token = self._begin_average()
+        before = self.health()
+        start = time.monotonic()
+        batches: list[WrenchBatch] = []
+        fresh_count = 0
+        while True:
+            now = time.monotonic()
+            if (now - start >= duration_s and fresh_count) or now - start >= timeout_s:
+                break
+            wait = min(max(start + duration_s - now, 0.0), start + timeout_s - now)
+            try:
+                batch = self._fresh(self.read(timeout_s=max(wait, 1e-3)), token)
+            except DeviceTimeoutError:
+                continue
+            batches.append(batch)
+            fresh_count += len(batch)
+        batch = WrenchBatch.concatenate(batches)
+        lost = self._lost_between(before, self.health())
+        if len(batch) == 0:
+            raise DeviceTimeoutError(f"no sample from the {self.label} within {timeout_s:.3g} s while averaging "
+                                     f"({lost} lost)")
+        good = ~batch.saturated
+        count = int(good.sum())
+        if count == 0:
+            raise SensorFaultError(f"all {len(batch)} samples in the {duration_s} s window were saturated or had "
+                                   f"an error status (last status {self.describe_status(int(batch.status[-1]))})")
+        wrench = batch.wrench[good]
+        return WrenchAverage(mean=wrench.mean(axis=0), std=wrench.std(axis=0, ddof=1) if count > 1 else np.zeros(6),
+                             count=count, saturated=int(len(batch) - count), lost=int(lost),
+                             duration_s=float(batch.time_s[-1] - batch.time_s[0]) if len(batch) > 1 else 0.0)
+
+
+# ---------------------------------------------------------------------------- the registry
+
+def _scheme(url: str) -> str:
+    try:
+        scheme = urlsplit(url).scheme
+    except ValueError as error:
+        raise InputError(f"sensor URL {url!r}: {error}") from None
+    if scheme not in SENSOR_TYPES:
+        forms = " or ".join(form for _, _, form in SENSOR_TYPES.values())
+        raise InputError(f"sensor URL {url!r}: unknown scheme {scheme!r}; expected {forms}")
+    return scheme
+
+
+def sensor_class(url: str) -> type:
+    """Return the driver class for ``url``'s scheme (imported now). Raises InputError for an unknown scheme."""
+    module_name, class_name, _ = SENSOR_TYPES[_scheme(url)]
+    return getattr(importlib.import_module(module_name), class_name)
+
+
+def parse_sensor_url(url: str) -> dict:
+    """Check a sensor URL without touching the network; return the driver's constructor arguments.
+
+    Raises InputError naming the part of the URL that is wrong."""
+    return sensor_class(url).parse_url(url)
+
+
 def open_sensor(url: str, **options) -> ForceTorqueSensor:
-    """Return an (unstarted) sensor driver for ``url`` (see the module docstring for the URL forms).
+    """Return an (unstarted) sensor driver for ``url``; ``options`` override the URL's keys.
 
     Raises InputError with the expected form when the URL cannot be parsed.
     """
-    parts = urlsplit(url)
-    if parts.scheme == "netft":
-        from drivers.netft import NetFTSensor
+    return sensor_class(url).from_url(url, **options)
 
-        return NetFTSensor.from_url(url, **options)
-    if parts.scheme == "can":
-        from drivers.ati_can import AtiCanSensor
 
-        return AtiCanSensor.from_url(url, **options)
-    raise InputError(
-        f"sensor URL {url!r}: unknown scheme {parts.scheme!r}; expected "
-        "netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N] or can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]"
-    )
+__all__ = ["ForceTorqueSensor", "SensorBase", "SensorHealth", "SensorInfo", "WrenchAverage", "WrenchBatch",
+           "SENSOR_TYPES", "open_sensor", "parse_sensor_url", "sensor_class", "check_range", "query_items",
+           "STATUS_SUMMARY", "STATUS_SATURATION", "STATUS_MONITOR_LATCH", "STATUS_HEALTHY_MASK"]

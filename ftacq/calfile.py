@@ -34,6 +34,14 @@ from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calibration import Calibration
 from ftacq.errors import InputError
 from ftacq.fileio import atomic_write
+from ftacq.validation import (
+    MAX_CENTER_OF_MASS_M,
+    MAX_FORCE_N,
+    MAX_TORQUE_NM,
+    check_number,
+    load_json_text,
+    shown,
+)
 
 FORMAT_NAME = "ftacq-calibration"
 FORMAT_VERSION = 2
@@ -54,6 +62,18 @@ REQUIRED_KEYS = {
     "base_tilt_deg": (2,),
 }
 _FIELD_OF_KEY = {"center_of_mass_m": "center_of_mass"}
+MAX_BASE_TILT_DEG = 180.0
+MAX_MASS_KG = MAX_FORCE_N / STANDARD_GRAVITY_M_S2
+_LIMIT_OF_KEY = {
+    "sensor_rotation": 1.0 + ROTATION_ORTHONORMAL_TOLERANCE,
+    "force_bias": MAX_FORCE_N,
+    "torque_bias": MAX_TORQUE_NM,
+    "gravity_base": MAX_FORCE_N,
+    "mass_kg": MAX_MASS_KG,
+    "center_of_mass_m": MAX_CENTER_OF_MASS_M,
+    "base_tilt_deg": MAX_BASE_TILT_DEG,
+}
+"""|value| bound of every element of each required key (beyond a sensor's range: a unit or file mistake)."""
 _MODEL_KEYS = set(REQUIRED_KEYS) | {"format", "version", "uncertainty"}
 
 
@@ -106,17 +126,32 @@ def save_calibration(path: str | os.PathLike, calibration: Calibration) -> None:
         handle.write(text + "\n")
 
 
+def _shape_text(value: Any) -> str:
+    """The shape of a nested list as ``[a, b]``, or what it is instead."""
+    shape = []
+    while isinstance(value, list):
+        shape.append(len(value))
+        if not value or any(not isinstance(v, list) or len(v) != len(value[0]) for v in value) and \
+                any(isinstance(v, list) for v in value):
+            break
+        value = value[0]
+    return str(shape) if shape else type(value).__name__
+
+
 def _array(path: Path, document: dict, key: str, shape: tuple[int, ...]) -> np.ndarray:
+    """The value of ``key`` as a float array of ``shape``; every element a finite number within its bound."""
     value = document[key]
-    try:
-        array = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: key {key!r}: value {value!r} is not a number array of shape {shape}") from None
-    if array.shape != shape:
-        raise InputError(f"{path}: key {key!r}: expected shape {list(shape)}, got {list(array.shape)}")
-    if not np.all(np.isfinite(array)):
-        raise InputError(f"{path}: key {key!r}: contains a non-finite value")
-    return array
+    limit = _LIMIT_OF_KEY[key.rsplit(".", 1)[-1]]  # "bias_history[2].force_bias" is bounded as "force_bias"
+
+    def elements(item: Any, depth: int) -> list:
+        if depth == len(shape):
+            return [check_number(item, f"{path}: key {key!r}", low=-limit, high=limit)]
+        if not isinstance(item, list) or len(item) != shape[depth]:
+            raise InputError(f"{path}: key {key!r}: expected shape {list(shape)}, got {_shape_text(value)} "
+                             f"({shown(value)})")
+        return [x for sub in item for x in elements(sub, depth + 1)]
+
+    return np.array(elements(value, 0), dtype=float).reshape(shape)
 
 
 def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration>") -> Calibration:
@@ -125,12 +160,12 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     if not isinstance(document, dict):
         raise InputError(f"{path}: expected a JSON object at the top level, got {type(document).__name__}")
     if document.get("format") != FORMAT_NAME:
-        raise InputError(f"{path}: key 'format': expected {FORMAT_NAME!r}, got {document.get('format')!r}")
+        raise InputError(f"{path}: key 'format': expected {FORMAT_NAME!r}, got {shown(document.get('format'))}")
     version = document.get("version")
-    if isinstance(version, bool) or version not in READABLE_VERSIONS:
+    if type(version) is not int or version not in READABLE_VERSIONS:  # exact: true and 1.0 are not version 1
         raise InputError(
             f"{path}: key 'version': this ftacq reads calibration versions "
-            f"{', '.join(str(v) for v in READABLE_VERSIONS)}, the file has {version!r}"
+            f"{', '.join(str(v) for v in READABLE_VERSIONS)}, the file has {shown(version)} (an exact integer)"
         )
     for key in REQUIRED_KEYS:
         if key not in document:
@@ -140,18 +175,24 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
     orthonormal_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if orthonormal_error > ROTATION_ORTHONORMAL_TOLERANCE or abs(np.linalg.det(rotation) - 1.0) > ROTATION_ORTHONORMAL_TOLERANCE:
         raise InputError(
-            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {orthonormal_error:.2e}, "
-            f"det = {np.linalg.det(rotation):.6f})"
+            f"{path}: key 'sensor_rotation': not a rotation matrix (|RᵀR − I| = {float(orthonormal_error):.2e}, "
+            f"det = {float(np.linalg.det(rotation)):.6f})"
         )
     mass_from_gravity = np.linalg.norm(values["gravity_base"]) / STANDARD_GRAVITY_M_S2
-    mass = float(values["mass_kg"])
+    mass = check_number(float(values["mass_kg"]), f"{path}: key 'mass_kg'", low=0.0, high=MAX_MASS_KG,
+                        low_exclusive=True)
     if abs(mass - mass_from_gravity) > MASS_CONSISTENCY_TOLERANCE * max(mass_from_gravity, 1e-9):
         raise InputError(
-            f"{path}: key 'mass_kg': {mass!r} disagrees with ‖gravity_base‖/g = {mass_from_gravity!r} kg"
+            f"{path}: key 'mass_kg': {mass:.6g} kg disagrees with ‖gravity_base‖/g = {float(mass_from_gravity):.6g} kg"
         )
     uncertainty = document.get("uncertainty", {})
     if not isinstance(uncertainty, dict):
         raise InputError(f"{path}: key 'uncertainty': expected an object, got {type(uncertainty).__name__}")
+    for name, sigma in uncertainty.items():  # 1σ: a number or a list of numbers, each ≥ 0 (null = unknown)
+        for k, item in enumerate(sigma if isinstance(sigma, list) else [sigma]):
+            if item is not None:
+                check_number(item, f"{path}: key 'uncertainty.{name}'" + (f"[{k}]" if isinstance(sigma, list) else ""),
+                             low=0.0)
     _check_provenance(path, document)
     metadata = {key: value for key, value in document.items() if key not in _MODEL_KEYS}
     return Calibration(
@@ -172,15 +213,13 @@ def _check_provenance(path: Path, document: dict) -> None:
         if not isinstance(sensor, dict):
             raise InputError(f"{path}: key 'sensor': expected an object, got {type(sensor).__name__}")
         for key, value in sensor.items():
-            numeric = key in ("counts_per_force", "counts_per_torque")
-            ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                  and value >= 0) if numeric else isinstance(value, str)
-            if not ok:
-                expected = "a number ≥ 0" if numeric else "a string"
-                raise InputError(f"{path}: key 'sensor.{key}': value {value!r} must be {expected}")
+            if key in ("counts_per_force", "counts_per_torque"):
+                check_number(value, f"{path}: key 'sensor.{key}'", low=0.0)
+            elif not isinstance(value, str):
+                raise InputError(f"{path}: key 'sensor.{key}': value {shown(value)} must be a string")
     tool = document.get("tool")
     if tool is not None and not (isinstance(tool, dict) and isinstance(tool.get("name", ""), str)):
-        raise InputError(f"{path}: key 'tool': expected an object with a string 'name', got {tool!r}")
+        raise InputError(f"{path}: key 'tool': expected an object with a string 'name', got {shown(tool)}")
     history = document.get("bias_history")
     if history is None:
         return
@@ -189,7 +228,7 @@ def _check_provenance(path: Path, document: dict) -> None:
     for index, entry in enumerate(history):
         where = f"{path}: key 'bias_history[{index}]'"
         if not isinstance(entry, dict):
-            raise InputError(f"{where}: expected an object, got {entry!r}")
+            raise InputError(f"{where}: expected an object, got {shown(entry)}")
         for key in ("force_bias", "torque_bias"):
             _array(path, {f"bias_history[{index}].{key}": entry.get(key)}, f"bias_history[{index}].{key}", (3,))
         if not isinstance(entry.get("time"), (str, type(None))) or not isinstance(entry.get("method", ""), str):
@@ -203,8 +242,4 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as error:
         raise InputError(f"{path}: cannot read: {error}") from error
-    try:
-        document = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise InputError(f"{path}: not valid JSON: {error.msg} at line {error.lineno}, column {error.colno}") from error
-    return calibration_from_dict(document, path)
+    return calibration_from_dict(load_json_text(text, str(path)), path)

@@ -244,12 +244,19 @@ class CalibrationProcedure:
                     raise
                 log.warning("listener %r failed on %s", listener, type(event).__name__, exc_info=True)
 
+    def _counts(self) -> tuple[int, int]:
+        """Return (poses measured so far, resumed ones included; poses the whole run measures)."""
+        total = count_measurements(self.plan, (), self.options.drift_check)
+        return min(len(self.measured), total), total
+
     def _enter(self, state: str, index: int | None = None, message: str = "") -> None:
         allowed = TRANSITIONS[self.state]
         if state not in allowed and not (state in ("stopped", "failed") and self.state not in TERMINAL_STATES):
             raise RuntimeError(f"procedure: transition {self.state} → {state} is not allowed")
         self.state = state
-        self._emit(events.StateChanged(state, index, message))
+        measured, total = self._counts()
+        self._emit(events.StateChanged(state, index, message, label=self._label if index is not None else "",
+                                       measured=measured, total=total))
 
     # ------------------------------------------------------------------ run
 
@@ -281,9 +288,12 @@ class CalibrationProcedure:
                                drift=self._result_parts.get("drift"), warnings=self._result_parts["warnings"])
 
     def _where(self) -> str:
+        """Where the run is, counted as the progress display counts: pose k/N is the k-th measurement of the N
+        the whole run makes (the plan and the drift-check revisit, resumed poses included)."""
         if self._index is None:
             return f"in state {self.state}"
-        return f"at pose {self._index + 1}/{len(self.plan)} ({self._label}) while {self.state}"
+        measured, total = self._counts()
+        return f"at pose {min(measured + 1, total)}/{total} ({self._label}) while {self.state}"
 
     def startup(self) -> None:
         """Check the robot can move; announce the plan."""
@@ -347,7 +357,8 @@ class CalibrationProcedure:
         from procedures.plan import check_path
 
         settings = self.plan.settings
-        self._index, self._label = step.index, step.label
+        self._index = step.index
+        self._label = drift_label(step.label) if step.purpose == "drift" else step.label
         self._enter("moving", step.index, "drift check: back to the first pose" if step.purpose == "drift" else "")
         q_now = np.asarray(self.robot.joint_positions(), dtype=float)
         problems = check_path(settings, q_now, step.joint_target_rad)

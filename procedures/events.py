@@ -46,6 +46,9 @@ class StateChanged:
     state: str
     index: int | None = None  # the pose index (execution order) the state refers to, if any
     message: str = ""
+    label: str = ""  # the pose label the state refers to ("E15", "A01-revisit"), if any
+    measured: int | None = None  # poses measured so far in this run, resumed ones included
+    total: int | None = None  # poses the whole run measures (the plan + the drift-check revisit)
 
 
 @dataclass(frozen=True)

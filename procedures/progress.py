@@ -10,19 +10,25 @@ from procedures import events
 
 
 class ProgressListener:
-    """Show the run's progress. ``total`` is the number of poses this run still measures (drift revisit included).
+    """Show the run's progress. ``total`` is the number of poses the whole run measures (the plan and the
+    drift-check revisit), ``done`` how many of them were measured before (a resumed run); the procedure's
+    :class:`events.StateChanged` counts, when given, override both. The counts are those of the stop message:
+    "pose 24/61 (E15)" is the 24th measurement of 61, while 23 are done.
 
-    On a terminal a rich progress bar (pose i/N, state, elapsed, ETA); otherwise one line per measured pose,
-    so CI logs stay readable. The ETA is the mean time per pose so far times the poses left (before the first
-    pose: the plan's estimate). Call :meth:`close` when the run ends.
+    On a terminal a rich progress bar (state, pose label, pose k/N, measured/total, elapsed, ETA); otherwise one
+    line per measured pose, so CI logs stay readable. The ETA is the mean time per pose measured in this session
+    times the poses left (before the first pose: the plan's estimate for the poses left). Call :meth:`close`
+    when the run ends.
     """
 
     def __init__(self, total: int, estimated_s: float, stream: TextIO | None = None,
-                 clock_s: Callable[[], float] = time.monotonic, force_terminal: bool | None = None) -> None:
+                 clock_s: Callable[[], float] = time.monotonic, force_terminal: bool | None = None,
+                 done: int = 0) -> None:
         from rich.console import Console
 
         self.total = max(int(total), 1)
-        self.done = 0
+        self.done = int(done)
+        self._done_at_start = self.done
         self._estimated_s = float(estimated_s)
         self._clock_s = clock_s
         self._start = clock_s()
@@ -35,10 +41,11 @@ class ProgressListener:
         if self.console.is_terminal:
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn)
 
-            self._progress = Progress(TextColumn("[bold]{task.description:<28}"), BarColumn(),
-                                      MofNCompleteColumn(), TextColumn("poses"), TimeElapsedColumn(),
+            self._progress = Progress(TextColumn("[bold]{task.description:<34}"), BarColumn(),
+                                      MofNCompleteColumn(), TextColumn("measured"), TimeElapsedColumn(),
                                       TextColumn("ETA {task.fields[eta]}"), console=self.console, transient=False)
-            self._task = self._progress.add_task("starting", total=self.total, eta=self._format(estimated_s))
+            self._task = self._progress.add_task("starting", total=self.total, completed=self.done,
+                                                 eta=self._format(estimated_s))
             self._progress.start()
 
     @staticmethod
@@ -48,16 +55,29 @@ class ProgressListener:
 
     def eta_s(self) -> float:
         """Return the estimated time left, s."""
-        if self.done == 0:
+        measured_here = self.done - self._done_at_start
+        if measured_here <= 0:
             return self._estimated_s
-        per_pose = (self._clock_s() - self._start) / self.done
+        per_pose = (self._clock_s() - self._start) / measured_here
         return per_pose * (self.total - self.done)
+
+    def _where(self) -> str:
+        return f"{self._state} {self._label}".strip() + (
+            f" (pose {min(self.done + 1, self.total)}/{self.total})" if self._label else "")
 
     def __call__(self, event) -> None:
         if isinstance(event, events.StateChanged):
             self._state = event.state
+            if event.total is not None:
+                self.total = max(int(event.total), 1)
+            if event.measured is not None:
+                if self.done == self._done_at_start:  # nothing measured here yet: the procedure knows best
+                    self._done_at_start = int(event.measured)
+                self.done = int(event.measured)
             if event.index is not None:
-                self._label = str(event.index + 1)
+                self._label = event.label or self._label
+            else:
+                self._label = ""
             if event.state in ("done", "stopped", "failed"):
                 self.close()
                 return
@@ -71,7 +91,7 @@ class ProgressListener:
         elif isinstance(event, events.DriftChecked) and event.warning:
             self.console.print(f"warning: {event.warning}", style="yellow", highlight=False)
         if self._progress is not None and self._task is not None:
-            self._progress.update(self._task, completed=self.done, description=f"{self._state} {self._label}",
+            self._progress.update(self._task, completed=self.done, total=self.total, description=self._where(),
                                   eta=self._format(self.eta_s()))
 
     def close(self) -> None:

@@ -41,20 +41,26 @@ def _save(fig, path: Path) -> None:
 
 
 def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str], raw: np.ndarray,
-                         compensated: np.ndarray) -> None:
-    """Write the raw and compensated mean wrench per pose (N, 6) as a 6-panel PNG."""
+                         compensated: np.ndarray | None, band: np.ndarray | None = None) -> None:
+    """Write the raw and compensated mean wrench per pose (N, 6) as a 6-panel PNG (raw only when
+    ``compensated`` is None: a stopped or failed run has no calibration to compensate with). ``band`` (6,) is
+    the acceptance half-width per axis, shaded around the compensated panels' zero line."""
     plt = _pyplot()
-    fig, axes = plt.subplots(6, 2, figsize=(12, 12), sharex=True)
+    columns = [(raw, "raw mean")] + ([] if compensated is None else [(compensated, "compensated")])
+    fig, axes = plt.subplots(6, len(columns), figsize=(6 * len(columns), 12), sharex=True, squeeze=False)
     x = np.arange(len(labels))
     colours = [SET_COLOURS.get(s, "tab:gray") for s in sets]
     for k in range(6):
-        for col, (data, title) in enumerate(((raw, "raw mean"), (compensated, "compensated"))):
+        for col, (data, title) in enumerate(columns):
             ax = axes[k, col]
-            ax.scatter(x, data[:, k], c=colours, s=12)
+            ax.scatter(x, data[:, k], c=colours, s=12, zorder=2)
             ax.axhline(0.0, color="black", lw=0.5)
+            if band is not None and col == 1:
+                ax.axhspan(-band[k], band[k], color="lightgray", zorder=0)
             ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
             if k == 0:
-                ax.set_title(f"{title} (colour = set: A blue, E orange, V green, D red)")
+                ax.set_title(f"{title} (colour = set: A blue, E orange, V green, D red)"
+                             + ("; grey: acceptance band" if band is not None and col == 1 else ""))
     for ax in axes[-1]:
         ax.set_xlabel("pose (execution order)")
     fig.tight_layout()
@@ -80,15 +86,19 @@ def plot_residuals(path: Path, labels: Sequence[str], residuals: np.ndarray, out
     plt.close(fig)
 
 
-def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray) -> None:
-    """Write the compensation error per validation pose and axis as a PNG."""
+def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray, band: np.ndarray | None = None) -> None:
+    """Write the compensation error per validation pose and axis as a PNG; ``band`` (M, 6) is the acceptance
+    half-width per pose and axis (the verdict's ± k σ), drawn as a grey bar behind each error."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4))
     x = np.arange(len(labels))
     width = 0.25
     for k in range(3):
-        axes[0].bar(x + (k - 1) * width, errors[:, k], width, label=CHANNELS[k])
-        axes[1].bar(x + (k - 1) * width, errors[:, 3 + k], width, label=CHANNELS[3 + k])
+        for ax, channel in ((axes[0], k), (axes[1], 3 + k)):
+            if band is not None:
+                ax.bar(x + (k - 1) * width, 2 * band[:, channel], width * 0.9, bottom=-band[:, channel],
+                       color="lightgray", zorder=0, label="acceptance band" if k == 0 else None)
+            ax.bar(x + (k - 1) * width, errors[:, channel], width * 0.5, label=CHANNELS[channel], zorder=2)
     axes[0].set_ylabel("force error [N]")
     axes[1].set_ylabel("torque error [N·m]")
     for ax in axes:
@@ -96,7 +106,8 @@ def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray) -> No
         ax.set_xticklabels(labels, rotation=90, fontsize=7)
         ax.axhline(0.0, color="black", lw=0.5)
         ax.legend()
-    fig.suptitle("validation: compensated wrench at held-out poses (should be ≈ 0)")
+    fig.suptitle("validation: compensated wrench at held-out poses (should be ≈ 0"
+                 + ("; grey: acceptance band, ± 3σ expected)" if band is not None else ")"))
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
@@ -155,16 +166,38 @@ def format_truth_comparison(calibration, truth) -> str:
     return "\n".join(lines)
 
 
-def write_report(folder: Path, result, plan, config: dict, *, truth=None, title: str = "ftacq calibration") -> Path:
+def _verdict_section(verdict) -> list[str]:
+    """The report's first section: the verdict, the reasons in plain words, then the checks' details."""
+    lines = [f"## Verdict: **{verdict.status}**", ""]
+    lines += [f"- **{f.status}** {f.check}: {f.summary}" for f in verdict.findings]
+    lines += ["", "<details><summary>how each check was made</summary>", ""]
+    lines += [f"- {f.check}: {f.details}" for f in verdict.findings if f.details]
+    lines += ["", "</details>", ""]
+    return lines
+
+
+def _band(verdict) -> np.ndarray | None:
+    """Return the validation acceptance half-width (M, 6) from the verdict, or None."""
+    finding = None if verdict is None else verdict.finding("validation")
+    if finding is None or "expected_sigma" not in finding.figures:
+        return None
+    return finding.figures["band_sigmas"] * np.asarray(finding.figures["expected_sigma"], dtype=float)
+
+
+def write_report(folder: Path, result, plan, config: dict, *, truth=None, title: str = "ftacq calibration",
+                 verdict=None) -> Path:
     """Write ``report.md`` and its PNGs into ``folder`` for a :class:`procedures.calibration.ProcedureResult`.
 
-    Returns the report's path. Plots need identification; without it the report lists what was measured.
+    Returns the report's path. ``verdict`` (:class:`ftacq.verdict.Verdict`) opens the report and gives the
+    plots their acceptance band. Without identification the report lists what was measured and plots the raw
+    wrenches.
     """
     from ftacq.report import format_identification_report
 
     folder = Path(folder)
     ident = result.identification
-    lines = [f"# {title}", "",
+    band = _band(verdict)
+    lines = [f"# {title}", ""] + ([] if verdict is None else _verdict_section(verdict)) + [
              f"- created: {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')} "
              f"(ftacq {__version__})",
              f"- status: **{result.status}** — {result.message}",
@@ -192,17 +225,24 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
         flange_R_base = np.swapaxes(rotation_from_rotvec(poses[:, 3:]), -1, -2)
         compensated = np.asarray(cal.compensate(raw, flange_R_base)).reshape(-1, 6)
         sets = [result.measured[label].set_name for label in order]
-        plot_wrench_per_pose(folder / "wrench_per_pose.png", order, sets, raw, compensated)
+        typical_band = None if band is None else np.median(band, axis=0)
+        plot_wrench_per_pose(folder / "wrench_per_pose.png", order, sets, raw, compensated, typical_band)
         plot_residuals(folder / "residuals.png", list(ident.labels), np.asarray(ident.residuals), ident.outliers)
         lines += ["## Raw and compensated wrench per pose", "", "![raw and compensated](wrench_per_pose.png)", "",
                   "## Identification residuals", "", "![residuals](residuals.png)", ""]
+    elif order:  # a stopped or failed run: the raw wrenches measured so far
+        raw = np.array([result.measured[label].mean for label in order])
+        sets = [result.measured[label].set_name for label in order]
+        plot_wrench_per_pose(folder / "wrench_per_pose.png", order, sets, raw, None)
+        lines += ["## Raw wrench per measured pose", "", "![raw wrench](wrench_per_pose.png)", ""]
     if result.validation is not None:
         v = result.validation
         lines += ["## Validation on held-out poses (V)", "",
                   f"{len(v.labels)} poses never used for identification, compensated with the calibration:", ""]
         lines += _table(["axis", "max |error|", "RMS error", "unit"],
                         [(CHANNELS[k], f"{v.max_abs[k]:.5f}", f"{v.rms[k]:.5f}", UNITS[k]) for k in range(6)])
-        plot_validation(folder / "validation.png", list(v.labels), np.asarray(v.errors))
+        plot_validation(folder / "validation.png", list(v.labels), np.asarray(v.errors),
+                        band if band is not None and len(band) == len(v.labels) else None)
         lines += ["", "![validation](validation.png)", ""]
     if result.drift is not None:
         d = result.drift

@@ -15,6 +15,13 @@ last line; :meth:`RunFolder.open` drops it (and says so) so that the pose is mea
 
 ``run.json`` is rewritten atomically (:func:`ftacq.fileio.atomic_write`) on every status change. ``--resume``
 reopens the folder: the same plan, minus the poses already in ``poses.csv``.
+
+A process killed outright (SIGKILL, power loss) cannot write its last status, so run.json would say
+``running`` forever. While running it therefore also records who is running it (``process``: host, pid and
+the process's start time, which tells a recycled pid from the original) and a ``heartbeat_utc`` refreshed with
+every measured pose. A later reader gets :attr:`RunFolder.status` ``"interrupted"`` (with
+:attr:`RunFolder.status_note` "interrupted (process gone)") when that process no longer exists, and ``--resume``
+refuses a run whose process is still alive.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ import datetime as _dt
 import json
 import logging
 import os
+import socket
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,6 +54,44 @@ DRIFT_SET = "D"
 """Set name of the drift-check revisit of the first pose (never identified on)."""
 DRIFT_SUFFIX = "-revisit"
 STATUSES = ("planned", "running", "stopped", "failed", "done")
+"""What run.json stores. :attr:`RunFolder.status` may also be "interrupted" (stored running, process gone)."""
+INTERRUPTED = "interrupted"
+PROCESS_GONE_NOTE = "interrupted (process gone)"
+
+
+def _process_start_token(pid: int) -> str | None:
+    """Boot id and start time (clock ticks since boot) of process ``pid`` on Linux; None elsewhere or if gone.
+
+    Two processes with the same pid never share this token, so a recycled pid is not mistaken for the run."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as handle:
+            fields = handle.read().rsplit(")", 1)[1].split()
+        with open("/proc/sys/kernel/random/boot_id", encoding="ascii") as handle:
+            boot_id = handle.read().strip()
+    except (OSError, IndexError):
+        return None
+    return f"{boot_id}:{fields[19]}"  # field 22 of stat, counted after the ")" that ends the command name
+
+
+def _process_alive(pid: int, token: str | None) -> bool | None:
+    """True / False when this host can tell whether process ``pid`` (with ``token``) still runs; None if not."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # exists, owned by someone else
+    except (OSError, ValueError, OverflowError):
+        return None
+    current = _process_start_token(pid)
+    if token is None or current is None:
+        return True
+    return current == token
+
+
+def this_process() -> dict[str, Any]:
+    """How run.json names the process running a run: host, pid and start token."""
+    return {"host": socket.gethostname(), "pid": os.getpid(), "start_token": _process_start_token(os.getpid())}
 
 
 def _utc_now() -> str:
@@ -157,7 +203,34 @@ class RunFolder:
 
     @property
     def status(self) -> str:
-        return str(self._document["status"])
+        """The run's state: run.json's status, except "interrupted" for a "running" run whose process is gone."""
+        stored = str(self._document["status"])
+        if stored == "running" and self.process_alive() is False:
+            return INTERRUPTED
+        return stored
+
+    @property
+    def status_note(self) -> str:
+        """One line for the user: the status, and for a running run who runs it or that its process is gone."""
+        status, process = self.status, self._document.get("process") or {}
+        if status == INTERRUPTED:
+            return (f"{PROCESS_GONE_NOTE}: run.json says running, but process {process.get('pid')} on "
+                    f"{process.get('host')} no longer exists (last heartbeat {self._document.get('heartbeat_utc')})")
+        if status == "running":
+            alive = self.process_alive()
+            where = f"process {process.get('pid')} on {process.get('host')}"
+            return (f"running ({where})" if alive else
+                    f"running on another host? ({where}, last heartbeat {self._document.get('heartbeat_utc')})")
+        return status
+
+    def process_alive(self) -> bool | None:
+        """Whether the process recorded as running this run still exists (None: another host, or unknown)."""
+        process = self._document.get("process")
+        if not isinstance(process, dict) or not isinstance(process.get("pid"), int):
+            return None
+        if process.get("host") != socket.gethostname():
+            return None
+        return _process_alive(process["pid"], process.get("start_token"))
 
     @property
     def config(self) -> dict[str, Any]:
@@ -213,6 +286,9 @@ class RunFolder:
         self._document["status"] = status
         self._document["message"] = message
         self._document["updated_utc"] = _utc_now()
+        if status == "running":
+            self._document["process"] = this_process()
+            self._document["heartbeat_utc"] = self._document["updated_utc"]
         self._document.update(fields)
         self._document["history"].append({"utc": _utc_now(), "status": status, "message": message})
         self._write_document()
@@ -288,6 +364,8 @@ class RunFolderWriter:
 
         if isinstance(event, events.PoseMeasured):
             self.folder.append_pose(event)
+            if self.folder.document.get("status") == "running":
+                self.folder.update(heartbeat_utc=_utc_now())
         elif isinstance(event, events.StateChanged):
             if event.state in ("done", "stopped", "failed"):
                 self.folder.set_status(event.state, event.message)
@@ -302,4 +380,4 @@ class RunFolderWriter:
 
 
 __all__ = ["RunFolder", "RunFolderWriter", "MeasuredPose", "drift_label", "RUN_JSON", "POSES_CSV",
-           "CALIBRATION_JSON", "REPORT_MD", "DRIFT_SET"]
+           "CALIBRATION_JSON", "REPORT_MD", "DRIFT_SET", "INTERRUPTED", "PROCESS_GONE_NOTE"]

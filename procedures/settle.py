@@ -11,6 +11,10 @@ Theory of operation (as ophyd's ``StatusBase``: always under a finite timeout):
 2. Average: collect fresh samples for ``average_time_s`` seconds with the driver's ``average`` (mean, std,
    count; saturated samples excluded and counted, lost samples counted).
 
+A silence of the sensor shorter than ``sensor_timeout_s`` never aborts a pose: settling keeps reading through it,
+and an averaging window it spoils (fewer than half the samples the rate promises) is taken again, up to
+``MAX_AVERAGE_ATTEMPTS`` times; each window may wait ``average_time_s + sensor_timeout_s`` for its samples.
+
 Both check a stop flag between reads, so a requested stop lands within one read.
 """
 
@@ -40,6 +44,10 @@ MAX_AVERAGE_ATTEMPTS = 5
 """Averaging windows tried at one pose before accepting a short one (with a warning) or failing."""
 MIN_SAMPLES = 2
 """Fewest samples of an accepted average (a standard deviation needs two)."""
+MIN_SETTLE_SAMPLES = 8
+"""Fewest samples in the settle window before its std may declare the sensor still: the std of two or three
+samples of a shaking tool is below the threshold far too often (3 samples of σ = 6× threshold pass 1 % of the
+time; 8 samples, one in a million)."""
 
 
 class PoseNotSettledError(DeviceTimeoutError):
@@ -140,7 +148,7 @@ def wait_until_settled(robot: Robot, sensor: ForceTorqueSensor, settings: Settle
             wrenches[:] = [all_w]
             count = len(all_t)
             spans_window = steady_since is not None and now - steady_since >= settings.window_s
-            if count >= 2 and spans_window:
+            if count >= MIN_SETTLE_SAMPLES and spans_window:
                 window_std = all_w.std(axis=0, ddof=1)
                 if steady_since is not None and now - steady_since >= settings.settle_time_s \
                         and np.all(window_std <= thresholds):

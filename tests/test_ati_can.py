@@ -319,6 +319,7 @@ def test_board_silent_mid_stream_is_counted_and_loop_recovers(channel, fake):
         assert len(batch) >= FRESH_SAMPLES
         health = sensor.health()
         assert health.timeouts >= 3 and health.received > FRESH_SAMPLES
+        assert health.gaps >= 1 and health.longest_gap_s >= 3 * 0.05  # runs of unanswered polls
         assert sensor._thread.is_alive()
 
 

@@ -94,3 +94,13 @@ def test_save_is_atomic(tmp_path):
         save_calibration(path, bad)
     assert path.read_text() == "previous"
     assert [p.name for p in tmp_path.iterdir()] == ["cal.json"]
+
+
+def test_a_broken_file_names_plain_numbers_not_numpy_reprs(tmp_path):
+    document = good_document()
+    document["mass_kg"] = 1.3499
+    with pytest.raises(InputError) as caught:
+        load_calibration(write(tmp_path, document))
+    message = str(caught.value)
+    assert "np.float64" not in message and "float64" not in message
+    assert "1.3499 kg disagrees with ‖gravity_base‖/g = 1.35 kg" in message

@@ -104,7 +104,8 @@ def test_sigint_then_resume(tmp_path):
     out, err = process.communicate(timeout=EXIT_TIMEOUT_S)
     assert process.returncode == 130, err
     assert "interrupted" in err
-    assert f"resume with: ftacq calibrate --sim --resume {run_dir}" in err
+    resume_line = next(line for line in err.splitlines() if line.startswith("resume with: "))[len("resume with: "):]
+    assert resume_line.endswith(f"calibrate --sim --resume {run_dir}")
     assert "the robot was stopped" in err
     document = json.loads((run_dir / "run.json").read_text())
     assert document["status"] == "stopped" and "interrupted" in document["message"]
@@ -113,7 +114,10 @@ def test_sigint_then_resume(tmp_path):
     assert measured_before >= ROWS_BEFORE_INTERRUPT
     assert not (run_dir / "calibration.json").exists()
 
-    resumed = run_to_end(calibrate_command(tmp_path, "--resume", str(run_dir)))
+    # the printed command runs as printed in a fresh shell: another folder, no PYTHONPATH, the user's PATH
+    fresh_env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(tmp_path)}
+    resumed = subprocess.run(["bash", "-c", resume_line + " --yes --time-scale 0"], cwd="/", env=fresh_env,
+                             capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=300)
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming {run_dir}: {measured_before} poses already measured" in resumed.stdout
     check_resumed(run_dir, before)
@@ -148,3 +152,27 @@ def test_sigterm_stops_cleanly_with_exit_130(tmp_path):
     assert "resume with:" in err
     assert json.loads((run_dir / "run.json").read_text())["status"] == "stopped"
     assert read_pose_csv(run_dir / "poses.csv").labels  # kept
+
+
+def test_verdict_is_printed_last_and_stored(tmp_path):
+    """A right run ends with its verdict (not FAIL) on stdout, in run.json, calibration.json and report.md; a
+    run whose validation poses carry a part left in the gripper ends with FAIL, the reason and exit status 1."""
+    good = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "good")))
+    assert good.returncode == 0, good.stderr
+    tail = good.stdout.rstrip().split("\n\nverdict: ")
+    assert len(tail) == 2 and tail[1].split("\n")[0] in ("PASS", "WARN"), good.stdout[-2000:]
+    run_dir = next((tmp_path / "good").iterdir())
+    stored = json.loads((run_dir / "run.json").read_text())["verdict"]
+    assert stored["status"] == tail[1].split("\n")[0]
+    assert {f["check"] for f in stored["findings"]} == {"validation", "drift", "conditioning", "outliers", "poses"}
+    assert json.loads((run_dir / "calibration.json").read_text())["verdict"]["status"] == stored["status"]
+    assert (run_dir / "report.md").read_text().split("\n")[2] == f"## Verdict: **{stored['status']}**"
+
+    bad = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "bad"), "--sim-wrong-tool"))
+    assert bad.returncode == 1, bad.stderr
+    verdict = bad.stdout.rstrip().split("\n\nverdict: ")[1]
+    assert verdict.startswith("FAIL\n  FAIL  validation   the 4 held-out poses disagree with the calibration")
+    assert "the tool, its load or the sensor changed" in verdict
+    run_dir = next((tmp_path / "bad").iterdir())
+    assert json.loads((run_dir / "run.json").read_text())["verdict"]["status"] == "FAIL"
+    assert (run_dir / "calibration.json").exists()  # kept, judged unusable

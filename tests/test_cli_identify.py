@@ -206,3 +206,42 @@ def test_a_reader_that_goes_away_stops_the_output_quietly_and_keeps_the_file(tmp
     assert main(["identify", str(poses_csv), "-o", str(out)]) == 141
     assert "Traceback" not in capsys.readouterr().err
     assert load_calibration(out).mass_kg == pytest.approx(CellTruth().mass_kg, abs=1e-3)
+
+
+def test_identify_ends_with_the_verdict(tmp_path, capsys):
+    """Held-out poses of the right tool: not FAIL; the same poses measured with a part in the gripper: FAIL, the
+    reason in plain words, exit status 1, the calibration kept with its verdict; a D revisit is judged as drift."""
+    import dataclasses
+
+    truth = CellTruth()
+    rotations = np.concatenate([special_orientations(0.2, seed=1), cone_orientations(30, 40.0, seed=2)])
+    labels = tuple(f"A{i + 1:02d}" for i in range(24)) + tuple(f"E{i + 1:02d}" for i in range(24)) + tuple(
+        f"V{i + 1:02d}" for i in range(6))
+    sets = ("A",) * 24 + ("E",) * 24 + ("V",) * 6
+    good = simulate_record(truth, rotations, seed=5, sets=sets, labels=labels)
+    path, out = tmp_path / "poses.csv", tmp_path / "cal.json"
+    write_pose_csv(path, good)
+    assert main(["identify", str(path), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    verdict = text.rstrip().split("\n\nverdict: ")[1]
+    assert verdict.split("\n")[0] in ("PASS", "WARN") and "validation   the 6 held-out poses" in verdict
+    assert load_calibration(out).metadata["verdict"]["status"] == verdict.split("\n")[0]
+
+    heavier = simulate_record(dataclasses.replace(truth, mass_kg=truth.mass_kg + 0.2), rotations[48:], seed=6,
+                              sets=sets[48:], labels=labels[48:])
+    bad = dataclasses.replace(good, wrench=np.vstack([good.wrench[:48], heavier.wrench]))
+    write_pose_csv(path, bad)
+    assert main(["identify", str(path), "-o", str(out)]) == 1
+    verdict = capsys.readouterr().out.rstrip().split("\n\nverdict: ")[1]
+    assert verdict.startswith("FAIL\n  FAIL  validation   the 6 held-out poses disagree with the calibration")
+    assert load_calibration(out).metadata["verdict"]["status"] == "FAIL"
+
+    drifted = simulate_record(truth, rotations[:1], seed=7, sets=("D",), labels=("A01-revisit",))
+    drifted = dataclasses.replace(drifted, wrench=drifted.wrench + np.array([2.0, 0, 0, 0, 0, 0]))
+    write_pose_csv(path, good.select(np.arange(54)).__class__(
+        pose=np.vstack([good.pose, drifted.pose]), wrench=np.vstack([good.wrench, drifted.wrench]),
+        std=np.vstack([good.std, drifted.std]), count=np.concatenate([good.count, drifted.count]),
+        labels=good.labels + drifted.labels, sets=good.sets + drifted.sets))
+    assert main(["identify", str(path), "-o", str(out)]) == 1
+    text = capsys.readouterr().out
+    assert "FAIL  drift        the sensor drifted 2" in text

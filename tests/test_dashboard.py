@@ -19,6 +19,7 @@ import pytest
 import rerun as rr
 
 from drivers.sensor import SensorHealth, WrenchBatch
+from ftacq.app.hints import command
 from ftacq.app.dashboard import arm, layout, sinks
 from ftacq.app.dashboard.listener import DashboardListener
 from ftacq.app.dashboard.recorder import Dashboard
@@ -305,7 +306,7 @@ def test_headless_default_saves_an_rrd_and_says_how_to_view_it(monkeypatch):
     choice = sinks._choose_sink(sink_args([]), layout.APP_ID)
     assert choice.kind == "save"
     assert choice.target.endswith(".rrd") and Path(choice.target).parent == Path("runs")
-    assert f"rerun {choice.target}" in choice.message
+    assert command("rerun", Path(choice.target)) in choice.message  # absolute, runs as printed
 
 
 def test_sink_flags_pick_the_sink_and_exclude_each_other(tmp_path):
@@ -325,7 +326,9 @@ def test_open_recording_with_save_writes_the_file(tmp_path):
     Dashboard(recording, strict=True).log_text("hello")
     sinks.close_recording(recording)
     assert path.is_file() and layout.MONITOR_LOG in entity_paths(path)
-    assert lines == [f"rerun: saving to {path}; view it with: rerun {path}"]
+    assert lines == [f"rerun: saving to {path}; view it with: {command('rerun', path)}"]
+    viewer = command("rerun", path).split(" ")[0]  # runs as printed: the viewer beside this Python, or on PATH
+    assert viewer == "rerun" or Path(viewer).is_file()
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -618,7 +621,8 @@ def test_serve_hosts_the_web_viewer_on_localhost_only_and_stops_it():
         return {fields[1] for fields in rows if fields[3] == "0A" and fields[1].endswith(ports)}  # 0A = LISTEN
 
     assert listening() == {f"0100007F{port}" for port in ports}  # 127.0.0.1 only, not 0.0.0.0
-    assert lines == [f"rerun: web viewer at {web_url} (native: rerun rerun+http://127.0.0.1:{grpc_port}/proxy)"]
+    native = command("rerun", f"rerun+http://127.0.0.1:{grpc_port}/proxy")
+    assert lines == [f"rerun: web viewer at {web_url} (native: {native})"]
     sinks.close_recording(recording, wait_while_serving=False)
     assert process.poll() is not None and id(recording) not in sinks._WEB_SERVERS
     wait_until(lambda: not listening(), "the server binary (the wrapper's child) to close its ports")

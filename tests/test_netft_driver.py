@@ -180,7 +180,8 @@ def test_open_sensor_builds_the_driver_from_the_url() -> None:
 @pytest.mark.parametrize("url, message", [
     ("netft://127.0.0.1:abc", "Port could not be cast"),
     ("netft://", "no host"),
-    ("netft://127.0.0.1?colour=red", "unknown key 'colour'"),
+    ("netft://127.0.0.1?colour=red", "unknown query key 'colour'"),
+    ("netft://127.0.0.1?rate_hz=100&rate_hz=200", "given twice"),
     ("netft://127.0.0.1?rate_hz=fast", "rate_hz='fast'"),
     ("netft://127.0.0.1?buffered=maybe", "buffered='maybe'"),
     ("netft://127.0.0.1?counts_per_force=1000", "only all together"),
@@ -231,11 +232,11 @@ def test_units_changed_on_the_box_are_followed(physics) -> None:
 @pytest.fixture
 def small_ring(monkeypatch):
     """A 512-record receive ring with room for 64-record datagrams, so a short stream wraps it many times."""
-    import drivers.netft as netft
+    import drivers.netft.receiver as receiver
 
-    monkeypatch.setattr(netft, "RING_RECORDS", 512)
-    monkeypatch.setattr(netft, "SLACK_RECORDS", 64)
-    monkeypatch.setattr(netft, "MAX_DATAGRAM_BYTES", 64 * 36)
+    monkeypatch.setattr(receiver, "RING_RECORDS", 512)
+    monkeypatch.setattr(receiver, "SLACK_RECORDS", 64)
+    monkeypatch.setattr(receiver, "MAX_DATAGRAM_BYTES", 64 * 36)
 
 
 def test_ring_wraps_with_datagrams_straddling_its_end(physics, small_ring) -> None:
@@ -263,7 +264,7 @@ def test_a_reader_that_stops_reading_loses_records_counted_as_lost(physics, smal
         device.wait_until(lambda f: f.records_sent > sent + 1500)  # ring holds 512: the rest must be dropped
         while sensor.overflowed == 0:
             now_sent = device.records_sent
-            device.wait_until(lambda f: f.records_sent > now_sent + 10)
+            device.wait_until(lambda f, now_sent=now_sent: f.records_sent > now_sent + 10)
         target = device.stats()["rdt_sequence"] + 20
         while sensor.read(timeout_s=READ_TIMEOUT_S).sequence[-1] < target:
             pass
@@ -288,3 +289,52 @@ def test_records_from_another_port_are_rejected_unless_allowed(physics) -> None:
             np.testing.assert_array_less(np.abs(average.mean - physics.noiseless_wrench(POSE)),
                                          tolerance(physics, average.count))
             assert sensor.health().foreign == 0
+
+
+def test_the_contract_imports_no_driver_and_the_registry_loads_one_lazily() -> None:
+    import subprocess
+    import sys
+
+    code = ("import sys, drivers.sensor as s; assert 'drivers.netft' not in sys.modules, 'netft imported'; "
+            "assert 'drivers.ati_can' not in sys.modules, 'ati_can imported'; "
+            "print(s.sensor_class('netft://192.0.2.1').__name__, sorted(s.SENSOR_TYPES))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split()[0] == "NetFTSensor"
+    with pytest.raises(InputError, match="unknown scheme 'ftp'.*netft://.*can://"):
+        open_sensor("ftp://x")
+    from drivers.sensor import parse_sensor_url
+
+    assert parse_sensor_url("netft://192.0.2.7?rate_hz=500") == {"host": "192.0.2.7", "rate_hz": 500.0}
+    with pytest.raises(InputError, match="Invalid IPv6 URL"):
+        parse_sensor_url("netft://[::1")
+
+
+def test_driver_state_is_set_in_the_constructor() -> None:
+    sensor = NetFTSensor("192.0.2.7")
+    assert sensor._family == socket.AF_INET and sensor.local_address is None
+
+
+def test_receive_socket_is_bound_to_the_interface_that_routes_to_the_box(fake) -> None:
+    with NetFTSensor.from_url(fake.url) as sensor:
+        sensor.read(timeout_s=READ_TIMEOUT_S)
+        address, port = sensor.local_address
+        assert address == "127.0.0.1" and port != 0  # not the wildcard 0.0.0.0
+
+
+def test_resend_schedule_is_short_while_a_box_restarts_and_backs_off_when_it_is_gone() -> None:
+    from drivers.netft.receiver import (
+        BACKOFF_MAX_S,
+        BACKOFF_RESTARTING_MAX_S,
+        UNREACHABLE_AFTER_S,
+        next_retry_interval_s,
+    )
+
+    intervals, silent_s, interval = [], 0.25, 0.0
+    while silent_s < 2 * UNREACHABLE_AFTER_S:
+        interval = next_retry_interval_s(interval, silent_s)
+        intervals.append((silent_s, interval))
+        silent_s += interval
+    assert intervals[0][1] == 0.25 and intervals[1][1] == 0.5
+    assert max(i for s, i in intervals if s < UNREACHABLE_AFTER_S) == BACKOFF_RESTARTING_MAX_S
+    assert intervals[-1][1] == BACKOFF_MAX_S

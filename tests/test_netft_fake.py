@@ -1,4 +1,4 @@
-"""The fake Net F/T speaks the real bytes (specs/ati.md §7.1-7.3), checked with raw sockets and independent clients.
+"""The fake Net F/T speaks the real bytes (docs/protocols-ati.md), checked with raw sockets and independent clients.
 
 Force and torque use different counts per unit and the torque is served in N-mm, so a scale or unit mix-up fails.
 """
@@ -266,7 +266,7 @@ def test_pynetft_reads_correct_newtons_and_newton_metres(fake, physics) -> None:
 def test_legacy_netft_client_reads_raw_counts(fake, physics) -> None:
     NetFT = pytest.importorskip("NetFT")
     sensor = NetFT.Sensor("127.0.0.1")
-    sensor.sock.connect(("127.0.0.1", fake.rdt_port))  # its port is hard-coded to 49152 (specs/ati.md §7.1.10)
+    sensor.sock.connect(("127.0.0.1", fake.rdt_port))  # its port is hard-coded to 49152
     sensor.sock.settimeout(RECEIVE_TIMEOUT_S)
     try:
         readings = np.array([sensor.getMeasurement() for _ in range(50)], dtype=float)
@@ -331,3 +331,38 @@ def test_monitor_condition_latches_until_reset(fake, client) -> None:
     client.send(command(0x0041))
     fake.wait_for_command(0x0041)
     assert fake.status_word() == 0
+
+
+def test_a_quiet_link_hides_records_while_the_box_streams_on_and_hears_a_start(fake, client) -> None:
+    """go_silent() is the link, not the box: sequences advance meanwhile, a start restarts rdt_sequence only."""
+    client.send(command(0x0002))
+    before = receive_records(client, 50)
+    fake.go_silent()
+    fake.wait_until(lambda f: f.records_silenced >= 100)
+    client.send(command(0x0002))  # a re-sent start reaches the box during the silence
+    fake.wait_until(lambda f: f.stats()["streams_started"] == 2 and f.records_silenced >= 300)
+    silenced_so_far = fake.records_silenced
+    fake.resume()
+    after = receive_records(client, 20)
+    while after["rdt_sequence"][0] > before["rdt_sequence"][-1] and after["rdt_sequence"][0] < 60:
+        after = receive_records(client, 20)  # records still queued from before the silence
+    assert after["rdt_sequence"][0] > 1  # the restarted stream went on into the quiet link
+    ft_gap = (int(after["ft_sequence"][0]) - int(before["ft_sequence"][-1])) // 7
+    assert ft_gap > silenced_so_far  # ft_sequence ran on through the silence
+    sent = fake.sent_records()
+    assert len(sent) == fake.records_sent and sent["ft_sequence"][0] == before["ft_sequence"][0]
+
+
+def test_power_cycle_silences_the_box_and_restarts_both_sequences(fake, client) -> None:
+    client.send(command(0x0002))
+    receive_records(client, 20)
+    fake.power_off()
+    fake.power_on()
+    client.settimeout(0.3)
+    with pytest.raises(socket.timeout):
+        for _ in range(1000):  # drain what was in flight; then nothing comes until a start
+            client.recv(100)
+    client.settimeout(RECEIVE_TIMEOUT_S)
+    client.send(command(0x0002))
+    records = receive_records(client, 3)
+    assert records["rdt_sequence"].tolist() == [1, 2, 3] and records["ft_sequence"].tolist() == [7, 14, 21]

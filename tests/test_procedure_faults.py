@@ -39,7 +39,8 @@ def check_kept_and_stopped(folder, plan, result, commands, config, measured_coun
     assert record.labels == tuple(plan.labels[:measured_count])  # every pose measured is on disk
     document = json.loads((folder.path / "run.json").read_text())
     assert document["status"] == "failed"
-    assert f"at pose {measured_count + 1}/{len(plan)} ({plan.labels[measured_count]})" in document["message"]
+    total = len(plan) + (1 if config.sampling.drift_check else 0)  # counted as the progress display counts
+    assert f"at pose {measured_count + 1}/{total} ({plan.labels[measured_count]})" in document["message"]
     assert motion_problems(commands, plan, limits_of(config)) == []
     moves = [c for c in commands if c["kind"] == "movej"]
     assert len(moves) == measured_count + 1  # nothing was commanded after the fault

@@ -169,6 +169,37 @@ def test_progress_lines_without_a_terminal():
     progress.close()  # safe twice
 
 
+def test_progress_counts_agree_with_the_stop_message_on_a_resumed_run():
+    """A resumed run counts the whole plan (bar 2/5 after two of five, not 0/3) and names the pose by its label,
+    as the procedure's stop message does ("pose 3/5 (V01)")."""
+    import io
+
+    from procedures.progress import ProgressListener
+
+    stream = io.StringIO()
+    progress = ProgressListener(total=5, estimated_s=30.0, stream=stream, clock_s=lambda: 0.0,
+                                force_terminal=False, done=2)
+    progress(events.StateChanged("moving", 2, label="V01", measured=2, total=5))
+    assert progress._where() == "moving V01 (pose 3/5)"
+    progress(measured_event(2))
+    assert stream.getvalue().splitlines()[0].startswith("pose 3/5 V01 (V) measured")
+    progress.close()
+
+
+def test_stop_message_counts_like_the_progress_display():
+    from procedures.calibration import CalibrationProcedure, ProcedureOptions
+
+    plan = small_plan()  # 4 poses + the drift-check revisit = 5 measurements
+    seen = []
+    procedure = CalibrationProcedure(plan, robot=None, sensor=None, options=ProcedureOptions(),
+                                     listeners=[seen.append], measured={})
+    procedure.measured = {label: None for label in plan.labels[:2]}  # two measured (as after a resume)
+    procedure._index, procedure._label, procedure.state = 2, plan.labels[2], "moving"
+    assert procedure._where() == f"at pose 3/5 ({plan.labels[2]}) while moving"
+    procedure._enter("settling", 2)
+    assert seen[-1].label == plan.labels[2] and (seen[-1].measured, seen[-1].total) == (2, 5)
+
+
 def test_calibrate_needs_a_source(capsys):
     from ftacq.app.cli import main
 
@@ -191,4 +222,7 @@ def test_report_of_a_failed_run_lists_what_was_measured(tmp_path):
     assert "poses measured: 2 of 4 planned" in text
     assert "- something to know" in text
     assert "| A01 | A | 500 |" in text and "| E01 | E | 501 |" in text
-    assert "## Identified parameters" not in text and not list(folder.path.glob("*.png"))
+    assert "## Identified parameters" not in text
+    assert [p.name for p in folder.path.glob("*.png")] == ["wrench_per_pose.png"]  # raw wrenches, kept
+    assert "![raw wrench](wrench_per_pose.png)" in text
+    assert (folder.path / "wrench_per_pose.png").read_bytes().startswith(b"\x89PNG")

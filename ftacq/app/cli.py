@@ -21,6 +21,7 @@ import os
 import sys
 
 from ftacq import __version__
+from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
 
 COMMAND_MODULES = (
@@ -57,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ftacq",
         description="Calibrate a wrist-mounted ATI F/T sensor on a UR arm and stream compensated wrenches.",
+        **examples("ftacq calibrate --sim --yes  # try it on the simulated cell",
+                   "ftacq config init CELL.toml  # then: ftacq calibrate --config CELL.toml",
+                   "ftacq COMMAND --help  # each command's options and examples"),
     )
     parser.add_argument("--version", action="version", version=f"ftacq {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")

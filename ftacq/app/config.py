@@ -17,7 +17,8 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from ftacq.errors import ConfigError
+from ftacq.errors import ConfigError, InputError
+from ftacq.validation import shown
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -243,9 +244,10 @@ def _range_text(key: Key) -> str:
 
 def _check_number(where: str, value: Any, key: Key, integer: bool) -> float | int:
     bad_type = isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int))
-    if bad_type or not math.isfinite(value) or (key.low is not None and value < key.low) \
-            or (key.high is not None and value > key.high):
-        raise ConfigError(f"{where} = {value!r}: must be {_range_text(key)}")
+    # an int is compared exactly (math.isfinite would overflow on one too large for a float)
+    if bad_type or (isinstance(value, float) and not math.isfinite(value)) \
+            or (key.low is not None and value < key.low) or (key.high is not None and value > key.high):
+        raise ConfigError(f"{where} = {shown(value)}: must be {_range_text(key)}")
     return int(value) if integer else float(value)
 
 
@@ -256,26 +258,26 @@ def _check_value(where: str, value: Any, key: Key) -> Any:
         return _check_number(where, value, key, integer=True)
     if key.kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(f"{where} = {value!r}: must be true or false")
+            raise ConfigError(f"{where} = {shown(value)}: must be true or false")
         return value
     if key.kind == "str":
         if not isinstance(value, str) or not value.strip():
-            raise ConfigError(f"{where} = {value!r}: must be a non-empty string ({key.help})")
+            raise ConfigError(f"{where} = {shown(value)}: must be a non-empty string ({key.help})")
         if key.choices and value not in key.choices:
-            raise ConfigError(f"{where} = {value!r}: must be {_range_text(key)}")
+            raise ConfigError(f"{where} = {shown(value)}: must be {_range_text(key)}")
         return value.strip()
     if key.kind == "vec3":
         if not isinstance(value, list) or len(value) != 3:
-            raise ConfigError(f"{where} = {value!r}: must be a list of 3 numbers in [{key.low:g}, {key.high:g}]")
+            raise ConfigError(f"{where} = {shown(value)}: must be a list of 3 numbers in [{key.low:g}, {key.high:g}]")
         return tuple(_check_number(f"{where}[{i}]", v, key, integer=False) for i, v in enumerate(value))
     if key.kind == "poses":
         if not isinstance(value, list):
-            raise ConfigError(f"{where} = {value!r}: must be a list of poses [x, y, z, rx, ry, rz] (m, rad)")
+            raise ConfigError(f"{where} = {shown(value)}: must be a list of poses [x, y, z, rx, ry, rz] (m, rad)")
         rows = []
         pose_key = Key("float", 0.0, "", -10.0, 10.0)
         for i, row in enumerate(value):
             if not isinstance(row, list) or len(row) != 6:
-                raise ConfigError(f"{where}[{i}] = {row!r}: must be a pose [x, y, z, rx, ry, rz] of 6 numbers")
+                raise ConfigError(f"{where}[{i}] = {shown(row)}: must be a pose [x, y, z, rx, ry, rz] of 6 numbers")
             rows.append(tuple(_check_number(f"{where}[{i}][{j}]", v, pose_key, integer=False)
                               for j, v in enumerate(row)))
         return tuple(rows) if rows else None
@@ -295,7 +297,7 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CellConfig
         if section not in SCHEMA:
             raise ConfigError(f"{source}: unknown section [{section}] (known: {', '.join(SCHEMA)})")
         if not isinstance(table, dict):
-            raise ConfigError(f"{source}: {section} = {table!r}: must be a table [{section}]")
+            raise ConfigError(f"{source}: {section} = {shown(table)}: must be a table [{section}]")
         values: dict[str, Any] = {}
         for name, value in table.items():
             if name not in SCHEMA[section]:
@@ -311,7 +313,24 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CellConfig
     if config.sampling.settle_window_s > config.sampling.settle_timeout_s:
         raise ConfigError(f"{source}: sampling.settle_window_s = {config.sampling.settle_window_s!r}: must not "
                           f"exceed sampling.settle_timeout_s = {config.sampling.settle_timeout_s!r}")
+    check_sensor_url(config.sensor.url, f"{source}: sensor.url")
     return config
+
+
+def check_sensor_url(url: str, where: str) -> None:
+    """Parse the sensor URL as its driver will (scheme, host, port, query keys) without touching the network.
+
+    Builds the driver from the URL and drops it (drivers do no I/O before ``start()``); raises ConfigError naming
+    ``where`` and the URL, so ``ftacq config check`` and ``--dry-run`` refuse what the run would refuse.
+    """
+    from drivers.sensor import open_sensor
+
+    try:
+        open_sensor(url)
+    except InputError as error:
+        raise ConfigError(f"{where}: {error}") from None
+    except (ValueError, TypeError) as error:  # urllib's own parse errors, e.g. "Invalid IPv6 URL"
+        raise ConfigError(f"{where} = {shown(url)}: not a valid URL ({error})") from None
 
 
 def load_config(path: str | Path) -> CellConfig:
@@ -325,6 +344,10 @@ def load_config(path: str | Path) -> CellConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from error
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML: nested too deeply to read") from None
+    except ValueError as error:  # e.g. an integer of more than 4300 digits
+        raise ConfigError(f"{path}: cannot read a value: {error}") from None
     return config_from_dict(data, str(path))
 
 

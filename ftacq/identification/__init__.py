@@ -87,6 +87,8 @@ class IdentificationResult:
         converged: refinement convergence flag (True when not refined).
         iterations: LM iterations in total.
         diagnostics: figures for the report (condition number, eigen gap, Wahba singular values, …).
+        parameter_covariance: (15, 15) covariance of the parameters (JᵀWJ)⁻¹ in refine.PARAMETER_NAMES order
+            (the rotation as a sensor-frame increment, rad); the verdict propagates it to held-out poses.
     """
 
     calibration: Calibration
@@ -106,6 +108,7 @@ class IdentificationResult:
     iterations: int = 0
     mount: str | None = None
     diagnostics: dict = field(default_factory=dict)
+    parameter_covariance: np.ndarray | None = None
 
 
 def _closed_form(
@@ -231,13 +234,25 @@ def identify(
             covariance when the residuals show it (pose_error.py); False: independent channels only.
 
     Raises:
-        IdentificationError: too few poses, a degenerate pose set, SROM forced without the 24 special
+        IdentificationError: a value that is not finite or beyond what a robot or sensor reports, a tolerance
+            outside (0, 45)°, too few poses, a degenerate pose set, SROM forced without the 24 special
             orientations, or a tool whose weight is lost in the noise.
     """
     if method not in METHODS:
         raise IdentificationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if mount is not None and mount not in MOUNTS:
         raise IdentificationError(f"unknown mount {mount!r}; choose one of {', '.join(MOUNTS)}")
+    special_tolerance_deg = diagnostics.check_special_tolerance(special_tolerance_deg)
+    # every number checked before any linear algebra: extreme values can make LAPACK spin for minutes
+    diagnostics.check_record_values(record.pose, record.wrench, record.labels, record.std, record.count)
+    try:
+        return _identify(record, mount, method, refine, special_tolerance_deg, orientation_error)
+    except np.linalg.LinAlgError as error:  # a last guard: LAPACK failing on a set that passed the checks above
+        raise IdentificationError(f"the fit is numerically degenerate ({error}); check the record's values") from None
+
+
+def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, special_tolerance_deg: float,
+              orientation_error: bool) -> IdentificationResult:
     rotations = record.flange_R_base
     wrench = record.wrench
     n = len(record)
@@ -475,4 +490,5 @@ def identify(
         iterations=iterations,
         mount=mount,
         diagnostics={**metadata["diagnostics"], "tilt_deg": list(tilt), "special_angle_deg": special_angle},
+        parameter_covariance=covariance,
     )

@@ -1,7 +1,9 @@
 """Conditioning diagnostics: refuse pose sets that cannot identify the calibration, warn about weak ones.
 
-Checks before fitting (cheap, from the orientations only): enough poses, more than one orientation, and
-rotations about more than one axis (rotating about a single axis u leaves the weight's component along u
+Checks before any linear algebra (:func:`check_record_values`): every number finite and within what a robot
+and an F/T sensor can report, the readings not all equal; a value of 1e30 or more would otherwise reach
+``np.linalg.svd``, which can spin for minutes on it without answering Ctrl-C. Then, cheap and from the
+orientations only: enough poses, more than one orientation, and rotations about more than one axis (rotating about a single axis u leaves the weight's component along u
 indistinguishable from the force bias). After fitting: the column-scaled Fisher matrix JᵀWJ (rank and
 condition number) and the 1σ of each parameter against named thresholds.
 """
@@ -12,6 +14,7 @@ import numpy as np
 
 from ftacq.errors import IdentificationError
 from ftacq.identification.refine import PARAMETER_NAMES
+from ftacq.validation import MAX_FORCE_N, MAX_POSITION_M, MAX_ROTATION_VECTOR_RAD, MAX_TORQUE_NM
 
 MIN_POSES = 6
 """Fewest poses accepted: 6 × 6 = 36 equations for 15 parameters (LROM alone needs ≥ 5)."""
@@ -44,6 +47,76 @@ _PARAMETER_TEXT = {
     "center_of_mass_m": "centre of mass",
     "torque_bias": "torque bias",
 }
+
+
+MIN_FORCE_SPREAD_N = 1e-9
+"""Readings whose every force channel varies less than this over the poses carry no gravity signal."""
+MAX_SPECIAL_TOLERANCE_DEG = 45.0
+"""Cube rotations are 90° apart: a special-orientation tolerance must stay below half of that."""
+
+
+def _first_bad(mask: np.ndarray) -> tuple[int, int]:
+    row, column = np.argwhere(mask)[0]
+    return int(row), int(column)
+
+
+def check_record_values(pose: np.ndarray, wrench: np.ndarray, labels, std: np.ndarray | None = None,
+                        count: np.ndarray | None = None) -> None:
+    """Refuse (IdentificationError naming the pose, the column and the value) what identification cannot handle.
+
+    ``pose`` (N, 6) [x, y, z (m), rx, ry, rz (rad)], ``wrench`` (N, 6) [N, N·m], ``std`` (N, 6) ≥ 0 or None,
+    ``count`` (N,) ≥ 1 or None. Bounds: :data:`ftacq.validation.MAX_POSITION_M`, ``MAX_ROTATION_VECTOR_RAD``
+    (norm), ``MAX_FORCE_N``, ``MAX_TORQUE_NM`` (beyond any sensor's range). Runs before any linear algebra.
+    """
+    columns = ("x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
+    values = np.column_stack([np.asarray(pose, dtype=float).reshape(-1, 6), np.asarray(wrench, dtype=float).reshape(-1, 6)])
+    limits = np.array([MAX_POSITION_M] * 3 + [MAX_ROTATION_VECTOR_RAD] * 3 + [MAX_FORCE_N] * 3 + [MAX_TORQUE_NM] * 3)
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = ~np.isfinite(values) | (np.abs(values) > limits)
+    if bad.any():
+        row, column = _first_bad(bad)
+        value = values[row, column]
+        why = "is not finite" if not np.isfinite(value) else (
+            f"is beyond what a robot or an F/T sensor reports (|value| ≤ {limits[column]:g}); wrong units?")
+        raise IdentificationError(f"pose {labels[row]}, column {columns[column]!r}: value {value!r} {why}")
+    rotation_norm = np.linalg.norm(values[:, 3:6], axis=1)
+    if np.any(rotation_norm > MAX_ROTATION_VECTOR_RAD):
+        row = int(np.argmax(rotation_norm > MAX_ROTATION_VECTOR_RAD))
+        raise IdentificationError(f"pose {labels[row]}: rotation vector of length {rotation_norm[row]:.4g} rad is longer "
+                                  f"than {MAX_ROTATION_VECTOR_RAD:.4g} rad (two turns); not a robot orientation")
+    if std is not None:
+        std = np.asarray(std, dtype=float).reshape(-1, 6)
+        std_limits = limits[6:]
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(std) | (std < 0) | (std > std_limits)
+        if bad.any():
+            row, column = _first_bad(bad)
+            raise IdentificationError(f"pose {labels[row]}, column 'std_{columns[6 + column]}': value {std[row, column]!r} "
+                                      f"must be a finite standard deviation in [0, {std_limits[column]:g}]")
+    if count is not None:
+        count = np.asarray(count, dtype=float).reshape(-1)
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(count) | (count < 1) | (count > 1e15)
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise IdentificationError(f"pose {labels[row]}, column 'count': value {count[row]!r} must be a sample "
+                                      "count in [1, 1e15]")
+    if len(values) and np.all(np.ptp(values[:, 6:9], axis=0) < MIN_FORCE_SPREAD_N):
+        raise IdentificationError(
+            "degenerate record: the force readings are the same at every pose (no gravity signal); is the sensor "
+            "streaming, and was the record made while the tool was tilted?")
+
+
+def check_special_tolerance(special_tolerance_deg: float) -> float:
+    """Refuse a special-orientation tolerance that is not a finite angle in (0°, 45°)."""
+    try:
+        value = float(special_tolerance_deg)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (np.isfinite(value) and 0.0 < value < MAX_SPECIAL_TOLERANCE_DEG):
+        raise IdentificationError(f"special-orientation tolerance {special_tolerance_deg!r}°: must be a finite angle "
+                                  f"in (0, {MAX_SPECIAL_TOLERANCE_DEG:g})° (cube rotations are 90° apart)")
+    return value
 
 
 def relative_rotation_axes(flange_R_base: np.ndarray) -> np.ndarray:
@@ -100,9 +173,16 @@ def check_pose_set(flange_R_base: np.ndarray) -> dict:
 
 def fisher_conditioning(information: np.ndarray) -> dict:
     """Return the scaled condition number of JᵀWJ and its weakest direction; refuse if singular."""
+    if not np.all(np.isfinite(information)):
+        raise IdentificationError("degenerate fit: the information matrix JᵀWJ is not finite (extreme residuals "
+                                  "or weights)")
     scale = np.sqrt(np.maximum(np.diag(information), 1e-300))
     scaled = information / np.outer(scale, scale)
-    eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    try:
+        eigenvalues, eigenvectors = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    except np.linalg.LinAlgError as error:
+        raise IdentificationError(f"degenerate fit: the information matrix has no eigen-decomposition ({error})") \
+            from None
     condition = float(eigenvalues[-1] / max(eigenvalues[0], 1e-300))
     weakest = eigenvectors[:, 0]
     involved = sorted(

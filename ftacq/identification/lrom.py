@@ -54,16 +54,21 @@ def lrom(flange_R_base: np.ndarray, forces: np.ndarray, weights: np.ndarray | No
     sum_r = np.einsum("i,iab->ab", w, rotations)
     n66 = np.block([[sw * np.eye(3), sum_r.T], [sum_r, sw * np.eye(3)]])
     n96 = np.hstack([n9g, n9b])
-    if np.linalg.cond(n66) * SINGULAR_RCOND > 1.0:
+    if not np.all(np.isfinite(n66)) or np.linalg.cond(n66) * SINGULAR_RCOND > 1.0:
         raise IdentificationError(
             "LROM: the orientations do not separate the tool's weight from the force bias "
             "(all poses share one orientation)"
         )
-    h = n99 - n96 @ np.linalg.solve(n66, n96.T)
-    h = 0.5 * (h + h.T)
-    eigenvalues, eigenvectors = np.linalg.eigh(h)
-    x9 = np.sqrt(3.0) * eigenvectors[:, 0]
-    x6 = -np.linalg.solve(n66, n96.T @ x9)
+    try:
+        h = n99 - n96 @ np.linalg.solve(n66, n96.T)
+        h = 0.5 * (h + h.T)
+        if not np.all(np.isfinite(h)):
+            raise np.linalg.LinAlgError("non-finite normal matrix")
+        eigenvalues, eigenvectors = np.linalg.eigh(h)
+        x9 = np.sqrt(3.0) * eigenvectors[:, 0]
+        x6 = -np.linalg.solve(n66, n96.T @ x9)
+    except np.linalg.LinAlgError as error:
+        raise IdentificationError(f"LROM: the linear system (eqs 30-33) cannot be solved ({error})") from None
     sensor_rotation_t = x9.reshape(3, 3)  # rows of Sᵀ
     if np.linalg.det(sensor_rotation_t) < 0.0:  # mount-free sign rule (replaces eq. 34)
         sensor_rotation_t = -sensor_rotation_t

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ftacq.errors import IdentificationError
+
 
 def skew(vectors: np.ndarray) -> np.ndarray:
     """Return [v]× (…, 3, 3) with [v]× u = v × u."""
@@ -40,5 +42,10 @@ def torque_least_squares(
         root = np.sqrt(np.broadcast_to(w[:, None] if w.ndim == 1 else w, (n, 3)))
     a = (design * root[:, :, None]).reshape(-1, 6)
     b = (t * root).reshape(-1)
-    solution, *_ = np.linalg.lstsq(a, b, rcond=None)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        raise IdentificationError("torque least squares (eq. 44): non-finite regressors or torques")
+    try:
+        solution, *_ = np.linalg.lstsq(a, b, rcond=None)
+    except np.linalg.LinAlgError as error:
+        raise IdentificationError(f"torque least squares (eq. 44) did not converge ({error})") from None
     return solution[:3], solution[3:]

@@ -49,7 +49,12 @@ def wahba(
     mean_force = w @ forces
     mean_gravity_flange = w @ gravity_flange
     d = np.einsum("i,ij,ik->jk", w, forces - mean_force, gravity_flange - mean_gravity_flange)
-    u, sigma, vt = np.linalg.svd(d)
+    if not np.all(np.isfinite(d)):
+        raise IdentificationError("Wahba step (eq. 40): the correlation matrix D is not finite")
+    try:
+        u, sigma, vt = np.linalg.svd(d)
+    except np.linalg.LinAlgError as error:
+        raise IdentificationError(f"Wahba step (eq. 40): the SVD of D did not converge ({error})") from None
     if sigma[0] <= 0.0 or sigma[1] < RANK_TOLERANCE * sigma[0]:
         raise IdentificationError(
             "the tool's weight seen from the flange spans fewer than two directions (rank D < 2, eq. 42): "

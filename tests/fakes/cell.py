@@ -26,10 +26,15 @@ from dataclasses import replace
 
 import numpy as np
 
+from ftacq.kinematics import ur_model
 from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
 
 SENSORS = ("netft", "can")
 DEFAULT_SENSOR_RATE_HZ = 1000.0
+WRONG_TOOL_EXTRA_MASS_KG = 0.2
+"""The wrong-tool knob: a part of this mass left in the gripper at the validation poses ..."""
+WRONG_TOOL_COM_SHIFT_M = (0.0, 0.0, 0.03)
+"""... whose centre of mass is this far from the tool's (sensor frame), m."""
 
 
 class SimulatedCell:
@@ -90,7 +95,8 @@ class SimulatedCell:
                                                   mount=self.mount)
             self.controller.start()
             self._stack.callback(self.controller.stop)
-            self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed)
+            self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed, robot=ur_model(self.model_name),
+                                         rate_hz=self.rate_hz)
             if self.sensor_kind == "netft":
                 from tests.fakes.netft import FakeNetFT
 
@@ -136,9 +142,28 @@ class SimulatedCell:
         """Add a contact wrench (6,) [N, N·m] in the sensor frame to every later sample (0 to remove)."""
         self.physics.contact_wrench = np.asarray(wrench, dtype=float).reshape(6)
 
-    def swap_tool(self, mass_kg: float, center_of_mass_m) -> None:
-        """Put another tool on the simulated sensor without telling the software (see SensorPhysics.swap_tool)."""
-        self.physics.swap_tool(mass_kg, center_of_mass_m)
+    def swap_tool(self, mass_kg: float | None = None, center_of_mass_m=None) -> None:
+        """Put another tool on the simulated sensor (None keeps the true value); ``swap_tool()`` restores it."""
+        self.physics.set_tool(self.truth.mass_kg if mass_kg is None else mass_kg,
+                              self.truth.center_of_mass_m if center_of_mass_m is None else center_of_mass_m)
+
+    def wrong_tool_listener(self, plan, extra_mass_kg: float = WRONG_TOOL_EXTRA_MASS_KG,
+                            com_shift_m=WRONG_TOOL_COM_SHIFT_M):
+        """Return a procedure listener that measures the validation poses (set V) with a wrong tool: the true one
+        plus a part left in the gripper (``extra_mass_kg`` whose centre of mass sits ``com_shift_m`` from the
+        tool's, sensor frame). Every other pose sees the true tool. A right verdict is FAIL."""
+        from procedures import events
+
+        mass = self.truth.mass_kg + extra_mass_kg
+        part_com = np.asarray(self.truth.center_of_mass_m) + np.asarray(com_shift_m, dtype=float)
+        com = (self.truth.mass_kg * np.asarray(self.truth.center_of_mass_m) + extra_mass_kg * part_com) / mass
+
+        def listener(event) -> None:
+            if isinstance(event, events.StateChanged) and event.state == "moving" and event.index is not None:
+                validation = plan.set_names[event.index] == "V" and not event.label.endswith("-revisit")
+                self.swap_tool(mass, com) if validation else self.swap_tool()
+
+        return listener
 
     def with_truth(self, **changes) -> CellTruth:
         """Return the truth with some fields changed (for building a second cell)."""

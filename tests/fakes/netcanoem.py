@@ -1,4 +1,4 @@
-"""A fake ATI NETCANOEM board on a python-can bus (specs/ati.md §4.1, §7.4).
+"""A fake ATI NETCANOEM board on a python-can bus (docs/protocols-ati.md, "CAN").
 
 The board answers requests only. Every request and its reply use 11-bit IDs ``(base << 4) | opcode``, big-endian
 data. Raw strain gages come from the simulated cell's physics through the calibration matrix::
@@ -65,7 +65,7 @@ FIRMWARE_WITH_DIAGNOSTICS = (3, 8)
 LEGACY_COUNTS_PER_UNIT = 1_000_000
 
 FORCE_UNIT_TO_SI = {1: 4.4482216152605, 2: 1.0, 3: 4448.2216152605, 4: 1000.0, 5: 9.80665, 6: 0.00980665}
-"""Force unit code → newtons per unit (specs/ati.md §2: lbf, N, klbf, kN, kgf, gf)."""
+"""Force unit code → newtons per unit (docs/protocols-ati.md, "Units": lbf, N, klbf, kN, kgf, gf)."""
 TORQUE_UNIT_TO_SI = {1: 0.112984829027617, 2: 1.3558179483314, 3: 1.0, 4: 0.001, 5: 0.0980665, 6: 1000.0}
 """Torque unit code → N·m per unit (lbf-in, lbf-ft, N-m, N-mm, kgf-cm, kN-m)."""
 
@@ -89,7 +89,7 @@ class FakeCanCalibration:
     Attributes:
         matrix: (6, 6) float32 calibration matrix, counts = matrix @ (gages − bias) (row 0 Fx … 5 Tz).
         counts_per_force, counts_per_torque: integer counts per force / torque unit (opcode 0x7).
-        force_unit_code, torque_unit_code: unit codes (specs/ati.md §2), e.g. 2 = N, 3 = N-m, 4 = N-mm.
+        force_unit_code, torque_unit_code: unit codes (docs/protocols-ati.md, "Units"), e.g. 2 = N, 3 = N-m, 4 = N-mm.
     """
 
     matrix: np.ndarray

@@ -56,6 +56,7 @@ IDLE_TICK_S = 0.01
 MAX_STREAM_HZ = 500.0
 SEND_TIMEOUT_S = 1.0
 BIND_ERROR_EXIT = 3
+TOOL_MOTION_OUTPUTS = frozenset({"actual_TCP_speed", "target_TCP_speed", "actual_tool_accelerometer"})
 FAULT_KINDS = ("protective_stop", "emergency_stop", "program_stop", "drop", "freeze")
 
 
@@ -203,6 +204,7 @@ class RTDEConnection:
             recipe = rp.Recipe.build(1, rp.split_names(body), rp.OUTPUT_TYPES)
             if recipe.known:
                 self.outputs = _OutputPlan(recipe)
+                self.server.update_tool_motion_outputs()
                 frequency = frequency if 0 < frequency <= MAX_STREAM_HZ else MAX_STREAM_HZ
                 self.period_s = 1.0 / frequency
             self.send(rp.CONTROL_PACKAGE_SETUP_OUTPUTS, recipe.setup_reply())
@@ -265,6 +267,7 @@ class ControllerServer:
             # this process exits; the creator owns it
             resource_tracker.unregister(self.shared_pose._shm._name, "shared_memory")
         sim.on_network_fault = self._network_fault
+        sim.tool_motion_outputs = False
 
     # -------------------------------------------------------------- setup
     def bind(self) -> None:
@@ -320,6 +323,15 @@ class ControllerServer:
             for name in [n for n, owner in self.input_owners.items() if owner is connection]:
                 del self.input_owners[name]
         self.update_stream_period()
+        self.update_tool_motion_outputs()
+
+    def update_tool_motion_outputs(self) -> None:
+        """Tell the simulator whether any client's output recipe needs the tool's speed or accelerometer."""
+        with self.lock:
+            wanted = any(c.outputs is not None and TOOL_MOTION_OUTPUTS & set(c.outputs.recipe.names)
+                         for c in self.rtde_connections)
+        with self.sim.lock:
+            self.sim.tool_motion_outputs = wanted
 
     def claim_inputs(self, connection: RTDEConnection, names: list[str]) -> set[str]:
         """Give ``connection`` the input variables ``names``; return those another live connection owns (then
@@ -347,7 +359,7 @@ class ControllerServer:
             snap = self.sim.step(now)
             connections = []
             if self.shared_pose is not None:
-                self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"])
+                self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"], snap["joint_state"])
             if not self.frozen:
                 with self.lock:
                     # receive-only clients first: a client must never see 'done' on its control connection

@@ -83,6 +83,24 @@ class Trapezoid:
         td = t - self._t_acc - self._t_cruise
         return s_acc + peak * self._t_cruise + peak * td - 0.5 * a * td * td
 
+    def acceleration_at(self, t: float) -> float:
+        """Return d²s/dt² at t: +a while accelerating, 0 cruising or at rest, −a while decelerating (phases
+        half-open on the right, so the value at a phase boundary is the next phase's)."""
+        if t < 0.0 or t >= self.duration_s or self._peak <= 0.0:
+            return 0.0
+        if t < self._t_acc:
+            return self.acceleration
+        if t < self._t_acc + self._t_cruise:
+            return 0.0
+        return -self.acceleration
+
+    def next_switch_s(self, t: float) -> float:
+        """Return the time from t to the next change of acceleration (inf when none is left)."""
+        for boundary in (self._t_acc, self._t_acc + self._t_cruise, self.duration_s):
+            if boundary > t:
+                return boundary - t
+        return math.inf
+
     def speed_at(self, t: float) -> float:
         """Return ds/dt at t."""
         a, v0, peak = self.acceleration, self.initial_speed, self._peak
@@ -144,6 +162,11 @@ class Motion:
         """Return (q, qd) at t, or None when the path leaves the reachable workspace."""
         raise NotImplementedError
 
+    def acceleration(self, t: float) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """Return (q̈ at t (rad/s²), time to the next change of q̈ (s), q̈ after that change), or None when the
+        motion has no closed form for it (moveL: the caller differentiates q̇)."""
+        return None
+
     def stopping(self, t: float, deceleration: float) -> "Motion":
         """Return a motion that decelerates along the same path from time t at ``deceleration`` (path units/s²)."""
         return _Stopping(self, t, deceleration)
@@ -170,6 +193,11 @@ class JointMove(Motion):
 
     def sample(self, t: float):
         return self.at_distance(self.profile.position(t), self.profile.speed_at(t))
+
+    def acceleration(self, t: float):
+        switch = self.profile.next_switch_s(t)
+        after = self.profile.acceleration_at(t + switch) if math.isfinite(switch) else 0.0
+        return self.direction * self.profile.acceleration_at(t), switch, self.direction * after
 
 
 class LinearMove(Motion):
@@ -228,6 +256,13 @@ class _Stopping(Motion):
         if isinstance(self.base, LinearMove):
             return self.base.at_distance(s, self.t_stop + t)
         return self.base.at_distance(s, ds)
+
+    def acceleration(self, t: float):
+        if not isinstance(self.base, JointMove):
+            return None
+        switch = self.profile.next_switch_s(t)
+        after = self.profile.acceleration_at(t + switch) if math.isfinite(switch) else 0.0
+        return self.base.direction * self.profile.acceleration_at(t), switch, self.base.direction * after
 
 
 def within_joint_limits(model: URModel, q: np.ndarray) -> bool:

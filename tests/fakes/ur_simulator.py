@@ -20,9 +20,11 @@ import numpy as np
 
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
+from tests.fakes.rigid_body import flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
+from tests.fakes.world import JointState
 
 # robot_mode (docs/protocols-ur.md)
 ROBOT_MODE_POWER_OFF, ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = 3, 4, 5, 7
@@ -51,6 +53,10 @@ SCRIPT_COMPILE_DELAY_S = 0.05
 MIN_SETTLE_S = 0.012
 """'Done' is signalled at least this long (and 2.5 stream periods) after the final state is published (§7.11)."""
 STEADY_SPEED_RAD_S = 1e-6
+STANDARD_GRAVITY_M_S2 = 9.81
+MOUNT_GRAVITY_M_S2 = {"floor": (0.0, 0.0, -STANDARD_GRAVITY_M_S2), "wall": (-STANDARD_GRAVITY_M_S2, 0.0, 0.0),
+                      "ceiling": (0.0, 0.0, STANDARD_GRAVITY_M_S2)}
+"""The gravity vector in the base frame the controller assumes for each mount (RTDE ``target_gravity``), m/s²."""
 
 _PATH_LINE = re.compile(
     r"^\s*(movej|movel|movep)\(\s*(p?)\[([-+0-9.eE,\s]+)\]\s*,\s*a\s*=\s*([-+0-9.eE]+)\s*,\s*v\s*=\s*([-+0-9.eE]+)"
@@ -119,6 +125,9 @@ class URSimulator:
         if not within_joint_limits(model, self.q):
             raise ValueError(f"initial joint angles {self.q.tolist()} are outside the {model.name} joint limits")
         self.qd = np.zeros(6)
+        self.qdd = np.zeros(6)
+        self.qdd_switch_in_s = math.inf  # motion time until q̈ changes next, and q̈ after that
+        self.qdd_next = np.zeros(6)
         self.tcp_offset = np.zeros(6)
         self.payload_kg, self.payload_cog = 0.0, np.zeros(3)
         self.robot_mode = ROBOT_MODE_RUNNING
@@ -163,8 +172,10 @@ class URSimulator:
         self.on_network_fault = None  # callable(kind) installed by the server
         self._pose_cache_key: tuple[bytes, bytes] | None = None
         self._pose_cache: tuple[np.ndarray, np.ndarray] = (np.zeros(6), np.zeros(6))
-        self._tcp_pose_prev = self.tcp_pose()
         self.tcp_speed = np.zeros(6)
+        self.tool_motion_outputs = True
+        """Compute actual_TCP_speed and actual_tool_accelerometer each tick (the server clears it while no client's
+        output recipe asks for them: ~0.1 ms a tick while moving)."""
         self.external_ft = ExternalFTInput()
 
     # ------------------------------------------------------------------ geometry
@@ -328,7 +339,7 @@ class URSimulator:
             self._event("motion_halted", move=self._motion_number)
         self.motion = None
         self._path_queue.clear()
-        self.qd = np.zeros(6)
+        self._at_rest()
         self._write_async(running=False, progress=0)
         if self._job is not None:
             self._job = None
@@ -380,10 +391,17 @@ class URSimulator:
             self.motion_t = 0.0
         self._path_queue.clear()
 
+    def _at_rest(self) -> None:
+        self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros(6), math.inf
+
+    def motion_time_scale(self) -> float:
+        """Motion seconds per clock second now (the time scale times the speed slider; 0 = instant moves)."""
+        return self.time_scale * self.speed_slider if self.time_scale > 0 else 0.0
+
     def _advance_motion(self, now: float, dt: float) -> None:
         motion = self.motion
         if motion is None:
-            self.qd = np.zeros(6)
+            self._at_rest()
             return
         if self.time_scale <= 0:
             t = motion.duration_s
@@ -408,13 +426,20 @@ class URSimulator:
             self._event("limit_reached", move=self._motion_number)
             self._fire(Fault("protective_stop"))
             return
+        qd_before, dt_motion = self.qd, dt * self.motion_time_scale()
         self.q, self.qd = sample
+        acceleration = motion.acceleration(t)
+        if acceleration is None:  # moveL: no closed form; differentiate q̇
+            self.qdd = (self.qd - qd_before) / dt_motion if dt_motion > 0 else np.zeros(6)
+            self.qdd_switch_in_s, self.qdd_next = math.inf, self.qdd
+        else:
+            self.qdd, self.qdd_switch_in_s, self.qdd_next = acceleration
         if fired is not None:
             self.faults.remove(fired)
             self._fire(fired)
             return
         if motion.done(t):
-            self.qd = np.zeros(6)
+            self._at_rest()
             self.motion = None
             self._motion_finished_s = now
             if self._path_queue:
@@ -600,18 +625,37 @@ class URSimulator:
             self._pose_cache = (self.flange_pose(), self.tcp_pose())
         return self._pose_cache
 
+    def tool_motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return (TCP speed [v (m/s), ω (rad/s)] in the base frame, the tool accelerometer (m/s², flange frame)).
+
+        Both from the joint state (q, q̇, q̈) of the motion profile, exactly: v_tcp = v_E + ω × (base_R_flange t),
+        and the accelerometer, at the flange origin, reads the specific force base_R_flangeᵀ (a_E − g) (+g up at
+        rest, as an accelerometer does)."""
+        gravity = np.array(MOUNT_GRAVITY_M_S2[self.mount])
+        if not (np.any(self.qd) or np.any(self.qdd)):
+            base_R_flange = rotation_from_rotvec(self._poses()[0][3:6])
+            return np.zeros(6), base_R_flange.T @ -gravity
+        motion = flange_motion(self.model, self.q, self.qd, self.qdd)
+        base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
+        tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
+        return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
+
+    def joint_state(self, now: float) -> JointState:
+        """The joint state at ``now`` for the simulated sensor (see :class:`tests.fakes.world.JointState`)."""
+        return JointState(now, self.motion_time_scale(), self.q.copy(), self.qd.copy(), self.qdd.copy(),
+                          self.qdd_switch_in_s, self.qdd_next.copy())
+
     def snapshot(self, now: float, dt: float) -> dict:
         flange, tcp = self._poses()
-        if dt > 0 and (self.motion is not None or np.any(self.tcp_speed)):
-            self.tcp_speed = np.concatenate([(tcp[:3] - self._tcp_pose_prev[:3]) / dt,
-                                             rotvec_from_rotation(rotation_from_rotvec(tcp[3:6])
-                                                                  @ rotation_from_rotvec(self._tcp_pose_prev[3:6]).T) / dt])
-        self._tcp_pose_prev = tcp
-        q, qd = tuple(self.q.tolist()), tuple(self.qd.tolist())
+        if self.tool_motion_outputs:
+            self.tcp_speed, accelerometer = self.tool_motion()
+        else:
+            self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
+        q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
         moving = self.motion is not None
         running = self.robot_mode == ROBOT_MODE_RUNNING
         joint_mode = 253 if running else (255 if self.robot_mode == ROBOT_MODE_IDLE else 239)
-        gravity = {"floor": (0.0, 0.0, -9.81), "wall": (-9.81, 0.0, 0.0), "ceiling": (0.0, 0.0, 9.81)}[self.mount]
+        gravity = MOUNT_GRAVITY_M_S2[self.mount]
         safety_ok = self.safety_mode == SAFETY_NORMAL
         tcp_force = (0.0,) * 6  # the built-in sensor is not simulated
         if self.external_ft.enabled:
@@ -619,7 +663,7 @@ class URSimulator:
                                                    self.payload_kg, self.payload_cog, np.array(gravity))
         fields = {
             "timestamp": now - self.start_s,
-            "actual_q": q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": (0.0,) * 6,
+            "actual_q": q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": qdd,
             "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(tcp.tolist()),
             "actual_TCP_force": tcp_force,
             "actual_TCP_speed": tuple(self.tcp_speed.tolist()), "target_TCP_speed": tuple(self.tcp_speed.tolist()),
@@ -627,7 +671,7 @@ class URSimulator:
             "joint_temperatures": (31.0, 32.0, 33.0, 34.0, 35.0, 36.0),
             "actual_execution_time": 0.2, "robot_mode": int(self.robot_mode), "safety_mode": int(self.safety_mode),
             "safety_status": int(self.safety_mode),
-            "joint_mode": (joint_mode,) * 6, "actual_tool_accelerometer": (0.0, 0.0, 9.81),
+            "joint_mode": (joint_mode,) * 6, "actual_tool_accelerometer": tuple(accelerometer.tolist()),
             "speed_scaling": (1.0 if safety_ok and running else 0.0),
             "speed_scaling_combined": (self.speed_slider if safety_ok and running else 0.0),
             "target_speed_fraction": self.speed_slider,
@@ -642,7 +686,8 @@ class URSimulator:
         return {"seq": self.tick_seq, "fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
                 "in_int": list(self.in_int), "in_dbl": list(self.in_dbl),
                 "out_bits": list(self.out_bits), "in_bits": list(self.in_bits),
-                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": flange}
+                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": flange,
+                "joint_state": self.joint_state(now)}
 
     # ------------------------------------------------------------------ control channel views
     def state_view(self) -> dict:

@@ -1,18 +1,27 @@
 """The simulated cell's physics: a known ground truth from which every simulated device reads.
 
-One :class:`CellTruth` (sensor rotation, biases, tool mass and centre of mass, base tilt) and a
-:class:`PoseSource` (where the flange is now) define what a simulated sensor measures:
+One :class:`CellTruth` (sensor rotation and offset, biases, the tool as a rigid body, base tilt) and a
+:class:`PoseSource` (where the flange is now) define what a simulated sensor measures. At rest:
 
     F = sensor_R_flange @ flange_R_base @ gravity_base + force_bias + drift(t) + contact_force + noise
     T = center_of_mass × (sensor_R_flange @ flange_R_base @ gravity_base) + torque_bias + drift(t)
         + contact_torque + noise
 
 with drift(t) linear plus a thermal-like exponential step (:meth:`SensorPhysics.bias_at`); the tool can be swapped
-behind the software's back (:meth:`SensorPhysics.swap_tool`).
+behind the software's back (:meth:`SensorPhysics.set_tool`).
 
-The simulated UR controller runs in its own process (ur-rtde's constructors hold the GIL), so the pose it
+While the arm moves, and when the pose source also gives the joint state (q, q̇, q̈: :class:`SharedPose`) and the
+physics knows the arm's model, the gravity wrench is replaced by the full wrench of the rigid tool
+(:mod:`tests.fakes.rigid_body`: F = m (g − a_c), T = c × F − (I_c α + ω × I_c ω)), which is the same at rest.
+
+The simulated UR controller runs in its own process (ur-rtde's constructors hold the GIL), so the state it
 reports is published through :class:`SharedPose` (a seqlock over ``multiprocessing.shared_memory``); a
 simulated sensor in another process (the CAN board on python-can's in-process virtual bus) reads it there.
+Both processes stamp with ``time.monotonic()`` (one clock per machine), so the sensor evaluates the motion at
+each of its own sample times: the controller publishes, each 2 ms tick, q, q̇, q̈ of its (piecewise constant
+acceleration) motion profile and when q̈ changes next; the sensor extrapolates exactly within that.
+With a time scale s ≠ 1 the simulated cell is a time-lapse of a real-time cell: motion time runs s times as fast
+as the clocks, and the physics (and the controller's reported q̇, q̈) are those of the real-time motion.
 """
 
 from __future__ import annotations
@@ -27,7 +36,13 @@ import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2
 from ftacq.calibration import Calibration
+from ftacq.kinematics import URModel
 from ftacq.so3 import rotation_from_rotvec, rotation_zyx_deg
+from tests.fakes.rigid_body import flange_motion, tool_wrench_on_sensor
+
+MAX_EXTRAPOLATION_S = 0.05
+"""The sensor extrapolates the controller's last published state at most this far (motion time, s): a controller
+that stopped publishing (killed) leaves the arm where it last was, not drifting."""
 
 
 def gravity_base_from_tilt(mass_kg: float, alpha_deg: float, beta_deg: float) -> np.ndarray:
@@ -44,6 +59,8 @@ class CellTruth:
         sensor_rotation_zyx_deg: sensor_R_flange as Z-Y-X Euler angles (deg), as in the paper's Table I.
         force_bias_n, torque_bias_nm: sensor biases.
         mass_kg: tool mass. center_of_mass_m: tool centre of mass in the sensor frame.
+        inertia_kg_m2: the tool's inertia about its centre of mass, sensor frame (3×3, row by row).
+        sensor_offset_m: the sensor origin in the flange frame (the adapter plate's thickness along z, mostly).
         base_tilt_deg: (α, β) of the robot base against gravity (0, 0 = level floor; see gravity_base_from_tilt).
         force_noise_n, torque_noise_nm: per-channel 1σ white noise of one sample.
         drift_n_per_s, drift_nm_per_s: slow linear bias drift per channel (thermal).
@@ -57,6 +74,10 @@ class CellTruth:
     torque_bias_nm: tuple[float, float, float] = (0.12, -0.31, 0.05)
     mass_kg: float = 1.35
     center_of_mass_m: tuple[float, float, float] = (0.004, -0.012, 0.065)
+    inertia_kg_m2: tuple[tuple[float, float, float], ...] = ((0.0042, 0.0001, -0.0002),
+                                                            (0.0001, 0.0038, 0.00015),
+                                                            (-0.0002, 0.00015, 0.0019))
+    sensor_offset_m: tuple[float, float, float] = (0.0, 0.0, 0.035)
     base_tilt_deg: tuple[float, float] = (0.0, 0.0)
     force_noise_n: tuple[float, float, float] = (0.05, 0.05, 0.08)
     torque_noise_nm: tuple[float, float, float] = (0.002, 0.002, 0.0015)
@@ -77,6 +98,16 @@ class CellTruth:
     def gravity_base(self) -> np.ndarray:
         """The tool's weight in the base frame, N."""
         return gravity_base_from_tilt(self.mass_kg, *self.base_tilt_deg)
+
+    @property
+    def gravity_base_m_s2(self) -> np.ndarray:
+        """The gravity vector in the base frame, m/s² (gravity_base / mass)."""
+        return gravity_base_from_tilt(1.0, *self.base_tilt_deg)
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """The tool's inertia about its centre of mass, sensor frame (3, 3), kg·m²."""
+        return np.array(self.inertia_kg_m2, dtype=float)
 
     def calibration(self) -> Calibration:
         """Return the true calibration (at time zero, before any drift)."""
@@ -120,14 +151,51 @@ class SettablePose:
             return self._pose.copy(), self._speed
 
 
-class SharedPose:
-    """A flange pose shared between processes through shared memory, guarded by a seqlock.
+@dataclass(frozen=True)
+class JointState:
+    """The controller's joint state at one tick, as published for the sensor (SI units).
 
-    Layout (float64): [sequence, x, y, z, rx, ry, rz, joint_speed_rad_s]. The writer makes the sequence odd
-    while writing; readers retry until they see the same even sequence before and after copying.
+    Attributes:
+        stamp_s: ``time.monotonic()`` of the tick. time_scale: motion seconds per clock second (0 = instant moves).
+        q, qd, qdd: joint positions (rad), speeds (rad/s), accelerations (rad/s²) of the motion profile.
+        switch_in_s: motion time from the tick to the next change of q̈ (inf when none), qdd_next: q̈ after it.
     """
 
-    _SLOTS = 8
+    stamp_s: float
+    time_scale: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    switch_in_s: float = np.inf
+    qdd_next: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    @property
+    def at_rest(self) -> bool:
+        return not (np.any(self.qd) or np.any(self.qdd) or np.any(self.qdd_next))
+
+    def at(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return (q, q̇, q̈), each (S, 6), at clock times ``times_s`` (S,): exact for the piecewise constant q̈
+        of the controller's profiles (one change of q̈ allowed; at most :data:`MAX_EXTRAPOLATION_S` ahead)."""
+        tau = np.clip((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, 0.0, MAX_EXTRAPOLATION_S)
+        tau = tau[:, None]
+        first = np.minimum(tau, self.switch_in_s)
+        second = tau - first
+        qd_switch = self.qd + self.qdd * first
+        q = self.q + self.qd * first + 0.5 * self.qdd * first ** 2 + qd_switch * second + 0.5 * self.qdd_next * second ** 2
+        qd = qd_switch + self.qdd_next * second
+        qdd = np.where(tau < self.switch_in_s, self.qdd, self.qdd_next)
+        return q, qd, qdd
+
+
+class SharedPose:
+    """A flange pose and the joint state shared between processes through shared memory, guarded by a seqlock.
+
+    Layout (float64): [sequence, x, y, z, rx, ry, rz, joint_speed_rad_s, stamp_s, time_scale, q (6), q̇ (6),
+    q̈ (6), switch_in_s, q̈ after the switch (6)]. The writer makes the sequence odd while writing; readers retry
+    until they see the same even sequence before and after copying.
+    """
+
+    _SLOTS = 35
 
     def __init__(self, name: str | None = None, create: bool = False) -> None:
         if create:
@@ -139,26 +207,46 @@ class SharedPose:
         if create:
             self._array[:] = 0.0
             self._array[1:7] = [0.4, 0.0, 0.4, np.pi, 0.0, 0.0]
+            self._array[28] = np.inf
 
     @property
     def name(self) -> str:
         """The shared-memory block's name, to hand to another process."""
         return self._shm.name
 
-    def set(self, pose: np.ndarray, joint_speed_rad_s: float = 0.0) -> None:
-        """Publish a pose (writer side; one writer only)."""
+    def set(self, pose: np.ndarray, joint_speed_rad_s: float = 0.0, state: JointState | None = None) -> None:
+        """Publish a pose and optionally the joint state (writer side; one writer only)."""
         seq = self._array[0]
         self._array[0] = seq + 1.0
         self._array[1:7] = pose
         self._array[7] = joint_speed_rad_s
+        if state is None:
+            self._array[8:35] = 0.0
+            self._array[28] = np.inf
+        else:
+            self._array[8], self._array[9] = state.stamp_s, state.time_scale
+            self._array[10:16], self._array[16:22], self._array[22:28] = state.q, state.qd, state.qdd
+            self._array[28], self._array[29:35] = state.switch_in_s, state.qdd_next
         self._array[0] = seq + 2.0
 
-    def read(self) -> tuple[np.ndarray, float]:
+    def _copy(self) -> np.ndarray:
         while True:
             before = self._array[0]
-            values = self._array[1:8].copy()
+            values = self._array.copy()
             if before == self._array[0] and int(before) % 2 == 0:
-                return values[:6], float(values[6])
+                return values
+
+    def read(self) -> tuple[np.ndarray, float]:
+        values = self._copy()
+        return values[1:7], float(values[7])
+
+    def read_state(self) -> tuple[np.ndarray, float, JointState | None]:
+        """Return (pose, joint speed norm, joint state or None when the writer published none)."""
+        v = self._copy()
+        state = None
+        if v[8] > 0.0:
+            state = JointState(float(v[8]), float(v[9]), v[10:16], v[16:22], v[22:28], float(v[28]), v[29:35])
+        return v[1:7], float(v[7]), state
 
     def close(self) -> None:
         """Detach (and unlink, if this instance created the block). Safe to call twice."""
@@ -176,6 +264,8 @@ class SensorPhysics:
     """Computes the simulated sensor's true wrench from the pose source (thread-safe, seeded).
 
     ``contact_wrench`` (sensor frame, N and N·m) is added while set: tests use it to disturb a pose.
+    ``robot`` (the arm's model) and a pose source with ``read_state`` (:class:`SharedPose`) turn on the tool's
+    inertial wrench while the arm moves; ``rate_hz`` spaces the samples of one ``sample(n)`` call in time.
     """
 
     truth: CellTruth
@@ -183,6 +273,8 @@ class SensorPhysics:
     seed: int = 0
     contact_wrench: np.ndarray = field(default_factory=lambda: np.zeros(6))
     start_time_s: float = field(default_factory=time.monotonic)
+    robot: URModel | None = None
+    rate_hz: float = 1000.0
 
     def __post_init__(self) -> None:
         self._rng = np.random.default_rng(self.seed)
@@ -190,35 +282,62 @@ class SensorPhysics:
         self._noise_sigma = np.array(self.truth.force_noise_n + self.truth.torque_noise_nm)
         self._drift = np.array(self.truth.drift_n_per_s + self.truth.drift_nm_per_s)
         self._bias = np.array(self.truth.force_bias_n + self.truth.torque_bias_nm)
-        self._gravity_base = self.truth.gravity_base
         self._sensor_rotation = self.truth.sensor_rotation
-        self._com = np.array(self.truth.center_of_mass_m)
+        self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
 
-    def bias_at(self, elapsed_s: float) -> np.ndarray:
-        """Return the true biases (6,) [N, N·m] ``elapsed_s`` seconds after start: linear drift plus thermal step."""
+    def set_tool(self, mass_kg: float, center_of_mass_m) -> None:
+        """Put another tool on the sensor (mass kg, centre of mass m in the sensor frame) without telling anyone:
+        every later sample follows it. ``set_tool(truth.mass_kg, truth.center_of_mass_m)`` puts the true one back."""
+        gravity_base = gravity_base_from_tilt(float(mass_kg), *self.truth.base_tilt_deg)
+        self._tool = (float(mass_kg), gravity_base, np.array(center_of_mass_m, dtype=float).reshape(3))  # atomic
+
+    def bias_at(self, elapsed_s):
+        """Return the true biases [N, N·m] ``elapsed_s`` seconds after start (a float: (6,); an (S, 1) array:
+        (S, 6)): linear drift plus the thermal step."""
         t = self.truth
         step = np.array(t.thermal_step_n + t.thermal_step_nm)
-        since = max(elapsed_s - t.thermal_step_at_s, 0.0)
+        since = np.maximum(np.asarray(elapsed_s, dtype=float) - t.thermal_step_at_s, 0.0)
         return self._bias + self._drift * elapsed_s + step * -np.expm1(-since / t.thermal_time_constant_s)
 
-    def swap_tool(self, mass_kg: float, center_of_mass_m) -> None:
-        """Put another tool on the simulated sensor (mass, centre of mass in the sensor frame) without telling
-        the software: the knob for "a calibration that no longer fits the tool"."""
-        self._gravity_base = gravity_base_from_tilt(mass_kg, *self.truth.base_tilt_deg)
-        self._com = np.array(center_of_mass_m, dtype=float)
-
     def noiseless_wrench(self, pose: np.ndarray, elapsed_s: float = 0.0) -> np.ndarray:
-        """Return the wrench (6,) without noise at a flange pose, ``elapsed_s`` seconds after start (drift)."""
+        """Return the wrench (6,) without noise at a flange pose, at rest, ``elapsed_s`` seconds after start (drift)."""
+        _mass, gravity_base, com = self._tool
         base_R_flange = rotation_from_rotvec(np.asarray(pose)[3:6])
-        gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ self._gravity_base)
-        torque = np.cross(self._com, gravity_sensor)
+        gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
+        torque = np.cross(com, gravity_sensor)
         return np.concatenate([gravity_sensor, torque]) + self.bias_at(elapsed_s) + self.contact_wrench
 
+    def tool_wrench(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Return the wrench (S, 6) of the moving tool alone (gravity and inertia; no bias, drift, contact, noise)."""
+        if self.robot is None:
+            raise ValueError("the tool's inertial wrench needs the robot model (SensorPhysics.robot)")
+        truth = self.truth
+        mass, _gravity_base, com = self._tool  # the tool on the sensor now (set_tool)
+        return tool_wrench_on_sensor(flange_motion(self.robot, q, qd, qdd), truth.gravity_base_m_s2,
+                                     self._sensor_rotation, np.array(truth.sensor_offset_m), mass, com,
+                                     truth.inertia)
+
+    def noiseless_wrench_moving(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                                elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:
+        """Return the wrench (S, 6) without noise for joint states (S, 6) at ``elapsed_s`` after start (drift)."""
+        elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
+        return self.tool_wrench(q, qd, qdd) + self.bias_at(elapsed) + self.contact_wrench
+
     def sample(self, n: int) -> np.ndarray:
-        """Return ``n`` noisy samples (n, 6) at the current pose and time."""
-        pose, joint_speed = self.pose_source.read()
-        elapsed = time.monotonic() - self.start_time_s
-        mean = self.noiseless_wrench(pose, elapsed)
+        """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample)."""
+        reader = getattr(self.pose_source, "read_state", None)
+        if reader is not None:
+            pose, joint_speed, state = reader()
+        else:
+            (pose, joint_speed), state = self.pose_source.read(), None
+        now = time.monotonic()
+        elapsed = now - self.start_time_s
+        if state is None or self.robot is None or state.at_rest:
+            mean = self.noiseless_wrench(pose, elapsed)
+        else:
+            times = now + np.arange(n) / self.rate_hz
+            q, qd, qdd = state.at(times)
+            mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
         sigma = self._noise_sigma * (1.0 + self.truth.motion_noise_gain * joint_speed)
         with self._lock:
             noise = self._rng.standard_normal((n, 6))

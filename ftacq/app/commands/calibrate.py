@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from ftacq.app.dashboard.sinks import add_sink_args
+from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 
 log = logging.getLogger(__name__)
@@ -37,7 +38,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(moveJ at the configured speed and acceleration), average the sensor at each still pose, "
                     "then identify and validate the calibration. Writes RUN_DIR/poses.csv (one row per pose, "
                     "as measured), run.json, calibration.json and report.md. Ctrl-C stops the robot and keeps "
-                    "the data; resume with --resume RUN_DIR.")
+                    "the data; resume with --resume RUN_DIR.",
+        **examples("ftacq calibrate --sim --yes  # the whole procedure on the simulated cell",
+                   "ftacq calibrate --config CELL.toml --dry-run  # print the checked plan, move nothing",
+                   "ftacq calibrate --resume runs/20260101-120000  # finish a stopped run"))
     parser.add_argument("--config", type=Path, metavar="CELL.toml",
                         help="cell configuration (ftacq config init); with --sim, its poses, sampling and robot "
                              "model are simulated (robot.host and sensor.url are replaced by the simulated cell's)")
@@ -59,6 +63,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--model", default="UR5e", help="simulated UR model without --config (default %(default)s)")
     sim.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor",
                      help="simulated mount without --config (default %(default)s)")
+    sim.add_argument("--sim-wrong-tool", action="store_true",
+                     help="fault: the validation poses are measured with a part (0.2 kg) left in the gripper, "
+                          "unknown to ftacq; the verdict must be FAIL")
     viewer = parser.add_argument_group("live view")
     viewer.add_argument("--rerun", action="store_true",
                         help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
@@ -70,9 +77,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _sim_config(args: argparse.Namespace):
-    from ftacq.app.config import CellConfig, RobotConfig
+    from ftacq.app.config import config_from_dict
 
-    return CellConfig(robot=RobotConfig(host="(simulated)", model=args.model, mount=args.mount), source="--sim")
+    # validated like a file's values: `--model UR99` is a one-line error, not a traceback later
+    return config_from_dict({"robot": {"host": "(simulated)", "model": args.model, "mount": args.mount}},
+                            "--sim (--model/--mount)")
 
 
 def sim_sampling(sampling, time_scale: float):
@@ -136,17 +145,26 @@ def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.app.config import config_from_dict, load_config
-    from procedures.calibration import CalibrationProcedure, Move, ProcedureOptions, calibration_steps, \
-        check_steps, count_measurements
+    from procedures.calibration import (
+        CalibrationProcedure,
+        Move,
+        ProcedureOptions,
+        calibration_steps,
+        check_steps,
+        count_measurements,
+    )
     from procedures.plan import Plan, format_plan, make_plan
     from procedures.progress import ProgressListener
     from procedures.run_folder import RunFolder, RunFolderWriter
 
+    from ftacq.validation import check_number, check_output_file, check_output_folder
+
     if not (args.config or args.sim or args.resume):
         raise InputError("give --config CELL.toml, --sim, or --resume RUN_DIR")
     time_scale = DEFAULT_SIM_TIME_SCALE if args.time_scale is None else args.time_scale
-    if not time_scale >= 0:
-        raise InputError(f"--time-scale {args.time_scale}: must be ≥ 0")
+    check_number(time_scale, "--time-scale", low=0.0)
+    if getattr(args, "save", None) is not None:
+        check_output_file(args.save, "--save")
 
     folder: RunFolder | None = None
     sim_info: dict = {}
@@ -154,13 +172,20 @@ def _run(args: argparse.Namespace) -> int:
         folder = RunFolder.open(args.resume)
         if folder.status == "done":
             raise InputError(f"{args.resume}: this run is already done (calibration.json is there); nothing to resume")
+        if folder.status == "running" and folder.process_alive():
+            raise InputError(f"{args.resume}: this run is still {folder.status_note}; stop it before resuming")
+        if folder.status == "interrupted":
+            _err(f"note: {args.resume}: {folder.status_note}; resuming it")
         config = config_from_dict(folder.config, str(folder.path / "run.json"))
         plan = Plan.from_json(folder.plan_json)
         sim_info = dict(folder.document.get("sim") or {})
         if args.config:
             _err(f"note: --resume uses the configuration stored in {folder.path}/run.json; {args.config} is ignored")
         if sim_info and not args.sim:
-            raise InputError(f"{args.resume}: this run was made with --sim; resume it with --sim --resume {args.resume}")
+            from ftacq.app.hints import ftacq_command
+
+            raise InputError(f"{args.resume}: this run was made with --sim; resume it with: "
+                             + ftacq_command("calibrate", "--sim", "--resume", Path(args.resume)))
     elif args.sim:
         config = load_config(args.config) if args.config else _sim_config(args)
         plan = None
@@ -172,6 +197,8 @@ def _run(args: argparse.Namespace) -> int:
                     "model": sim_info.get("model", config.robot.model),
                     "mount": sim_info.get("mount", config.robot.mount)}
     out_parent = args.out or Path(config.output.folder)
+    if folder is None:  # a new run folder will be made there: check it before the robot is connected
+        check_output_folder(out_parent, "--out" if args.out else f"{config.source}: output.folder")
 
     with contextlib.ExitStack() as stack:
         cell = None
@@ -231,15 +258,20 @@ def _run(args: argparse.Namespace) -> int:
         _err(f"run folder: {folder.path}")
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
-        progress = ProgressListener(remaining, plan.estimated_duration_s / (max(time_scale, 1.0) if args.sim else 1))
+        total = count_measurements(plan, (), drift_check)
+        estimate_s = plan.estimated_duration_s * remaining / max(total, 1)
+        progress = ProgressListener(total, estimate_s / (max(time_scale, 1.0) if args.sim else 1),
+                                    done=total - remaining)
         stack.callback(progress.close)
         listeners = [RunFolderWriter(folder), progress]
+        if cell is not None and args.sim_wrong_tool:
+            listeners.insert(0, cell.wrong_tool_listener(plan))
         if _wants_dashboard(args):
             listeners.append(_dashboard_listener(args, stack, settings.model))
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell, sensor.info)
+        return _finish(args, folder, plan, config, result, cell, options, sensor.info)
 
 
 def _as_dict(sampling) -> dict:
@@ -278,16 +310,27 @@ def _input_summary(folder, result) -> dict:
             "has_std": True, "has_count": True}
 
 
-def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
-    """Write calibration.json and the report, print the summary; raise AbortedError for a stopped/failed run."""
+def _finish(args, folder, plan, config, result, cell, options, sensor_info=None) -> int:
+    """Write calibration.json and the report, print the summary and the verdict last; raise AbortedError for a
+    stopped/failed run. Returns 1 when the verdict is FAIL (the calibration is kept but must not be used)."""
     import numpy as np
 
     from ftacq.calfile import save_calibration
     from ftacq.provenance import with_provenance
+    from ftacq.verdict import FAIL, format_verdict
+    from procedures.acceptance import run_verdict
     from procedures.report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
     truth = cell.truth.calibration() if cell is not None else None
+    verdict = None
+    try:
+        verdict = run_verdict(result, plan, options)
+        folder.update(verdict=verdict.to_dict())
+    except Exception:
+        if result.status == "done":
+            raise
+        log.warning("could not judge the %s run", result.status, exc_info=True)
     if result.identification is not None:
         calibration = result.identification.calibration
         from dataclasses import replace
@@ -300,17 +343,22 @@ def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
         if result.drift is not None:
             metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
                                        "elapsed_s": result.drift.elapsed_s}
+        if verdict is not None:
+            metadata["verdict"] = verdict.to_dict()
         calibration = with_provenance(replace(calibration, metadata=metadata), sensor_info,
                                       getattr(config.tool, "name", None))
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,
-                              title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration")
+                              title="ftacq calibration (simulated cell)" if cell is not None else "ftacq calibration",
+                              verdict=verdict)
     except Exception:
         if result.status == "done":
             raise
         log.warning("could not write the report of the %s run", result.status, exc_info=True)
-    resume = f"ftacq calibrate {'--sim ' if cell is not None else ''}--resume {folder.path}"
+    from ftacq.app.hints import ftacq_command
+
+    resume = ftacq_command("calibrate", *(["--sim"] if cell is not None else []), "--resume", folder.path)
     if result.status != "done":
         kept = len(folder.measured())  # what is on disk (a pose may be written just as the interrupt came)
         text = (f"calibration {result.status}: {result.message}\n"
@@ -349,4 +397,8 @@ def _finish(args, folder, plan, config, result, cell, sensor_info=None) -> int:
     print(f"calibration: {folder.path / CALIBRATION_JSON}")
     print(f"report:      {report}")
     print(f"poses:       {folder.path / 'poses.csv'}")
-    return 0
+    if verdict is None:
+        return 0
+    print("")
+    print(format_verdict(verdict))
+    return 1 if verdict.status == FAIL else 0

@@ -13,6 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
+
 REQUIRED_COLUMNS = ("rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
 CONTACT_COLUMNS = ("contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz")
 
@@ -26,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "For every row of a CSV with columns rx, ry, rz (flange rotation vector, rad) and fx..tz (N, N·m), "
             "write the row followed by contact_fx..contact_tz, the compensated contact wrench."
         ),
+        **examples("ftacq compensate calibration.json poses.csv -o contact.csv",
+                   "ftacq compensate calibration.json monitor.csv | head"),
     )
     parser.add_argument("calibration", metavar="CALIBRATION.json", help="calibration written by ftacq identify")
     parser.add_argument("poses", metavar="POSES.csv", help="pose record or sensor record CSV")
@@ -42,6 +46,11 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.posefile import numeric_column, read_csv_table
     from ftacq.so3 import rotation_from_rotvec
 
+    from ftacq.errors import InputError
+    from ftacq.validation import MAX_FORCE_N, MAX_ROTATION_VECTOR_RAD, MAX_TORQUE_NM, check_output_file
+
+    if args.output:
+        check_output_file(args.output, "-o/--output")
     calibration = load_calibration(args.calibration)
     path = Path(args.poses)
     header, rows, lines = read_csv_table(path, REQUIRED_COLUMNS)
@@ -53,6 +62,18 @@ def run(args: argparse.Namespace) -> int:
     values = np.zeros((len(known_rows), 9))
     for k, name in enumerate(REQUIRED_COLUMNS):
         values[:, k] = numeric_column(path, header, known_rows, known_lines, name)
+    # beyond a robot's orientations or a sensor's range: refused with the line, never written as empty cells
+    limits = np.array([MAX_ROTATION_VECTOR_RAD] * 3 + [MAX_FORCE_N] * 3 + [MAX_TORQUE_NM] * 3)
+    bad = np.abs(values) > limits
+    with np.errstate(over="ignore"):  # a norm of 1e300 is inf, and refused
+        bad[:, :3] |= (np.linalg.norm(values[:, :3], axis=1) > MAX_ROTATION_VECTOR_RAD)[:, None]
+    if bad.any():
+        row, column = (int(v) for v in np.argwhere(bad)[0])
+        name = REQUIRED_COLUMNS[column]
+        why = ("the rotation vector is longer than two turns" if column < 3
+               else f"|value| > {limits[column]:g}, beyond any F/T sensor's range (wrong units?)")
+        raise InputError(f"{path}: line {known_lines[row]}, column {name!r}: value "
+                         f"{known_rows[row][header.index(name)]!r}: {why}")
     flange_R_base = np.swapaxes(rotation_from_rotvec(values[:, :3]), -1, -2)
     contact = np.full((len(rows), 6), np.nan)
     if len(known_rows):

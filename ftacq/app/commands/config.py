@@ -10,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
 from ftacq.errors import InputError
 
 DEFAULT_CONFIG_PATH = Path("CELL.toml")
@@ -20,16 +21,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "config", help="write or check a cell configuration (CELL.toml)",
         description="Write a commented example CELL.toml (robot, sensor, tool, poses, sampling, output; SI units), "
-                    "or validate one.")
+                    "or validate one.",
+        **examples("ftacq config init CELL.toml  # then set robot.host, sensor.url and the tool",
+                   "ftacq config check CELL.toml"))
     actions = parser.add_subparsers(dest="config_action", metavar="ACTION", required=True)
     init = actions.add_parser("init", help="write a commented example CELL.toml",
-                              description="Write a commented example configuration with every key at its default.")
+                              description="Write a commented example configuration with every key at its default.",
+                              **examples("ftacq config init  # writes CELL.toml here",
+                                         "ftacq config init cells/ur5e-lab.toml"))
     init.add_argument("path", nargs="?", type=Path, default=DEFAULT_CONFIG_PATH,
                       help="where to write it (default %(default)s)")
     init.add_argument("--force", action="store_true", help="overwrite an existing file")
     init.set_defaults(func=run_init)
     check = actions.add_parser("check", help="validate a CELL.toml and print its values",
-                               description="Validate every key (type, range, unknown keys); exit 2 on a bad value.")
+                               description="Validate every key (type, range, unknown keys); exit 2 on a bad value.",
+                               **examples("ftacq config check CELL.toml"))
     check.add_argument("path", type=Path, help="the configuration file")
     check.set_defaults(func=run_check)
 
@@ -39,11 +45,14 @@ def run_init(args: argparse.Namespace) -> int:
     from ftacq.app.config import example_config_text
     from ftacq.fileio import atomic_write
 
+    from ftacq.validation import check_output_file
+
     path: Path = args.path
-    if path.exists() and not args.force:
-        raise InputError(f"{path}: already exists; pass --force to overwrite it")
     if path.exists() and path.is_dir():
         raise InputError(f"{path}: is a folder; give a file name such as {path / DEFAULT_CONFIG_PATH}")
+    if path.exists() and not args.force:
+        raise InputError(f"{path}: already exists; pass --force to overwrite it")
+    check_output_file(path, "configuration file")
     with atomic_write(path) as handle:
         handle.write(example_config_text())
     print(f"wrote {path}: edit robot.host, robot.model, sensor.url and the tool cylinder, then run "

@@ -7,6 +7,10 @@ import hashlib
 import sys
 from pathlib import Path
 
+from ftacq.app.helptext import examples
+
+REVISIT_SUFFIX = "-revisit"
+"""A D row labelled ``<label>-revisit`` measures pose ``<label>`` again: their difference is the bias drift."""
 HELD_OUT_SETS = ("V", "D")
 """Poses of these sets (column ``set``: V validation, D the procedure's drift-check revisit) are held out of the
 fit, as the calibration procedure does, and used to report the compensation error."""
@@ -24,6 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "compensation error is reported. "
             "Nothing is written if the input is bad."
         ),
+        **examples("ftacq identify runs/20260101-120000/poses.csv -o calibration.json",
+                   "ftacq identify poses.csv -o calibration.json --mount ceiling",
+                   "ftacq identify poses.csv -o closed-form.json --no-refine  # the paper's closed form only"),
     )
     parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
@@ -63,10 +70,18 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.calibration import Calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
-    from ftacq.posefile import read_pose_csv
     from ftacq.identification.diagnostics import MIN_POSES
+    from ftacq.posefile import read_pose_csv
     from ftacq.report import format_identification_report, validation_errors
+    from ftacq.verdict import FAIL, format_verdict
 
+    from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
+    from ftacq.validation import check_number, check_output_file
+
+    # options and the output path first: nothing is computed for a run that cannot be kept
+    check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
+                 low_exclusive=True, high_exclusive=True)
+    check_output_file(args.output, "-o/--output")
     path = Path(args.poses)
     record = read_pose_csv(path)
     held_out = np.array([name.strip().upper() in HELD_OUT_SETS for name in record.sets])
@@ -84,11 +99,14 @@ def run(args: argparse.Namespace) -> int:
         )
     except IdentificationError as error:
         raise InputError(f"{path}: cannot identify a calibration: {error}") from error
-    if fit_record is not record:
-        validation = validation_errors(result.calibration, record.select(held_out))
+    held_out_record = record.select(held_out) if fit_record is not record else None
+    if held_out_record is not None:
+        validation = validation_errors(result.calibration, held_out_record)
+    verdict = _verdict(result, held_out_record, record)
     metadata = dict(result.calibration.metadata)
     if validation is not None:
         metadata["validation"] = validation
+    metadata["verdict"] = verdict.to_dict()
     metadata["input"] = {
         "file": str(path),
         "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
@@ -113,4 +131,29 @@ def run(args: argparse.Namespace) -> int:
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
     print(f"wrote {args.output}")
-    return 0
+    print("")
+    print(format_verdict(verdict))
+    return 1 if verdict.status == FAIL else 0
+
+
+def _verdict(result, held_out_record, record):
+    """Judge the identification: held-out poses (V, D), the drift seen by each D row against the pose it
+    revisits (label ``<first>-revisit``), conditioning and outliers (ftacq.verdict)."""
+    import numpy as np
+
+    from ftacq.app.config import SamplingConfig
+    from ftacq.verdict import drift_finding, identification_findings, judge
+
+    findings = identification_findings(result, held_out_record)
+    labels = list(record.labels)
+    for i, (label, set_name) in enumerate(zip(labels, record.sets)):
+        first = label[: -len(REVISIT_SUFFIX)] if label.endswith(REVISIT_SUFFIX) else None
+        if set_name.strip().upper() != "D" or first not in labels:
+            continue
+        j = labels.index(first)
+        t_end = record.extra.get("t_end_s")
+        elapsed = float(t_end[i] - t_end[j]) if t_end is not None else float("nan")
+        drift = np.asarray(record.wrench[i]) - np.asarray(record.wrench[j])
+        findings.insert(1, drift_finding(drift, elapsed, SamplingConfig.drift_warn_force_n,
+                                         SamplingConfig.drift_warn_torque_nm, first))
+    return judge(findings)

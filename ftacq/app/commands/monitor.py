@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ftacq.errors import InputError
+from ftacq.app.helptext import examples
 
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
@@ -108,6 +108,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Stream the sensor at full rate, compensate gravity with the robot's latest orientation and "
                     "show raw and compensated wrenches, the arm in 3-D and sensor health in Rerun. Reads the "
                     "robot, never moves it. Stop with Ctrl-C or --seconds.",
+        **examples("ftacq monitor --sim --seconds 20",
+                   "ftacq monitor --config CELL.toml --calibration runs/20260101-120000/calibration.json",
+                   "ftacq monitor --config CELL.toml --calibration calibration.json --record monitor.csv --seconds 60"),
     )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--config", type=Path, metavar="CELL.toml",
@@ -149,8 +152,15 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.kinematics import ur_model
     from procedures.monitor import LiveMonitor
 
-    if args.seconds is not None and not args.seconds > 0:
-        raise InputError(f"--seconds {args.seconds}: must be a positive number of seconds")
+    from ftacq.validation import check_number, check_output_file
+
+    if args.seconds is not None:
+        check_number(args.seconds, "--seconds", low=0.0, low_exclusive=True)
+    # output paths before any device is opened: a run whose record cannot be kept does not start
+    if args.record is not None:
+        check_output_file(args.record, "--record")
+    if getattr(args, "save", None) is not None:
+        check_output_file(args.save, "--save")
     with contextlib.ExitStack() as stack:
         calibration = None
         if args.calibration is not None:

@@ -14,16 +14,20 @@ import json
 
 import numpy as np
 
+from ftacq.app.helptext import examples
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``robot`` sub-command with its ``info`` action."""
     parser = subparsers.add_parser("robot", help="inspect a Universal Robots controller (never moves it)",
                                    description="Read a UR controller's identity and state over the UR "
-                                               "Dashboard Server and RTDE (receive only).")
+                                               "Dashboard Server and RTDE (receive only).",
+                                   **examples("ftacq robot info 192.168.1.10"))
     actions = parser.add_subparsers(dest="robot_action", metavar="ACTION", required=True)
     info = actions.add_parser("info", help="model, software, serial number, joints, flange pose, modes",
                               description="Print the controller's model, software version, serial number, joint "
-                                          "angles, flange pose and modes. Never moves the arm.")
+                                          "angles, flange pose and modes. Never moves the arm.",
+                              **examples("ftacq robot info 192.168.1.10", "ftacq robot info ur5e.local --json"))
     info.add_argument("host", help="controller IP address or host name, e.g. 192.168.1.10")
     info.add_argument("--model", default=None, help="UR model (e.g. UR5e) when the UR Dashboard Server cannot tell")
     info.add_argument("--json", action="store_true", help="print one JSON object instead of a table")

@@ -4,7 +4,9 @@
   status and the mean wrench over a short window.
 - ``ftacq sensor record URL --seconds S -o FILE.csv``: one CSV row per sample (``t,fx,fy,fz,tx,ty,tz,status``
   then ``saturated,seq`` and raw ``count_*`` columns) in s, N and N·m; written atomically; Ctrl-C keeps what was
-  recorded; prints a summary with the stream's health counters.
+  recorded; prints a summary with the stream's health counters and its gaps (how many, the longest, samples
+  lost). Exits 1 when the sensor lost more than ``--max-lost-fraction`` (default 0.1 %) of the samples it
+  produced during the recording (the CSV still keeps every sample received).
 - ``ftacq sensor bias URL``: tare the sensor and print the residual mean.
 
 Sensors come from :func:`drivers.sensor.open_sensor` (``netft://…`` or ``can://…``).
@@ -18,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from ftacq.app.helptext import examples
 from ftacq.errors import DeviceError, InputError
 
 INFO_WINDOW_S = 0.5
@@ -29,6 +32,10 @@ READ_TIMEOUT_S = 1.0
 CSV_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "status", "saturated", "seq",
                "count_fx", "count_fy", "count_fz", "count_tx", "count_ty", "count_tz")
 CSV_FORMATS = ["%.6f"] + ["%.9g"] * 6 + ["%d"] * 9
+MAX_LOST_FRACTION = 0.001
+"""Default ``record --max-lost-fraction``: the recording fails (exit 1) when more than this fraction of the samples
+the sensor produced (received + lost) were lost. 0.1 % is 7 samples a second at 7 kHz: more than a healthy link
+loses, far less than any silence of the link."""
 BIAS_WARNING = ("warning: this zero includes the tool's weight at the current orientation: every calibration made "
                 "before it (and every one made after it, once the box is power-cycled or biased again) no longer "
                 "fits its biases. Calibrate again, or to re-zero with the tool on while keeping a calibration "
@@ -42,21 +49,29 @@ def register(subparsers) -> None:
     """Add ``ftacq sensor {info,record,bias}``."""
     parser = subparsers.add_parser("sensor", help="inspect, record or bias an ATI F/T sensor",
                                    description="Look at, record and bias an ATI F/T sensor named by URL "
-                                               "(netft:// or can://).")
+                                               "(netft:// or can://).",
+                                   **examples("ftacq sensor info netft://192.168.1.1",
+                                              "ftacq sensor record can://pcan/PCAN_USBBUS1 --seconds 10 -o still.csv"))
     commands = parser.add_subparsers(dest="sensor_command", metavar="ACTION")
     url_help = ("sensor URL: netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N&rate_hz=R] or "
                 "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000]")
 
-    info = commands.add_parser("info", help="serial, units, counts per unit, rate, status")
+    info = commands.add_parser("info", help="serial, units, counts per unit, rate, status",
+                               **examples("ftacq sensor info netft://192.168.1.1",
+                                          "ftacq sensor info can://socketcan/can0 --seconds 5"))
     info.add_argument("url", help=url_help)
     info.add_argument("--seconds", type=float, default=INFO_WINDOW_S, metavar="S",
                       help="measure rate and mean wrench over S seconds (default %(default)s)")
     info.set_defaults(func=run_info)
 
-    record = commands.add_parser("record", help="record samples to CSV (s, N, N·m)")
+    record = commands.add_parser("record", help="record samples to CSV (s, N, N·m)",
+                                 **examples("ftacq sensor record netft://192.168.1.1 --seconds 10 -o still.csv"))
     record.add_argument("url", help=url_help)
     record.add_argument("--seconds", type=float, required=True, metavar="S", help="record for S seconds")
     record.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.csv", help="CSV file to write")
+    record.add_argument("--max-lost-fraction", type=float, default=MAX_LOST_FRACTION, metavar="F",
+                        help="exit 1 when more than this fraction of the samples the sensor produced were lost "
+                             "(default %(default)g = 0.1 %%)")
     record.set_defaults(func=run_record)
 
     bias = commands.add_parser(
@@ -64,7 +79,8 @@ def register(subparsers) -> None:
         description="Zero the sensor at the current load (the Net F/T box's own bias, RDT command 0x0042; on CAN a "
                     "host-side zero). The zero includes the tool's weight at this orientation, so every "
                     "calibration made before it no longer fits: calibrate again after a box bias. To re-zero "
-                    "with the tool on and keep a calibration valid, use `ftacq tare` instead.")
+                    "with the tool on and keep a calibration valid, use `ftacq tare` instead.",
+        **examples("ftacq sensor bias netft://192.168.1.1"))
     bias.add_argument("url", help=url_help)
     bias.set_defaults(func=run_bias)
 
@@ -87,18 +103,7 @@ def _positive_seconds(value: float, flag: str = "--seconds") -> float:
 
 def describe_status(sensor, status: int) -> str:
     """Return ``0x…: names`` for a status word of this sensor's transport."""
-    if sensor.info.transport == "netft":
-        from drivers.netft import status_text
-
-        return f"{status:#010x} ({status_text(status, getattr(sensor, 'status_map', 'netft'))})"
-    if sensor.info.transport == "can":
-        from drivers.ati_can import decode_status
-
-        names = decode_status(status & 0xFFFF)
-        if status & 0x0002_0000:
-            names = ["gage saturated", *names]
-        return f"{status:#010x} ({', '.join(names) or 'ok'})"
-    return f"{status:#010x}"
+    return sensor.describe_status(status)
 
 
 def health_line(health) -> str:
@@ -156,6 +161,9 @@ def run_record(args: argparse.Namespace) -> int:
     from ftacq.fileio import atomic_write
 
     seconds = _positive_seconds(args.seconds)
+    max_lost = args.max_lost_fraction
+    if not 0.0 <= max_lost <= 1.0:
+        raise InputError(f"--max-lost-fraction {max_lost}: must be a fraction between 0 and 1")
     if args.output.is_dir():
         raise InputError(f"-o {args.output}: is a folder; give a file name such as {args.output / 'wrench.csv'}")
     sensor = _open(args.url)
@@ -197,6 +205,10 @@ def run_record(args: argparse.Namespace) -> int:
     print(f"ftacq sensor record: {samples} samples in {duration_s:.2f} s ({rate_hz:.0f} Hz) → {args.output}"
           + ("; stopped by Ctrl-C (kept what was recorded)" if interrupted else ""))
     print(f"health: {health_line(health)}" + (f", read timeouts {read_timeouts}" if read_timeouts else ""))
+    produced = samples + health.lost
+    lost_fraction = health.lost / produced if produced else 0.0
+    print(f"gaps {health.gaps}, longest {health.longest_gap_s:.3f} s, lost {health.lost} samples "
+          f"({lost_fraction:.3%} of the {produced} the sensor produced)")
     if fault is not None:
         print(f"ftacq sensor record: stopped by a sensor fault (kept what was recorded): {fault}", file=sys.stderr)
         return 1
@@ -204,6 +216,11 @@ def run_record(args: argparse.Namespace) -> int:
         return 130
     if samples == 0:
         print(f"ftacq sensor record: no samples received from {args.url} in {seconds:g} s", file=sys.stderr)
+        return 1
+    if lost_fraction > max_lost:
+        print(f"ftacq sensor record: {health.lost} samples lost beyond the threshold ({lost_fraction:.3%} > "
+              f"{max_lost:.3%}, --max-lost-fraction) in {health.gaps} gap(s), the longest "
+              f"{health.longest_gap_s:.3f} s; {args.output} keeps every sample received", file=sys.stderr)
         return 1
     return 0
 

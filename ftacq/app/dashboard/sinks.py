@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Callable
 from urllib.parse import quote
 
+from ftacq.app.hints import command
 from ftacq.errors import DeviceConnectionError
 
 log = logging.getLogger(__name__)
@@ -142,6 +143,14 @@ def _stop_process_group(process: subprocess.Popen, timeout_s: float = RECORDING_
     except subprocess.TimeoutExpired:
         signal_group(getattr(signal, "SIGKILL", signal.SIGTERM))
         process.wait()
+    if process.stdin is not None:
+        process.stdin.close()
+
+
+_EXIT_WITH_PARENT = ("sh", "-c", 'exec 3<&0; "$@" 3<&- & child=$!; { read -r _ <&3; kill -TERM 0; } & '
+                     'wait "$child"; kill -TERM 0', "ftacq-viewer-guard")
+"""Runs a command in its process group and ends the group when ftacq dies, however (even SIGKILL): ftacq holds
+the write end of the guard's stdin, the kernel closes it with the process, and the guard's read then returns."""
 
 
 def _serve_web(grpc_port: int, web_port: int):
@@ -151,9 +160,9 @@ def _serve_web(grpc_port: int, web_port: int):
     DeviceConnectionError when the server does not come up (e.g. a port is taken).
     """
     process = subprocess.Popen(
-        [_rerun_executable(), "--serve-web", "--bind", LOCALHOST, "--port", str(grpc_port),
+        [*_EXIT_WITH_PARENT, _rerun_executable(), "--serve-web", "--bind", LOCALHOST, "--port", str(grpc_port),
          "--web-viewer-port", str(web_port)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,  # stdin: see _EXIT_WITH_PARENT
         start_new_session=True,  # Ctrl-C stops ftacq first; close_recording then stops the server
         env={**os.environ, "RERUN_APP_ONLY": "true"})
     if not (_wait_for_port(grpc_port, process) and _wait_for_port(web_port, process)):
@@ -200,18 +209,20 @@ def _choose_sink(args: argparse.Namespace, app_id: str) -> SinkChoice:
     port = getattr(args, "viewer_port", DEFAULT_VIEWER_PORT)
     if getattr(args, "save", None) is not None:
         path = Path(args.save)
-        return SinkChoice("save", str(path), f"rerun: saving to {path}; view it with: rerun {path}")
+        return SinkChoice("save", str(path), f"rerun: saving to {path}; view it with: {command('rerun', path)}")
     if getattr(args, "connect", None):
         return SinkChoice("connect", args.connect, f"rerun: streaming to the viewer at {args.connect}")
     if getattr(args, "serve", False):
         grpc_url = f"rerun+http://{LOCALHOST}:{port}/proxy"
         web_url = f"http://{LOCALHOST}:{getattr(args, 'web_port', DEFAULT_WEB_PORT)}/?url={quote(grpc_url, safe='')}"
-        return SinkChoice("serve", grpc_url, f"rerun: web viewer at {web_url} (native: rerun {grpc_url})", web_url)
+        return SinkChoice("serve", grpc_url, f"rerun: web viewer at {web_url} (native: {command('rerun', grpc_url)})",
+                          web_url)
     if getattr(args, "spawn", False) or has_display():
         url = f"rerun+http://{LOCALHOST}:{port}/proxy"
         return SinkChoice("spawn", url, f"rerun: streaming to a native viewer on {url}")
     path = default_rrd_path(app_id)
-    return SinkChoice("save", str(path), f"rerun: no display found, saving to {path}; view it with: rerun {path} "
+    return SinkChoice("save", str(path), f"rerun: no display found, saving to {path}; view it with: "
+                                         f"{command('rerun', path)} "
                                          "(or pass --serve / --connect URL)")
 
 

@@ -1,0 +1,58 @@
+"""The verdict of a calibration run: the core's checks (:mod:`ftacq.verdict`) fed from a procedure result.
+
+Validation uses the held-out V poses as measured (their own standard errors), drift the revisit of the first pose
+against the run's thresholds, poses the plan against what the configuration asked for and what was measured.
+A run that stopped or failed before identification gets a FAIL that says so (and how far it got).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ftacq.verdict import Verdict, drift_finding, identification_findings, judge, poses_finding
+
+VALIDATION_SET = "V"
+
+
+def wanted_counts(settings) -> dict[str, int]:
+    """Return the poses per set the configuration asked for (as the plan listing counts them)."""
+    explicit = len(settings.explicit_poses) if getattr(settings, "explicit_poses", None) else 0
+    return {"A": 24 if settings.special else 0, "E": settings.random_count + explicit,
+            "V": settings.validation_count}
+
+
+def held_out_record(measured: dict, plan):
+    """Return the measured V poses, in plan order, as a :class:`ftacq.posefile.PoseRecord` (None if none)."""
+    from ftacq.posefile import PoseRecord
+
+    rows = [measured[label] for label, s in zip(plan.labels, plan.set_names)
+            if s == VALIDATION_SET and label in measured]
+    if not rows:
+        return None
+    std = None if any(r.std is None for r in rows) else np.array([r.std for r in rows])
+    return PoseRecord(pose=np.array([r.pose for r in rows]), wrench=np.array([r.mean for r in rows]), std=std,
+                      count=np.array([max(r.count, 1) for r in rows], dtype=float),
+                      labels=tuple(r.label for r in rows), sets=tuple(r.set_name for r in rows))
+
+
+def run_verdict(result, plan, options) -> Verdict:
+    """Return the verdict of a :class:`procedures.calibration.ProcedureResult` over ``plan`` run with ``options``
+    (:class:`procedures.calibration.ProcedureOptions`: drift thresholds, drift check on or off)."""
+    from procedures.calibration import count_measurements
+
+    total = count_measurements(plan, (), options.drift_check)
+    measured = sum(1 for label in result.measured if label in set(plan.labels)) + (
+        1 if options.drift_check and any(label.endswith("-revisit") for label in result.measured) else 0)
+    planned = {name: sum(1 for s in plan.set_names if s == name) for name in ("A", "E", "V")}
+    stopped = "" if result.status == "done" else result.message
+    findings = [poses_finding(planned, wanted_counts(plan.settings), min(measured, total), total, stopped)]
+    if result.identification is not None:
+        findings = identification_findings(result.identification, held_out_record(result.measured, plan)) + findings
+    if result.drift is not None:
+        d = result.drift
+        findings.insert(1, drift_finding(d.drift, d.elapsed_s, options.drift_warn_force_n,
+                                         options.drift_warn_torque_nm, d.label))
+    return judge(findings)
+
+
+__all__ = ["run_verdict", "held_out_record", "wanted_counts"]
