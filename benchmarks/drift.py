@@ -228,7 +228,7 @@ def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> li
                 if swapped_at is None and period.start_s > 120.0:
                     mass = truth.mass_kg * rng.uniform(0.6, 1.4)
                     com = np.array(truth.center_of_mass_m) + rng.normal(scale=0.02, size=3)
-                    physics.swap_tool(mass, com)
+                    physics.set_tool(mass, com)
                     swapped_at = period.start_s
                 continue
             if swapped_at is not None and still_after_swap is None:

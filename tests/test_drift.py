@@ -124,7 +124,7 @@ def test_a_swapped_tool_is_flagged_within_5_s_of_stillness(calibration) -> None:
     for _ in range(4):
         feeder.still(10.0)
         feeder.move(5.0)
-    feeder.physics.swap_tool(1.0, (0.01, 0.0, 0.05))  # during the move, without telling the software
+    feeder.physics.set_tool(1.0, (0.01, 0.0, 0.05))  # during the move, without telling the software
     still_from = feeder.t
     feeder.still(10.0)
     warnings = [n for n in feeder.notices if n.level == "WARN"]
