@@ -72,6 +72,7 @@ def simulated_run_figures(scale: float, sensor: str = "netft") -> tuple[bool, li
     from drivers.ur import URRobot
     from ftacq.app.commands.calibrate import sim_sampling
     from ftacq.app.config import CellConfig
+    from ftacq.posesets import PLANNED_SETS
     from procedures.plan import make_plan
     from tests.fakes.cell import SimulatedCell, run_calibration
 
@@ -109,8 +110,8 @@ def simulated_run_figures(scale: float, sensor: str = "netft") -> tuple[bool, li
     truth = cell.truth
     v = result.validation
     lines: list[str] = []
-    lines.append(f"default run: {len(plan)} poses (A {sum(s == 'A' for s in plan.set_names)}, E "
-          f"{sum(s == 'E' for s in plan.set_names)}, V {sum(s == 'V' for s in plan.set_names)}) + drift revisit, "
+    counts = ", ".join(f"{name} {plan.set_names.count(name)}" for name in PLANNED_SETS)
+    lines.append(f"default run: {len(plan)} poses ({counts}) + drift revisit, "
           f"UR5e floor, {sensor}, controller time scale {scale:g}")
     lines.append(f"  measured wall time at scale {scale:g}: {t_run:.1f} s run (moving {moving:.1f} s, settling "
           f"{settling:.1f} s, averaging {averaging:.1f} s, other {other:.1f} s) + plan {t_plan:.1f} s "

@@ -405,10 +405,17 @@ def sensor_class(url: str) -> type:
 
 
 def parse_sensor_url(url: str) -> dict:
-    """Check a sensor URL without touching the network; return the driver's constructor arguments.
+    """Check a sensor URL without touching the network (scheme, host or channel, every key and its range);
+    return the driver's constructor arguments.
 
     Raises InputError naming the part of the URL that is wrong."""
-    return sensor_class(url).parse_url(url)
+    if not isinstance(url, str):
+        raise InputError(f"sensor URL {url!r}: must be a string such as "
+                         + " or ".join(form for _, _, form in SENSOR_TYPES.values()))
+    cls = sensor_class(url)
+    kwargs = cls.parse_url(url)
+    cls.from_url(url)  # the constructor checks ranges and does no I/O
+    return kwargs
 
 
 def open_sensor(url: str, **options) -> ForceTorqueSensor:

@@ -1,10 +1,51 @@
 """ftacq: calibrate a wrist-mounted ATI force/torque sensor on a UR arm and watch compensated wrenches.
 
 Method: Yu, Shi & Lou, "Bias Estimation and Gravity Compensation for Wrist-Mounted Force/Torque Sensor",
-IEEE Sensors J. 22(18), 2022 (doi 10.1109/JSEN.2021.3056943). Frame conventions: see README "Frames".
+IEEE Sensors J. 22(18), 2022 (doi 10.1109/JSEN.2021.3056943). Frame conventions: see docs/formats.md.
+
+The core's public names (:data:`__all__`) are loaded lazily: ``import ftacq`` imports nothing heavy; the first
+use of a name imports its module. The devices are in the ``drivers`` package, the steps (plan, calibration
+procedure, monitor) in ``procedures``.
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
 
 STANDARD_GRAVITY_M_S2 = 9.80665
 """Standard gravity g in m/s², used to turn the identified weight ‖gravity_base‖ (N) into a mass (kg)."""
+
+_LAZY = {
+    "Calibration": "ftacq.calibration",
+    "load_calibration": "ftacq.calfile",
+    "save_calibration": "ftacq.calfile",
+    "write_calibration": "ftacq.calfile",
+    "WRITERS": "ftacq.calfile",
+    "identify": "ftacq.identification",
+    "IdentificationResult": "ftacq.identification",
+    "PoseRecord": "ftacq.posefile",
+    "read_pose_csv": "ftacq.posefile",
+    "write_pose_csv": "ftacq.posefile",
+    "MOUNTS": "ftacq.mounts",
+    "POSE_SETS": "ftacq.posesets",
+    "FtacqError": "ftacq.errors",
+}
+"""Public name → the module defining it."""
+
+__all__ = ["__version__", "STANDARD_GRAVITY_M_S2", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ftacq' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -16,7 +16,12 @@ Optional keys written from the identification: ``uncertainty`` (1σ per key abov
 
 Optional provenance keys (version 2, :mod:`ftacq.provenance`; their types are checked on load): ``sensor``
 (serial, model, transport, counts per force and torque, units, firmware), ``tool`` (name) and ``bias_history``
-(time, method, biases, 1σ of every bias estimate, oldest first).
+(time, method, biases, 1σ of every bias estimate, oldest first). :func:`ftacq.provenance.with_provenance` builds
+all of them, and the ``input`` record, for every command alike.
+
+Other file formats: :data:`WRITERS` maps a format name to a function turning a calibration into the file's text;
+:func:`write_calibration` writes any of them atomically (mode 0644). A new export format is one such function
+and one row of the table.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -118,12 +123,37 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
     return _jsonable(document)
 
 
+def calibration_json_text(calibration: Calibration) -> str:
+    """Return the calibration as the versioned JSON text of this module's format (the ``json`` writer)."""
+    return json.dumps(calibration_to_dict(calibration), indent=2, allow_nan=False) + "\n"
+
+
+CalibrationWriter = Callable[[Calibration], str]
+"""A calibration file format: the file's whole text for one calibration."""
+
+WRITERS: dict[str, CalibrationWriter] = {
+    "json": calibration_json_text,
+}
+"""Every calibration file format ftacq writes, by name (``json`` is the one it reads back)."""
+
+
+def write_calibration(path: str | os.PathLike, calibration: Calibration, format: str = "json") -> None:
+    """Write ``calibration`` in ``format`` (a key of :data:`WRITERS`) atomically: never a half-written file.
+
+    Raises InputError naming the format and the known ones.
+    """
+    try:
+        writer = WRITERS[format]
+    except KeyError:
+        raise InputError(f"calibration format {format!r}: unknown (known: {', '.join(WRITERS)})") from None
+    text = writer(calibration)
+    with atomic_write(path) as handle:
+        handle.write(text)
+
+
 def save_calibration(path: str | os.PathLike, calibration: Calibration) -> None:
     """Write the calibration as versioned JSON, atomically (never a half-written file)."""
-    document = calibration_to_dict(calibration)
-    text = json.dumps(document, indent=2, allow_nan=False)
-    with atomic_write(path) as handle:
-        handle.write(text + "\n")
+    write_calibration(path, calibration, "json")
 
 
 def _shape_text(value: Any) -> str:

@@ -20,7 +20,10 @@ attribute.
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import math
+import os
+from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 SENSOR_KEYS = ("serial", "model", "transport", "counts_per_force", "counts_per_torque", "force_unit", "torque_unit",
@@ -104,12 +107,33 @@ def last_tare(calibration: Any) -> dict[str, Any] | None:
     return dict(tares[-1]) if tares else None
 
 
-def with_provenance(calibration: Any, sensor_info: Any | None, tool_name: str | None) -> Any:
+def input_record(poses_file: str | os.PathLike, sets: Sequence[str], identified_on: Sequence[str], *,
+                 has_std: bool, has_count: bool) -> dict[str, Any]:
+    """Return the ``input`` record: the pose record identified (path, SHA-256 taken now, pose count), the count of
+    poses per set, the sets the fit used, and whether the record had standard deviations and sample counts."""
+    path = Path(poses_file)
+    return {
+        "file": str(path),
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "poses": len(sets),
+        "sets": {name: list(sets).count(name) for name in sorted(set(sets))},
+        "identified_on": list(identified_on),
+        "has_std": bool(has_std),
+        "has_count": bool(has_count),
+    }
+
+
+def with_provenance(calibration: Any, sensor_info: Any | None, tool_name: str | None, **keys: Any) -> Any:
     """Return a newly identified calibration with its provenance: creation time, ``sensor`` (from the started
-    sensor's info, when given), ``tool`` (when named) and a ``bias_history`` starting with its own biases."""
+    sensor's info, when given), ``tool`` (when named) and a ``bias_history`` starting with its own biases.
+
+    ``keys``: further provenance stored as given where not None (``input`` from :func:`input_record`,
+    ``validation``, ``run_folder``, ``drift_check``). Every command that saves a new calibration calls this.
+    """
     from dataclasses import replace
 
     metadata = dict(calibration.metadata)
+    metadata.update({key: value for key, value in keys.items() if value is not None})
     metadata.setdefault("created_utc", utc_now_iso())
     if sensor_info is not None:
         metadata["sensor"] = sensor_record(sensor_info)

@@ -9,16 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from ftacq.posesets import PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.verdict import Verdict, drift_finding, identification_findings, judge, poses_finding
-
-VALIDATION_SET = "V"
+from procedures.measured import DRIFT_SUFFIX
 
 
 def wanted_counts(settings) -> dict[str, int]:
     """Return the poses per set the configuration asked for (as the plan listing counts them)."""
     explicit = len(settings.explicit_poses) if getattr(settings, "explicit_poses", None) else 0
-    return {"A": 24 if settings.special else 0, "E": settings.random_count + explicit,
-            "V": settings.validation_count}
+    return {SPECIAL_SET: 24 if settings.special else 0, RANDOM_SET: settings.random_count + explicit,
+            VALIDATION_SET: settings.validation_count}
 
 
 def held_out_record(measured: dict, plan):
@@ -36,14 +36,14 @@ def held_out_record(measured: dict, plan):
 
 
 def run_verdict(result, plan, options) -> Verdict:
-    """Return the verdict of a :class:`procedures.calibration.ProcedureResult` over ``plan`` run with ``options``
-    (:class:`procedures.calibration.ProcedureOptions`: drift thresholds, drift check on or off)."""
-    from procedures.calibration import count_measurements
+    """Return the verdict of a :class:`procedures.calibration_procedure.ProcedureResult` over ``plan`` run with ``options``
+    (:class:`procedures.calibration_procedure.ProcedureOptions`: drift thresholds, drift check on or off)."""
+    from procedures.calibration_procedure import count_measurements
 
     total = count_measurements(plan, (), options.drift_check)
     measured = sum(1 for label in result.measured if label in set(plan.labels)) + (
-        1 if options.drift_check and any(label.endswith("-revisit") for label in result.measured) else 0)
-    planned = {name: sum(1 for s in plan.set_names if s == name) for name in ("A", "E", "V")}
+        1 if options.drift_check and any(label.endswith(DRIFT_SUFFIX) for label in result.measured) else 0)
+    planned = {name: sum(1 for s in plan.set_names if s == name) for name in PLANNED_SETS}
     stopped = "" if result.status == "done" else result.message
     findings = [poses_finding(planned, wanted_counts(plan.settings), min(measured, total), total, stopped)]
     if result.identification is not None:

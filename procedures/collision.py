@@ -34,6 +34,7 @@ from functools import cached_property
 import numpy as np
 
 from ftacq.kinematics import URModel, dh_transforms_batch, pinocchio_dh_frames, pinocchio_model
+from ftacq.mounts import mount_of
 
 LINK_NAMES = ("base", "upper arm", "forearm", "wrist 1", "wrist 2", "wrist 3", "tool")
 TOOL = 6
@@ -114,8 +115,7 @@ class CollisionChecker:
     _pin: tuple = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
-        if self.mount not in ("floor", "wall", "ceiling"):
-            raise ValueError(f"mount must be floor, wall or ceiling, got {self.mount!r}")
+        mount_of(self.mount)  # ValueError naming the known mounts
         pin_model = pinocchio_model(self.model)
         self._pin = (pin_model, pin_model.createData())
 
@@ -208,7 +208,7 @@ class CollisionChecker:
             f"[{np.degrees(lower[j]):.0f}, {np.degrees(upper[j]):.0f}]" for j in np.flatnonzero(outside[k])), k
 
     def _surface_name(self) -> str:
-        return {"floor": "table", "wall": "wall", "ceiling": "ceiling"}[self.mount]
+        return mount_of(self.mount).surface
 
     def problems_at(self, q_rad: np.ndarray) -> list[str]:
         """Return the collision and limit problems of one configuration (6,); empty when it is clear."""

@@ -9,7 +9,7 @@ listeners it wraps.
   wait, a new one is discarded and counted (``dropped_batches``, ``dropped_samples``). Other events are rare and
   never dropped.
 - The thread waits ``period_s`` after the first queued event, then takes everything queued and joins consecutive
-  WrenchSamples into one (fewer, larger sends to the viewer).
+  WrenchSamples into one (fewer, larger sends to the viewer: each send is one chunk of the recording).
 - A listener that raises is logged, kept in ``errors`` and gets nothing more; the others go on.
 """
 
@@ -21,7 +21,7 @@ import time
 from collections import deque
 from typing import Sequence
 
-from procedures.events import Event, Listener, WrenchSamples
+from procedures.events import Event, Listener, RobotState, WrenchSamples
 
 log = logging.getLogger(__name__)
 
@@ -34,21 +34,27 @@ CLOSE_TIMEOUT_S = 10.0
 
 
 def coalesce(events: list[Event]) -> list[Event]:
-    """Return ``events`` in order with each run of consecutive WrenchSamples (all with, or all without, a
-    compensated wrench) joined into one."""
+    """Return ``events`` with each run of WrenchSamples (all with, or all without, a compensated wrench) joined
+    into one. RobotState events do not break a run (they carry their own time; they follow the joined samples);
+    every other event keeps its place, so a status or a procedure step still comes after the samples before it."""
     out: list[Event] = []
     run: list[WrenchSamples] = []
+    held: list[Event] = []
 
     def flush() -> None:
         if run:
             out.append(WrenchSamples.join(run))
             run.clear()
+        out.extend(held)
+        held.clear()
 
     for event in events:
         if isinstance(event, WrenchSamples):
             if run and (run[-1].compensated is None) != (event.compensated is None):
                 flush()
             run.append(event)
+        elif isinstance(event, RobotState) and run:
+            held.append(event)
         else:
             flush()
             out.append(event)

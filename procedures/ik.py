@@ -237,12 +237,6 @@ def refine_ik(model: URModel, pose_or_transform: np.ndarray, q_rad: np.ndarray) 
     return q, error
 
 
-def joint_distance(q_a: np.ndarray, q_b: np.ndarray, weights: np.ndarray | None = None) -> float:
-    """Return the weighted joint-space distance Σ w_j |q_a,j − q_b,j| (rad)."""
-    delta = np.abs(np.asarray(q_a, dtype=float) - np.asarray(q_b, dtype=float))
-    return float(delta.sum() if weights is None else delta @ np.asarray(weights, dtype=float))
-
-
 def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
                       q_reference_rad: np.ndarray) -> dict[Branch, IKResult]:
     """Solve every branch of a flange pose; each joint the 2π-equivalent nearest ``q_reference_rad`` in limits.

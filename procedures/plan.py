@@ -1,12 +1,11 @@
-"""The calibration plan: pose sets, reachability and collision checks, motion order, duration estimate.
+"""The calibration plan: pose sets, reachability and collision checks, duration estimate.
 
-:func:`make_plan` builds the A/E/V pose sets (:mod:`procedures.poses`), solves the IK of every pose in each of
-the eight branches (:mod:`procedures.ik`), keeps the branch that reaches the most poses without collision
-(:mod:`procedures.collision`; ties go to the robot's current branch), rejects the rest with a reason, orders the
-poses to shorten joint travel (nearest neighbour from the current configuration, then 2-opt, on a speed-weighted
-joint distance), checks every joint move of that order for collisions along the path (a colliding move is
-penalised and the order re-optimised; a pose that cannot be reached cleanly from anywhere is rejected), and
-estimates the duration from trapezoidal joint profiles.
+:func:`make_plan` builds the A/E/V pose sets (:mod:`procedures.poses`) about a centre, solves the IK of every pose
+in each of the eight branches (:mod:`procedures.ik`), keeps the branch that reaches the most poses without
+collision (:mod:`procedures.collision`; ties go to the robot's current branch), rejects the rest with a reason,
+has :mod:`procedures.tour` order the poses and check every joint move of that order along its path, and
+estimates the duration from trapezoidal joint profiles. When no centre is given and the default one loses poses,
+alternative centres are tried. The settings are :class:`procedures.plan_settings.PlanSettings`.
 
 Order of the sets: A, E and V poses are interleaved in one tour. Validation poses measured among the others
 see the same thermal state and time as the identification poses, so their error measures the calibration, not
@@ -18,17 +17,27 @@ a long detour back to the region the tour has left. Identification and validatio
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
-from ftacq.errors import ConfigError, PlanError
+from ftacq.errors import PlanError
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
+from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 from procedures.collision import CollisionChecker
-from procedures.ik import TWO_PI, Branch, IKResult, branch_of, solve_ik_branches, wrap_near
-from procedures.poses import MOUNTS, PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
+from procedures.ik import Branch, IKResult, branch_of, solve_ik_branches
+from procedures.plan_settings import PlanSettings
+from procedures.poses import PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
+from procedures.tour import (
+    MoveGraph,
+    joint_weights,
+    listing_targets,
+    order_and_check,
+    path_travel,
+    revisit_target,
+)
 
 PLAN_FORMAT_VERSION = 1
 
@@ -37,9 +46,10 @@ DEFAULT_CENTER_FRACTION: dict[str, tuple[float, float, float]] = {
     "wall": (-0.40, -0.50, 0.45),
     "ceiling": (-0.10, -0.35, 0.75),
 }
-"""Default pose-set centre per mount, as a fraction of the arm's reach |a2| + |a3| (UR5e floor: (−0.245, −0.368,
-0.368) m). Chosen so that all 24 cube rotations and the 40° cone are reachable without collision, with the wrist
-clear of singularities, for every model in the table with a 0.05 × 0.1 m tool."""
+"""Default pose-set centre per mount (every name of :data:`ftacq.mounts.MOUNTS`), as a fraction of the arm's reach
+|a2| + |a3| (UR5e floor: (−0.245, −0.368, 0.368) m). Chosen so that all 24 cube rotations and the 40° cone are
+reachable without collision, with the wrist clear of singularities, for every model in the table with a
+0.05 × 0.1 m tool, except the CB3 UR3 and UR5 whose short wrists need a slimmer tool (UR5: 0.045 m) for all 24."""
 MODEL_CENTER_FRACTION: dict[tuple[str, str], tuple[float, float, float]] = {
     ("UR3e", "floor"): (-0.30, -0.45, 0.55),
     ("UR3", "floor"): (-0.30, -0.45, 0.50),
@@ -51,150 +61,12 @@ ALTERNATIVE_CENTER_FRACTIONS: tuple[tuple[float, float, float], ...] = (
 )
 """Tried in this order when no centre is given and the mount's default does not reach every pose."""
 
-MAX_JOINT_ACCELERATION_RAD_S2 = 10.0
-"""The largest joint acceleration a plan accepts (the UR controllers allow more; calibration needs no more)."""
-MIN_IDENTIFICATION_POSES = 12
-"""Fewest identification poses (A + E) a plan may proceed with."""
-COLLIDING_EDGE_PENALTY_RAD = 1e3
-"""Cost added to a joint move that failed the path check, so the 2-opt avoids it."""
 PLANNING_HYSTERESIS_M = 0.002
 """Extra clearance the planner keeps over the executor's re-check (more than the 0.5 mm tolerance of the certified
 path check), so that a move planned clear is still clear when the executor re-checks it from the robot's actual,
 slightly different, configuration."""
-MAX_REORDER_ROUNDS = 20
-"""Re-orderings tried (each avoiding the moves found colliding so far) before a pose is dropped."""
-MAX_REVISIT_ROTATIONS = 40
-"""Rotations of the tour tried to clear a blocked drift-check revisit move."""
 MAX_CENTERS_PLANNED = 3
 """When no centre is given: how many candidate centres (best static reachability first) are ordered and checked."""
-MAX_2OPT_PASSES = 50
-
-
-def _as_tuple(value, shape_name: str, length: int | None = None):
-    if value is None:
-        return None
-    arr = np.asarray(value, dtype=float)
-    if length is not None and arr.shape != (length,):
-        raise ConfigError(f"{shape_name} must have {length} numbers, got {arr.tolist()!r}")
-    if not np.all(np.isfinite(arr)):
-        raise ConfigError(f"{shape_name} must be finite, got {arr.tolist()!r}")
-    if arr.ndim == 1:
-        return tuple(float(v) for v in arr)
-    return tuple(tuple(float(v) for v in row) for row in arr)
-
-
-@dataclass(frozen=True)
-class PlanSettings:
-    """Everything the plan depends on (SI units; the ``[poses]``, ``[tool]`` and ``[robot]`` parts of CELL.toml).
-
-    Attributes:
-        model: UR model name ("UR5e"…). mount: "floor", "wall" or "ceiling".
-        center_m: centre of the pose sets in the base frame (3,), m; None = the model's and mount's default
-            (:func:`default_center_m`, and alternatives if that does not reach every pose).
-        special: include the 24 special orientations (A set). random_count: size of the E set.
-        validation_count: size of the V set. cone_half_angle_deg: cone of the E and V tool axes, degrees.
-        nominal_rotvec: nominal orientation of the cone (rotation vector of base_R_flange, rad); None = tool down.
-        position_jitter_m: E/V positions move uniformly within ± this per axis, m. seed: random seed.
-        tool_radius_m, tool_length_m: bounding cylinder of sensor + tool along the flange z axis, m.
-        table_margin_m: clearance above the mounting surface, m.
-        joint_speed_rad_s, joint_acceleration_rad_s2: moveJ speed and acceleration.
-        settle_time_s: expected settle time per pose (estimate only). average_time_s: averaging time per pose.
-        explicit_poses: extra user poses (N, 6) [x, y, z, rx, ry, rz] used for identification, or None.
-        min_identification_poses: fewest A + E poses to proceed. require_srom: refuse unless all 24 A remain.
-        drift_check: the executor revisits the first pose at the end (counted in the duration estimate).
-        clearance_m: link-link and tool-link clearance beyond the capsule radii, m.
-    """
-
-    model: str = "UR5e"
-    mount: str = "floor"
-    center_m: tuple[float, float, float] | None = None
-    special: bool = True
-    random_count: int = 24
-    validation_count: int = 12
-    cone_half_angle_deg: float = 40.0
-    nominal_rotvec: tuple[float, float, float] | None = None
-    position_jitter_m: float = 0.0
-    seed: int = 0
-    tool_radius_m: float = 0.045
-    tool_length_m: float = 0.1
-    table_margin_m: float = 0.02
-    joint_speed_rad_s: float = 1.0
-    joint_acceleration_rad_s2: float = 1.4
-    settle_time_s: float = 1.0
-    average_time_s: float = 0.5
-    explicit_poses: tuple[tuple[float, ...], ...] | None = None
-    min_identification_poses: int = MIN_IDENTIFICATION_POSES
-    require_srom: bool = False
-    drift_check: bool = True
-    clearance_m: float = 0.01
-
-    def __post_init__(self) -> None:
-        set_ = object.__setattr__
-        set_(self, "center_m", _as_tuple(self.center_m, "poses.center_m", 3))
-        set_(self, "nominal_rotvec", _as_tuple(self.nominal_rotvec, "poses.nominal_rotvec", 3))
-        if self.explicit_poses is not None:
-            try:
-                pose_set = explicit_poses(np.asarray(self.explicit_poses, dtype=float).reshape(-1, 6)
-                                          if np.size(self.explicit_poses) else np.empty((0, 6)))
-            except ValueError as exc:
-                raise ConfigError(f"poses.explicit: {exc}") from exc
-            set_(self, "explicit_poses", tuple(tuple(float(v) for v in row) for row in pose_set.poses))
-        self.validate()
-
-    def validate(self) -> None:
-        """Raise ConfigError naming the key, the value and the allowed range for the first bad value."""
-        try:
-            model = ur_model(self.model)
-        except ValueError as exc:
-            raise ConfigError(f"robot.model = {self.model!r}: {exc}") from exc
-        if self.mount not in MOUNTS:
-            raise ConfigError(f"robot.mount = {self.mount!r}: must be one of {', '.join(MOUNTS)}")
-        checks = [
-            ("poses.random_count", self.random_count, 0, 1000),
-            ("poses.validation_count", self.validation_count, 0, 1000),
-            ("poses.cone_half_angle_deg", self.cone_half_angle_deg, 0.0, 90.0),
-            ("poses.position_jitter_m", self.position_jitter_m, 0.0, 0.5),
-            ("tool.radius_m", self.tool_radius_m, 0.0, 0.5),
-            ("tool.length_m", self.tool_length_m, 0.0, 1.0),
-            ("robot.table_margin_m", self.table_margin_m, 0.0, 0.5),
-            ("robot.joint_speed_rad_s", self.joint_speed_rad_s, 1e-3, min(model.max_joint_speed_rad_s)),
-            ("robot.joint_acceleration_rad_s2", self.joint_acceleration_rad_s2, 1e-3, MAX_JOINT_ACCELERATION_RAD_S2),
-            ("sampling.settle_time_s", self.settle_time_s, 0.0, 600.0),
-            ("sampling.average_time_s", self.average_time_s, 0.0, 600.0),
-            ("poses.min_identification_poses", self.min_identification_poses, 1, 10000),
-            ("robot.clearance_m", self.clearance_m, 0.0, 0.5),
-        ]
-        for key, value, low, high in checks:
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
-                    or not low <= value <= high:
-                raise ConfigError(f"{key} = {value!r}: must be a number in [{low:g}, {high:g}]")
-        for key in ("random_count", "validation_count", "seed", "min_identification_poses"):
-            if not isinstance(getattr(self, key), (int, np.integer)) or isinstance(getattr(self, key), bool):
-                raise ConfigError(f"poses.{key} = {getattr(self, key)!r}: must be an integer")
-        if not (self.special or self.random_count or self.explicit_poses):
-            raise ConfigError("poses: no identification poses (special = false, random_count = 0, no explicit poses)")
-
-    @property
-    def ur(self) -> URModel:
-        """The UR model these settings name."""
-        return ur_model(self.model)
-
-    def to_dict(self) -> dict:
-        """Return a JSON-ready dict of the settings."""
-        out = asdict(self)
-        for key, value in out.items():
-            if isinstance(value, tuple):
-                out[key] = json.loads(json.dumps(value))
-        return out
-
-    @staticmethod
-    def from_dict(data: dict) -> "PlanSettings":
-        """Rebuild settings from :meth:`to_dict`; unknown keys raise ConfigError naming them."""
-        known = {f.name for f in fields(PlanSettings)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"plan settings: unknown key(s) {', '.join(unknown)}")
-        return PlanSettings(**data)
 
 
 @dataclass(frozen=True, eq=False)
@@ -242,7 +114,7 @@ class Plan:
     @property
     def srom_ready(self) -> bool:
         """True when all 24 special poses (A01…A24) are in the plan (the SROM closed form needs all of them)."""
-        return sum(1 for s in self.set_names if s == "A") == 24
+        return sum(1 for s in self.set_names if s == SPECIAL_SET) == 24
 
     def indices(self, set_name: str) -> np.ndarray:
         """Return the plan indices of the poses of one set ("A", "E" or "V")."""
@@ -329,26 +201,6 @@ def home_configuration_rad(mount: str = "floor") -> np.ndarray:
     return np.array([np.pi / 2, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 
 
-def joint_weights(model: URModel) -> np.ndarray:
-    """Return the per-joint weights of the travel metric: slowest rated joint speed / rated speed of each joint.
-
-    With them, weighted travel (rad) is proportional to the time the joints need at rated speed.
-    """
-    speeds = np.array(model.max_joint_speed_rad_s)
-    return speeds.min() / speeds
-
-
-def weighted_distance_matrix(q: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Return D[i, j] = Σ_k w_k |q_i,k − q_j,k| for configurations q (M, 6)."""
-    return np.abs(q[:, None, :] - q[None, :, :]) @ weights
-
-
-def path_travel(start_q: np.ndarray, q_sequence: np.ndarray, weights: np.ndarray) -> float:
-    """Return the weighted joint travel of start → q_sequence[0] → … (rad)."""
-    all_q = np.vstack([np.asarray(start_q, dtype=float)[None, :], q_sequence])
-    return float((np.abs(np.diff(all_q, axis=0)) @ weights).sum())
-
-
 def trapezoid_time_s(distance_rad: float, speed_rad_s: float, acceleration_rad_s2: float) -> float:
     """Return the duration of a trapezoidal (or triangular) profile over ``distance_rad``, s."""
     distance_rad = abs(distance_rad)
@@ -381,42 +233,6 @@ def estimate_duration_s(settings: PlanSettings, start_q: np.ndarray, q_sequence:
         total += move_time_s(q_sequence[-1], target, settings.joint_speed_rad_s,
                              settings.joint_acceleration_rad_s2) + per_pose
     return float(total)
-
-
-def nearest_neighbour_order(dist: np.ndarray) -> list[int]:
-    """Return a path over nodes 1..M−1 starting from node 0, greedily nearest first (indices into dist)."""
-    m = dist.shape[0]
-    unvisited = set(range(1, m))
-    order = [0]
-    while unvisited:
-        last = order[-1]
-        nxt = min(unvisited, key=lambda j: dist[last, j])
-        order.append(nxt)
-        unvisited.remove(nxt)
-    return order
-
-
-def two_opt(order: list[int], dist: np.ndarray, max_passes: int = MAX_2OPT_PASSES) -> list[int]:
-    """Improve an open path with a fixed first node by 2-opt segment reversals until no move shortens it."""
-    tour = np.array(order)
-    n = len(tour)
-    for _ in range(max_passes):
-        improved = False
-        for i in range(1, n - 1):
-            a, b = tour[i - 1], tour[i]
-            js = np.arange(i + 1, n)
-            c = tour[js]
-            d_next = np.where(js + 1 < n, dist[c, tour[np.minimum(js + 1, n - 1)]], 0.0)
-            e_new = np.where(js + 1 < n, dist[b, tour[np.minimum(js + 1, n - 1)]], 0.0)
-            delta = dist[a, c] + e_new - dist[a, b] - d_next
-            k = int(np.argmin(delta))
-            if delta[k] < -1e-12:
-                j = js[k]
-                tour[i:j + 1] = tour[i:j + 1][::-1].copy()
-                improved = True
-        if not improved:
-            break
-    return tour.tolist()
 
 
 @lru_cache(maxsize=8)
@@ -458,12 +274,12 @@ def build_pose_set(settings: PlanSettings, center_m: np.ndarray) -> PoseSet:
         out = out + special_poses(center_m)
     if settings.random_count:
         out = out + random_cone_poses(settings.random_count, settings.cone_half_angle_deg, nominal, center_m,
-                                      settings.position_jitter_m, settings.seed, "E", settings.mount)
+                                      settings.position_jitter_m, settings.seed, RANDOM_SET, settings.mount)
     if settings.explicit_poses:
         out = out + explicit_poses(np.array(settings.explicit_poses))
     if settings.validation_count:
         out = out + random_cone_poses(settings.validation_count, settings.cone_half_angle_deg, nominal, center_m,
-                                      settings.position_jitter_m, settings.seed, "V", settings.mount)
+                                      settings.position_jitter_m, settings.seed, VALIDATION_SET, settings.mount)
     return out
 
 
@@ -522,11 +338,11 @@ def _static_check(checker: CollisionChecker, result: IKResult) -> tuple[np.ndarr
 def _minimum_problems(settings: PlanSettings, candidate: _Candidate, keep: list[bool]) -> list[str]:
     """Return why the kept poses are not enough (empty = enough)."""
     names = candidate.poses.set_names
-    n_ident = sum(1 for k, s in zip(keep, names) if k and s in ("A", "E"))
-    n_a = sum(1 for k, s in zip(keep, names) if k and s == "A")
-    n_v = sum(1 for k, s in zip(keep, names) if k and s == "V")
+    n_ident = sum(1 for k, s in zip(keep, names) if k and s in IDENTIFICATION_SETS)
+    n_a = sum(1 for k, s in zip(keep, names) if k and s == SPECIAL_SET)
+    n_v = sum(1 for k, s in zip(keep, names) if k and s == VALIDATION_SET)
     problems = []
-    need = min(settings.min_identification_poses, sum(1 for s in names if s in ("A", "E")))
+    need = min(settings.min_identification_poses, sum(1 for s in names if s in IDENTIFICATION_SETS))
     if n_ident < need:
         problems.append(f"only {n_ident} identification poses (A + E) remain, at least {need} needed")
     if settings.require_srom and settings.special and n_a < 24:
@@ -534,190 +350,6 @@ def _minimum_problems(settings: PlanSettings, candidate: _Candidate, keep: list[
     if settings.validation_count and n_v == 0:
         problems.append("no validation pose (V) remains")
     return problems
-
-
-def angle_delta(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
-    """Return the shortest signed per-joint move from q_from to an equivalent of q_to, each in (−π, π] rad."""
-    return np.angle(np.exp(1j * (np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float))))
-
-
-ALTERNATIVE_MOVE_JOINTS = (5, 3, 0, 4)
-"""Joints (0-based: wrist 3, wrist 1, base, wrist 2) tried the long way round (δ ∓ 2π) when the shortest move
-collides: turning the wrist the other way often takes the tool round the outside of the forearm."""
-
-
-class _MoveGraph:
-    """Moves between poses (node 0 = the start configuration) with their path checks, cached.
-
-    The geometry of a move is 2π-periodic in every joint, so a move is checked once as (from-node, delta) from
-    the canonical configuration; joint limits are checked on the actual targets of a sequence.
-    """
-
-    def __init__(self, settings: PlanSettings, start_q: np.ndarray, q: np.ndarray) -> None:
-        self.settings = settings
-        self.model = settings.ur
-        self.checker = collision_checker(settings, planning=True)
-        self.weights = joint_weights(self.model)
-        self.lower, self.upper = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
-        self.nodes = np.vstack([start_q[None, :], q])
-        n = len(self.nodes)
-        self.delta = angle_delta(self.nodes[:, None, :], self.nodes[None, :, :])  # (n, n, 6), δ[a, b]
-        self.delta[0, :] = angle_delta(start_q, self.nodes)  # from the start
-        self.cost = np.abs(self.delta) @ self.weights
-        self.bad: dict[tuple[int, int], str] = {}
-        self._checked: dict[tuple, list[str]] = {}
-        self.labels = ["the start configuration"] + [""] * (n - 1)
-
-    def _check(self, a: int, move: np.ndarray) -> list[str]:
-        key = (a, tuple(np.round(move, 9)))
-        if key not in self._checked:
-            self._checked[key] = self.checker.problems_along(self.nodes[a], self.nodes[a] + move, check_limits=False)
-        return self._checked[key]
-
-    def move(self, a: int, b: int) -> np.ndarray:
-        """Return the joint move a → b (shortest unless an alternative replaced a colliding one)."""
-        return self.delta[a, b]
-
-    def check_edge(self, a: int, b: int) -> bool:
-        """Check the move a → b; if it collides try the alternatives; return True when clear (updates cost)."""
-        key = (min(a, b), max(a, b))
-        if key in self.bad:
-            return False
-        problems = self._check(a, self.delta[a, b])
-        if not problems:
-            return True
-        for j in ALTERNATIVE_MOVE_JOINTS:
-            move = self.delta[a, b].copy()
-            if move[j] == 0.0:
-                continue
-            move[j] -= np.sign(move[j]) * TWO_PI
-            if not self._check(a, move):
-                self._set(a, b, move)
-                return True
-        self.bad[key] = problems[0]
-        return False
-
-    def _set(self, a: int, b: int, move: np.ndarray) -> None:
-        self.delta[a, b] = move
-        self.cost[a, b] = np.abs(move) @ self.weights
-        if a != 0 and b != 0:
-            self.delta[b, a] = -move
-            self.cost[b, a] = self.cost[a, b]
-
-    def sequence(self, path: list[int]) -> tuple[np.ndarray, list[tuple[int, int]]]:
-        """Return the actual joint targets along ``path`` (node 0 first) and the moves that failed a check.
-
-        A target outside the joint limits is replaced by the equivalent nearest its predecessor within the
-        limits, and that move is checked as it is.
-        """
-        q = self.nodes[0].copy()
-        out = []
-        failed = []
-        for a, b in zip(path[:-1], path[1:]):
-            ok = self.check_edge(a, b)
-            target = q + self.move(a, b)
-            if np.any(target < self.lower - 1e-9) or np.any(target > self.upper + 1e-9):
-                wrapped = wrap_near(self.nodes[b], q, self.lower, self.upper)
-                target = self.nodes[b] if wrapped is None else wrapped
-                problems = self.checker.problems_along(q, target)
-                if problems:
-                    self.bad[(min(a, b), max(a, b))] = problems[0]
-                    ok = False
-            if not ok:
-                failed.append((a, b))
-            target = np.clip(target, self.lower, self.upper)  # only rounding: farther out was re-wrapped above
-            out.append(target)
-            q = target
-        return np.array(out).reshape(-1, 6), failed
-
-
-def _order_and_check(settings: PlanSettings, start_q: np.ndarray, q: np.ndarray,
-                     labels: list[str]) -> tuple[list[int], np.ndarray, list[tuple[int, str]]]:
-    """Order poses (indices into q), check each move along its path, and return the joint targets.
-
-    Returns (order, joint targets in that order, rejected) where rejected lists (index, reason) of poses dropped
-    because no tour found avoided a colliding move into them.
-    """
-    graph = _MoveGraph(settings, start_q, q)
-    active = list(range(len(q)))
-    rejected: list[tuple[int, str]] = []
-    while True:
-        sub = [0] + [i + 1 for i in active]
-        for _ in range(MAX_REORDER_ROUNDS):
-            dist = graph.cost[np.ix_(sub, sub)].copy()
-            for (a, b) in graph.bad:
-                if a in sub and b in sub:
-                    ia, ib = sub.index(a), sub.index(b)
-                    dist[ia, ib] += COLLIDING_EDGE_PENALTY_RAD
-                    dist[ib, ia] += COLLIDING_EDGE_PENALTY_RAD
-            # the first move leaves the start: its cost is directed, the rest symmetric
-            tour = two_opt(nearest_neighbour_order(dist), dist)
-            path = [sub[t] for t in tour]
-            targets, failed = graph.sequence(path)
-            if not failed:
-                if settings.drift_check:
-                    path, targets = _clear_revisit(graph, path, targets)
-                return [p - 1 for p in path[1:]], targets, rejected
-        # drop the pose with the most colliding moves found so far (ties: the pose the first failed move enters)
-        bad_count: dict[int, int] = {}
-        for (a, b) in graph.bad:
-            for node in (a, b):
-                if node != 0 and (node - 1) in active:
-                    bad_count[node] = bad_count.get(node, 0) + 1
-        first_a, first_b = failed[0]
-        worst = max(bad_count, key=lambda node: (bad_count[node], node == first_b))
-        a, b = next(((x, y) if y == worst else (y, x)) for (x, y) in graph.bad if worst in (x, y))
-        frm = "the start configuration" if a == 0 else labels[a - 1]
-        rejected.append((worst - 1, f"no collision-free joint move found (e.g. from {frm}: "
-                                    f"{graph.bad[(min(a, b), max(a, b))]})"))
-        active.remove(worst - 1)
-        if not active:
-            return [], np.empty((0, 6)), rejected
-
-
-def _clear_revisit(graph: _MoveGraph, path: list[int], targets: np.ndarray) -> tuple[list[int], np.ndarray]:
-    """Make the drift-check revisit (last target → first target, as the executor moves) clear if possible.
-
-    The poses are taken as a cycle: the cycle is started at another pose (either direction), or its closing move
-    is exchanged by a 2-opt step, cheapest first, until every move and the revisit are clear. Returns the path
-    unchanged if none is (the plan then carries a warning).
-    """
-    def revisit_clear(t: np.ndarray) -> bool:
-        return len(t) < 2 or not _revisit_target(graph.settings, t)[1]
-
-    if revisit_clear(targets):
-        return path, targets
-    cycle = path[1:]
-    cost = graph.cost
-    options = []
-    for direction in (cycle, cycle[::-1]):  # rotations of the cycle: another pose first
-        for k in range(1, len(direction)):
-            rotated = direction[k:] + direction[:k]
-            options.append((cost[0, rotated[0]] + cost[direction[-1], direction[0]], [0] + rotated))
-    for m in range(1, len(cycle) - 1):  # 2-opt on the closing move: p1…pm, pN…pm+1, then back to p1
-        changed = cycle[:m] + cycle[m:][::-1]
-        added = cost[cycle[m - 1], cycle[-1]] + cost[cycle[m], cycle[0]] - cost[cycle[m - 1], cycle[m]]
-        options.append((cost[0, changed[0]] + added, [0] + changed))
-    options.sort(key=lambda option: option[0])
-    for _, candidate in options[:MAX_REVISIT_ROTATIONS]:
-        candidate_targets, failed = graph.sequence(candidate)
-        if not failed and revisit_clear(candidate_targets):
-            return candidate, candidate_targets
-    return path, targets
-
-
-def listing_targets(model: URModel, start_q: np.ndarray, q_sequence: np.ndarray) -> np.ndarray:
-    """Return the joint targets of a sequence moved through with the shortest joint moves (within limits)."""
-    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
-    out = np.empty_like(q_sequence)
-    q = np.asarray(start_q, dtype=float)
-    for i, target in enumerate(q_sequence):
-        nxt = q + angle_delta(q, target)
-        if np.any(nxt < lower) or np.any(nxt > upper):
-            wrapped = wrap_near(target, q, lower, upper)
-            nxt = target if wrapped is None else wrapped
-        out[i] = q = np.clip(nxt, lower, upper)
-    return out
 
 
 def _candidate_centers(settings: PlanSettings) -> list[np.ndarray]:
@@ -776,7 +408,8 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
         return None, _plan_error_message(problems, rejected, candidate.center)
     kept = [i for i, k in enumerate(keep) if k]
     q_kept = np.array([candidate.q[i] for i in kept])
-    order, q_exec, dropped = _order_and_check(settings, start_q, q_kept, [poses.labels[i] for i in kept])
+    graph = MoveGraph(collision_checker(settings, planning=True), model, start_q, q_kept)
+    order, q_exec, dropped = order_and_check(graph, [poses.labels[i] for i in kept], settings.drift_check)
     for local, reason in dropped:
         keep[kept[local]] = False
         rejected.append((poses.labels[kept[local]], reason))
@@ -787,7 +420,7 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
     warnings = []
     revisit = None
     if settings.drift_check and len(q_exec):
-        revisit, problem = _revisit_target(settings, q_exec)
+        revisit, problem = revisit_target(collision_checker(settings, planning=True), model, q_exec)
         if problem:
             warnings.append(f"the drift-check revisit of {poses.labels[chosen[0]]} is blocked: {problem}")
     weights = joint_weights(model)
@@ -811,35 +444,6 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
     ), ""
 
 
-def _revisit_target(settings: PlanSettings, q_exec: np.ndarray) -> tuple[np.ndarray, str]:
-    """Return (joint target for revisiting the first pose, "" or why every candidate move is blocked).
-
-    Candidates, in order: the first target itself, then its 2π-equivalent nearest the last target (shortest
-    move), then that with one wrist or base joint the long way round; each within the limits and checked clear.
-    """
-    model = settings.ur
-    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
-    checker = collision_checker(settings, planning=True)
-    last, first = q_exec[-1], q_exec[0]
-    shortest = last + angle_delta(last, first)
-    candidates = [first, shortest]
-    for j in ALTERNATIVE_MOVE_JOINTS:
-        alternative = shortest.copy()
-        if alternative[j] != last[j]:
-            alternative[j] -= np.sign(alternative[j] - last[j]) * TWO_PI
-            candidates.append(alternative)
-    first_problem = ""
-    for candidate in candidates:
-        if np.any(candidate < lower - 1e-9) or np.any(candidate > upper + 1e-9):
-            continue
-        candidate = np.clip(candidate, lower, upper)
-        problems = checker.problems_along(last, candidate)
-        if not problems:
-            return candidate, ""
-        first_problem = first_problem or problems[0]
-    return first, first_problem or "no equivalent of the first pose within the joint limits"
-
-
 def _plan_error_message(problems: list[str], rejected: list[tuple[str, str]], center: np.ndarray) -> str:
     lines = ["the pose plan cannot proceed: " + "; ".join(problems),
              f"centre {np.round(center, 3).tolist()} m; {len(rejected)} pose(s) rejected:"]
@@ -854,16 +458,16 @@ def _minutes(seconds: float) -> str:
 def format_plan(plan: Plan) -> str:
     """Return the plan as text for the terminal: poses per set, rejected poses, duration, travel, limits."""
     s = plan.settings
-    counts = {name: sum(1 for x in plan.set_names if x == name) for name in ("A", "E", "V")}
-    wanted = {"A": 24 if s.special else 0,
-              "E": s.random_count + (len(s.explicit_poses) if s.explicit_poses else 0),
-              "V": s.validation_count}
+    counts = {name: sum(1 for x in plan.set_names if x == name) for name in PLANNED_SETS}
+    wanted = {SPECIAL_SET: 24 if s.special else 0,
+              RANDOM_SET: s.random_count + (len(s.explicit_poses) if s.explicit_poses else 0),
+              VALIDATION_SET: s.validation_count}
     lines = [
         f"Pose plan for {s.model} ({s.mount} mount), centre "
         f"({', '.join(f'{v:+.3f}' for v in plan.center_m)}) m, IK branch {plan.branch}",
         f"  tool cylinder r = {s.tool_radius_m:.3f} m, length {s.tool_length_m:.3f} m; "
         f"mounting-surface margin {s.table_margin_m * 1000:.0f} mm",
-        "  poses: " + ", ".join(f"{name} {counts[name]}/{wanted[name]}" for name in ("A", "E", "V") if wanted[name])
+        "  poses: " + ", ".join(f"{name} {counts[name]}/{wanted[name]}" for name in PLANNED_SETS if wanted[name])
         + f"  (total {len(plan)})",
         "  SROM closed form: " + ("available (all 24 special poses)" if plan.srom_ready
                                    else "not available (LROM + refinement only)"),

@@ -16,17 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ftacq.mounts import mount_of
+from ftacq.posesets import RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import cube_rotations, rotation_from_rotvec, rotvec_from_rotation
-
-MOUNTS = ("floor", "wall", "ceiling")
-
-DOWN_BASE: dict[str, tuple[float, float, float]] = {
-    "floor": (0.0, 0.0, -1.0),
-    "wall": (-1.0, 0.0, 0.0),
-    "ceiling": (0.0, 0.0, 1.0),
-}
-"""The direction of gravity in the base frame for each nominal mount (base tilt (α, β) = (0, 0), (0, 90°),
-(0, 180°) in method.md's convention: gravity_base = −m g [cos α sin β, −sin α, cos α cos β])."""
 
 E_STREAM, V_STREAM = 0, 1
 """Sub-streams of the seed used for the E and V sets (``np.random.default_rng([seed, stream])``)."""
@@ -66,13 +58,9 @@ def tool_down_rotation(mount: str = "floor") -> np.ndarray:
     Floor: Rx(π) (flange x along base x). Wall (gravity along −x_base): flange z = −x_base, flange x = −z_base.
     Ceiling (gravity along +z_base): the identity.
     """
-    if mount not in DOWN_BASE:
-        raise ValueError(f"mount must be one of {', '.join(MOUNTS)}, got {mount!r}")
-    if mount == "floor":
-        return np.diag([1.0, -1.0, -1.0])
-    if mount == "ceiling":
-        return np.eye(3)
-    z_axis = np.array(DOWN_BASE["wall"])
+    z_axis = np.array(mount_of(mount).down_base)  # the tool points along gravity
+    if z_axis[2] != 0.0:  # floor: Rx(π) (flange x along base x); ceiling: the identity
+        return np.diag([1.0, z_axis[2], z_axis[2]])
     x_axis = np.array([0.0, 0.0, -1.0])
     return np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
 
@@ -88,7 +76,7 @@ def special_poses(center_m: np.ndarray, pivot_offset_m: float = 0.0) -> PoseSet:
     base_R_flange = np.swapaxes(cube_rotations(), -1, -2)  # cube_rotations() are flange_R_base
     positions = center - pivot_offset_m * base_R_flange[:, :, 2]
     poses = pose_from(base_R_flange, positions)
-    return PoseSet(poses, tuple(f"A{i + 1:02d}" for i in range(24)), ("A",) * 24)
+    return PoseSet(poses, tuple(f"{SPECIAL_SET}{i + 1:02d}" for i in range(24)), (SPECIAL_SET,) * 24)
 
 
 def cone_rotations(n: int, cone_half_angle_deg: float, nominal_base_R_flange: np.ndarray,
@@ -114,7 +102,7 @@ def cone_rotations(n: int, cone_half_angle_deg: float, nominal_base_R_flange: np
 
 def random_cone_poses(n: int, cone_half_angle_deg: float = 40.0, nominal_base_R_flange: np.ndarray | None = None,
                       center_m: np.ndarray = (0.0, -0.45, 0.45), position_jitter_m: float = 0.0, seed: int = 0,
-                      set_name: str = "E", mount: str = "floor") -> PoseSet:
+                      set_name: str = RANDOM_SET, mount: str = "floor") -> PoseSet:
     """Return ``n`` random poses in a cone (the E or V set), labelled ``E01``… or ``V01``….
 
     Args:
@@ -128,7 +116,7 @@ def random_cone_poses(n: int, cone_half_angle_deg: float = 40.0, nominal_base_R_
         raise ValueError(f"pose count must be ≥ 0, got {n}")
     if position_jitter_m < 0:
         raise ValueError(f"position_jitter_m must be ≥ 0, got {position_jitter_m}")
-    stream = {"E": E_STREAM, "V": V_STREAM}.get(set_name, 2)
+    stream = {RANDOM_SET: E_STREAM, VALIDATION_SET: V_STREAM}.get(set_name, 2)
     rng = np.random.default_rng([int(seed), stream])
     nominal = tool_down_rotation(mount) if nominal_base_R_flange is None else np.asarray(nominal_base_R_flange)
     rotations = cone_rotations(n, cone_half_angle_deg, nominal, rng)
@@ -137,7 +125,7 @@ def random_cone_poses(n: int, cone_half_angle_deg: float = 40.0, nominal_base_R_
                    (set_name,) * n)
 
 
-def explicit_poses(poses: np.ndarray, set_name: str = "E", prefix: str = "X") -> PoseSet:
+def explicit_poses(poses: np.ndarray, set_name: str = RANDOM_SET, prefix: str = "X") -> PoseSet:
     """Return user-given flange poses (N, 6) as a set (default: used for identification, labels ``X01``…).
 
     Raises ValueError naming the row and column of a non-finite value or a wrong shape.

@@ -66,6 +66,8 @@ class ProgressListener:
             f" (pose {min(self.done + 1, self.total)}/{self.total})" if self._label else "")
 
     def __call__(self, event) -> None:
+        if isinstance(event, (events.WrenchSamples, events.RobotState, events.SensorStatus)):
+            return  # the sample stream (up to the sensor's read rate): nothing to show here
         if isinstance(event, events.StateChanged):
             self._state = event.state
             if event.total is not None:

@@ -9,7 +9,7 @@
       report.md, *.png  the report (when identification finished)
 
 ``poses.csv`` uses the core's pose-record format (:mod:`ftacq.posefile`; columns ``label`` and ``set`` name the
-plan pose; set ``D`` is the drift-check revisit of the first pose). It is valid after every row, so
+plan pose; set ``D`` is the drift-check revisit of the first pose, :mod:`ftacq.posesets`). It is valid after every row, so
 ``ftacq identify RUN_DIR/poses.csv`` works on a partial run too. A crash in the middle of a row leaves a torn
 last line; :meth:`RunFolder.open` drops it (and says so) so that the pose is measured again.
 
@@ -31,7 +31,6 @@ import json
 import logging
 import os
 import socket
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +40,7 @@ from ftacq import __version__
 from ftacq.errors import InputError
 from ftacq.fileio import atomic_write
 from ftacq.posefile import POSE_CSV_HEADER, PoseRecord, format_pose_row, read_pose_csv
+from procedures.measured import MeasuredPose
 
 log = logging.getLogger(__name__)
 
@@ -50,9 +50,6 @@ RUN_JSON = "run.json"
 POSES_CSV = "poses.csv"
 CALIBRATION_JSON = "calibration.json"
 REPORT_MD = "report.md"
-DRIFT_SET = "D"
-"""Set name of the drift-check revisit of the first pose (never identified on)."""
-DRIFT_SUFFIX = "-revisit"
 STATUSES = ("planned", "running", "stopped", "failed", "done")
 """What run.json stores. :attr:`RunFolder.status` may also be "interrupted" (stored running, process gone)."""
 INTERRUPTED = "interrupted"
@@ -96,24 +93,6 @@ def this_process() -> dict[str, Any]:
 
 def _utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
-def drift_label(first_label: str) -> str:
-    """Return the label of the drift-check revisit of pose ``first_label``."""
-    return f"{first_label}{DRIFT_SUFFIX}"
-
-
-@dataclass(frozen=True)
-class MeasuredPose:
-    """One row of ``poses.csv`` as the procedure needs it back on resume (SI units)."""
-
-    label: str
-    set_name: str
-    pose: np.ndarray
-    mean: np.ndarray
-    std: np.ndarray | None
-    count: int
-    t_end_s: float | None
 
 
 class RunFolder:
@@ -379,5 +358,5 @@ class RunFolderWriter:
                                            "rms": np.asarray(event.rms).tolist()})
 
 
-__all__ = ["RunFolder", "RunFolderWriter", "MeasuredPose", "drift_label", "RUN_JSON", "POSES_CSV",
-           "CALIBRATION_JSON", "REPORT_MD", "DRIFT_SET", "INTERRUPTED", "PROCESS_GONE_NOTE"]
+__all__ = ["RunFolder", "RunFolderWriter", "RUN_JSON", "POSES_CSV", "CALIBRATION_JSON", "REPORT_MD", "INTERRUPTED",
+           "PROCESS_GONE_NOTE"]

@@ -30,6 +30,7 @@ import numpy as np
 from drivers.robot import Robot
 from drivers.sensor import ForceTorqueSensor, WrenchAverage
 from ftacq.errors import DeviceTimeoutError, FtacqError, SensorFaultError
+from ftacq.settings import from_setting, values_from
 
 log = logging.getLogger(__name__)
 
@@ -60,23 +61,20 @@ class StopRequested(FtacqError):
 
 @dataclass(frozen=True)
 class SettleSettings:
-    """Settling and averaging parameters (the ``[sampling]`` part of CELL.toml; SI units)."""
+    """Settling and averaging parameters (the ``[sampling]`` keys of CELL.toml named below; SI units)."""
 
-    settle_time_s: float = 0.5
-    window_s: float = 0.2
-    force_std_n: float = 0.5
-    torque_std_nm: float = 0.03
-    timeout_s: float = 10.0
-    average_time_s: float = 0.5
-    sensor_timeout_s: float = 2.0
+    settle_time_s: float = from_setting("sampling.settle_time_s")
+    window_s: float = from_setting("sampling.settle_window_s")
+    force_std_n: float = from_setting("sampling.settle_force_std_n")
+    torque_std_nm: float = from_setting("sampling.settle_torque_std_nm")
+    timeout_s: float = from_setting("sampling.settle_timeout_s")
+    average_time_s: float = from_setting("sampling.average_time_s")
+    sensor_timeout_s: float = from_setting("sampling.sensor_timeout_s")
 
     @classmethod
-    def from_sampling(cls, sampling) -> "SettleSettings":
-        """Build from :class:`ftacq.app.config.SamplingConfig`."""
-        return cls(settle_time_s=sampling.settle_time_s, window_s=sampling.settle_window_s,
-                   force_std_n=sampling.settle_force_std_n, torque_std_nm=sampling.settle_torque_std_nm,
-                   timeout_s=sampling.settle_timeout_s, average_time_s=sampling.average_time_s,
-                   sensor_timeout_s=sampling.sensor_timeout_s)
+    def from_config(cls, config) -> "SettleSettings":
+        """Build from a configuration with a ``sampling`` section (:class:`ftacq.app.config.CellConfig`)."""
+        return cls(**values_from(config, cls))
 
     @property
     def thresholds(self) -> np.ndarray:

@@ -83,3 +83,14 @@ def read_texts(rrd_path: str | os.PathLike, entity_path: str) -> list[str]:
 def count_chunks(rrd_path: str | os.PathLike, entity_path: str) -> int:
     """Return how many chunks hold data of ``entity_path``."""
     return sum(chunk.entity_path == "/" + entity_path.strip("/") for chunk in _chunks(rrd_path))
+
+
+def mixed_static_and_temporal(rrd_path: str | os.PathLike, under: str = "world") -> set[str]:
+    """Return the entity paths under ``under`` holding both static and temporal data (the viewer showed such
+    entities of a file written live only after ``rerun rrd optimize``)."""
+    kinds: dict[str, set[bool]] = {}
+    for chunk in _chunks(rrd_path):
+        path = chunk.entity_path.lstrip("/")
+        if path == under or path.startswith(under + "/"):
+            kinds.setdefault(path, set()).add(bool(chunk.is_static))
+    return {path for path, seen in kinds.items() if len(seen) == 2}

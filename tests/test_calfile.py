@@ -96,6 +96,45 @@ def test_save_is_atomic(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["cal.json"]
 
 
+def test_writer_table_writes_every_format_atomically(tmp_path, identified, monkeypatch):
+    import os
+    import stat
+
+    from ftacq import calfile
+
+    assert "json" in calfile.WRITERS
+    path = tmp_path / "cal.json"
+    calfile.write_calibration(path, identified, "json")
+    assert load_calibration(path).mass_kg == identified.mass_kg
+    assert stat.S_IMODE(os.stat(path).st_mode) == 0o644
+    # a new format is one function and one table row
+    monkeypatch.setitem(calfile.WRITERS, "mass", lambda calibration: f"{calibration.mass_kg:.6f}\n")
+    calfile.write_calibration(tmp_path / "mass.txt", identified, "mass")
+    assert (tmp_path / "mass.txt").read_text() == f"{identified.mass_kg:.6f}\n"
+    with pytest.raises(InputError, match="'urscript': unknown .*json"):
+        calfile.write_calibration(tmp_path / "x", identified, "urscript")
+    assert not (tmp_path / "x").exists()
+
+
+def test_provenance_names_the_input_and_what_was_identified_on(tmp_path, identified):
+    import hashlib
+
+    from ftacq.provenance import input_record, with_provenance
+
+    poses = tmp_path / "poses.csv"
+    poses.write_text("label,set\nA01,A\n", encoding="utf-8")
+    record = input_record(poses, ["A", "A", "E", "V"], ["A", "E"], has_std=True, has_count=False)
+    assert record == {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(), "poses": 4,
+                      "sets": {"A": 2, "E": 1, "V": 1}, "identified_on": ["A", "E"], "has_std": True,
+                      "has_count": False}
+    calibration = with_provenance(identified, None, None, input=record, run_folder="runs/x", validation=None)
+    assert calibration.metadata["input"] == record and calibration.metadata["run_folder"] == "runs/x"
+    assert "validation" not in calibration.metadata and calibration.metadata["bias_history"]
+    path = tmp_path / "cal.json"
+    save_calibration(path, calibration)
+    assert load_calibration(path).metadata["input"]["identified_on"] == ["A", "E"]
+
+
 def test_a_broken_file_names_plain_numbers_not_numpy_reprs(tmp_path):
     document = good_document()
     document["mass_kg"] = 1.3499

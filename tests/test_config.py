@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import re
 import sys
 
 import pytest
 
 from ftacq.app.cli import EXIT_BAD_INPUT, main
-from ftacq.app.config import SCHEMA, CellConfig, config_from_dict, example_config_text, load_config
+from ftacq.app.config import EDIT_MARK, SCHEMA, CellConfig, config_from_dict, example_config_text, load_config
 from ftacq.errors import ConfigError
+from procedures.calibration_procedure import ProcedureOptions
+from procedures.plan_settings import PlanSettings
+from procedures.settle import SettleSettings
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -30,6 +34,73 @@ def test_example_parses_to_the_defaults_and_covers_every_key():
         assert f"[{section}]" in text
         for name in keys:
             assert f"{name} = " in text, f"{section}.{name} missing from the example"
+
+
+def _template_entries(text: str) -> dict[str, tuple[str, str]]:
+    """Return {section.key: (comment line, value line)} of the template (value commented out when optional)."""
+    lines, section, out = text.splitlines(), "", {}
+    for comment, value in zip(lines, lines[1:]):
+        match = re.match(r"^(# )?([a-z0-9_]+) = ", value)
+        if comment.startswith("[") and comment.endswith("]"):
+            section = comment[1:-1]
+        elif comment.startswith("# ") and match and section:
+            out[f"{section}.{match.group(2)}"] = (comment, value)
+    return out
+
+
+def test_template_writes_the_ranges_the_checker_enforces():
+    entries = _template_entries(example_config_text())
+    assert set(entries) == {f"{s}.{k}" for s, keys in SCHEMA.items() for k in keys}
+    numeric = 0
+    for key, (comment, _) in entries.items():
+        section, name = key.split(".")
+        declared = SCHEMA[section][name]
+        if declared.kind not in ("float", "int"):
+            continue
+        numeric += 1
+        low_text, high_text = comment.split(" in [")[1].split("]")[0].split(", ")
+        if declared.kind == "int":
+            low, high = int(low_text), int(high_text)
+            cases = ((low, True), (high, True), (low - 1, False), (high + 1, False))
+        else:
+            low, high = float(low_text), float(high_text)
+            cases = ((low, True), (high, True), (low - 1e-3 * max(1.0, abs(low)), False),
+                     (high + 1e-3 * max(1.0, abs(high)), False))
+        for value, accepted in cases:
+            data = {section: {name: value}}
+            if (section, name) == ("poses", "min_identification_poses"):
+                data["poses"]["random_count"] = 1000  # the plan needs that many identification poses
+            if (section, name) == ("sampling", "settle_window_s"):
+                data["sampling"]["settle_timeout_s"] = 600.0  # the window must fit in the timeout
+            if (section, name) == ("sampling", "settle_timeout_s"):
+                data["sampling"]["settle_window_s"] = 0.001
+            if accepted:
+                config_from_dict(data)
+            else:
+                with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+                    config_from_dict(data)
+    assert numeric >= 20
+    speed = entries["robot.joint_speed_rad_s"][0]
+    assert "for the UR5e" in speed and "3.2" not in speed  # the model's own bound, as checked
+
+
+def test_template_marks_the_keys_a_user_must_edit():
+    entries = _template_entries(example_config_text())
+    marked = {key for key, (comment, _) in entries.items() if comment.startswith(f"# {EDIT_MARK}: ")}
+    assert marked == {"robot.host", "robot.model", "robot.mount", "sensor.url", "tool.radius_m", "tool.length_m"}
+
+
+def test_every_consumer_takes_the_declared_defaults():
+    config = CellConfig()
+    assert PlanSettings() == config.plan_settings()
+    assert (PlanSettings().joint_speed_rad_s, PlanSettings().settle_time_s, PlanSettings().tool_radius_m) == (
+        0.5, 0.5, 0.05)
+    assert SettleSettings() == SettleSettings.from_config(config)
+    assert ProcedureOptions(mount="floor") == ProcedureOptions.from_config(config)
+
+
+def test_model_names_are_case_insensitive():
+    assert config_from_dict({"robot": {"model": "ur10e"}}).robot.model == "UR10e"
 
 
 def test_values_reach_the_plan_settings(tmp_path):
@@ -69,8 +140,10 @@ folder = "elsewhere"
 
 
 @pytest.mark.parametrize("text, expected", [
-    ("[robot]\njoint_speed_rad_s = 5.0", ["robot.joint_speed_rad_s", "5.0", "[0.001, 3.2]"]),
+    ("[robot]\njoint_speed_rad_s = 5.0", ["robot.joint_speed_rad_s", "5.0", "[0.001, 3.14159] for the UR5e"]),
     ("[robot]\njoint_speed_rad_s = 3.15", ["robot.joint_speed_rad_s", "3.15"]),  # above the UR5e rating (π)
+    ("[robot]\nmodel = \"UR10e\"\njoint_speed_rad_s = 2.5", ["robot.joint_speed_rad_s", "2.5",
+                                                            "[0.001, 2.09439] for the UR10e"]),
     ("[robot]\njoint_acceleration_rad_s2 = -1", ["robot.joint_acceleration_rad_s2", "-1", "[0.001, 10]"]),
     ("[robot]\nmount = \"roof\"", ["robot.mount", "'roof'", "floor, wall, ceiling"]),
     ("[robot]\nmodel = \"UR99\"", ["robot.model", "'UR99'", "UR5e"]),

@@ -29,7 +29,7 @@ from procedures import events
 from procedures.monitor import RECORD_COLUMNS, GravityCompensator, LiveMonitor, flange_R_base_from_pose
 from tests.conftest import wait_until
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
-from tests.rrd_reader import entity_paths, read_scalars, read_texts
+from tests.rrd_reader import entity_paths, mixed_static_and_temporal, read_scalars, read_texts
 
 MODEL = ur_model("UR5e")
 Q_HOME_RAD = np.array([0.3, -1.2, 1.4, -1.6, -1.5, 0.4])
@@ -366,6 +366,7 @@ def test_monitor_logs_every_sample_and_compensates_like_the_core(tmp_path):
     paths = entity_paths(path)
     for entity in layout.WRENCH_PATHS + (layout.LINK_FRAMES[5], layout.FLANGE, layout.HEALTH_RATE, layout.JOINT_ANGLES):
         assert entity in paths, entity
+    assert not mixed_static_and_temporal(path)  # what the viewer shows of a file as recorded (see the recorder)
     time_s, raw_force = read_scalars(path, layout.RAW_FORCE)
     np.testing.assert_allclose(time_s, delivered.time_s, atol=1e-9)
     np.testing.assert_allclose(raw_force, delivered.wrench[:, :3], atol=VALUE_TOLERANCE)

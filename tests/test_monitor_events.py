@@ -39,8 +39,10 @@ def samples(n: int, start_s: float = 0.0, compensated: bool = False) -> events.W
 
 def test_coalesce_joins_consecutive_samples_and_keeps_the_order():
     notice = events.Notice("hello")
-    joined = coalesce([samples(3), samples(2, 1.0), notice, samples(4, 2.0), samples(1, 3.0, compensated=True)])
-    assert [type(e).__name__ for e in joined] == ["WrenchSamples", "Notice", "WrenchSamples", "WrenchSamples"]
+    arm = events.RobotState(0.5, np.zeros(6), np.zeros(6))
+    joined = coalesce([samples(3), arm, samples(2, 1.0), notice, samples(4, 2.0), samples(1, 3.0, compensated=True)])
+    assert [type(e).__name__ for e in joined] == ["WrenchSamples", "RobotState", "Notice", "WrenchSamples",
+                                                  "WrenchSamples"]
     assert [len(e) for e in joined if isinstance(e, events.WrenchSamples)] == [5, 4, 1]
     np.testing.assert_allclose(joined[0].batch.time_s, np.r_[np.arange(3) * 1e-3, 1.0 + np.arange(2) * 1e-3])
 

@@ -338,3 +338,35 @@ def test_resend_schedule_is_short_while_a_box_restarts_and_backs_off_when_it_is_
     assert intervals[0][1] == 0.25 and intervals[1][1] == 0.5
     assert max(i for s, i in intervals if s < UNREACHABLE_AFTER_S) == BACKOFF_RESTARTING_MAX_S
     assert intervals[-1][1] == BACKOFF_MAX_S
+
+
+def test_benchmark_figures_are_available_from_the_driver(fake) -> None:
+    """benchmarks/stream.py reads these: they must exist on the driver."""
+    with NetFTSensor.from_url(fake.url) as sensor:
+        sensor.read(timeout_s=READ_TIMEOUT_S)
+        assert sensor.receive_buffer_bytes > 0 and sensor.delivered > 0 and sensor.overflowed == 0
+
+
+def test_sensor_urls_from_random_pieces_raise_only_input_errors() -> None:
+    """Fuzz (seeded): any string made of URL pieces is accepted or refused with InputError, never a traceback."""
+    import random
+
+    from drivers.sensor import parse_sensor_url
+
+    pieces = ["netft://", "can://", "virtual/", "socketcan/can0", "127.0.0.1", "[::1", "[::1]", ":", "?", "&", "=",
+              "rate_hz", "tcp_port", "base", "0x", "nan", "inf", "-1", "1e400", "99999999999", "buffered", "yes",
+              "timeout_s", "%", "%zz", "/", "#", "@", "\x00", "é", "calibration", "bitrate", "status_map", "axia",
+              "force_unit", "N-mm", "counts_per_force", "counts_per_torque", "torque_unit", "lbf", "ftp://"]
+    rng = random.Random(15)
+    accepted = 0
+    for _ in range(3000):
+        url = "".join(rng.choice(pieces) for _ in range(rng.randint(1, 8)))
+        try:
+            parse_sensor_url(url)
+            accepted += 1
+        except InputError:
+            pass
+    assert accepted > 0
+    for bad in (None, 42, b"netft://x"):
+        with pytest.raises(InputError):
+            parse_sensor_url(bad)

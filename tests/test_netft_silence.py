@@ -102,7 +102,7 @@ def test_every_record_sent_after_a_silence_is_received(fake, silence_s) -> None:
         received = read_until_sent_delivered(sensor, fake, batches)
         health = sensor.health()
     assert_received_exactly_once(sent_identities(fake), received)
-    assert health.reconnects >= 1 and health.duplicate == 0 and health.restarts == 0
+    assert health.reconnects >= 1 and health.duplicate == 0 and health.restarts == 0, (health, fake.stats())
     # the box streamed on into the quiet link: those are the lost records, in one gap about as long as the silence
     assert health.lost == fake.records_silenced and health.gaps == 1
     assert health.longest_gap_s >= silence_s - 0.01  # the box forces one record out per start

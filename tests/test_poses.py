@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ftacq.mounts import MOUNT_TABLE, MOUNTS
 from ftacq.so3 import angle_between_deg, cube_rotations, rotation_from_rotvec
-from procedures.poses import (
-    DOWN_BASE, explicit_poses, random_cone_poses, special_poses, tool_down_rotation,
-)
+from procedures.poses import explicit_poses, random_cone_poses, special_poses, tool_down_rotation
 
 CENTER = np.array([-0.25, -0.37, 0.37])
 
@@ -30,10 +29,18 @@ def test_special_poses_pivot_keeps_a_point_on_the_tool_fixed():
     np.testing.assert_allclose(pivot, np.tile(CENTER, (24, 1)), atol=1e-12)
 
 
-@pytest.mark.parametrize("mount", ["floor", "wall", "ceiling"])
+@pytest.mark.parametrize("mount", MOUNTS)
+def test_mount_gravity_direction_agrees_with_its_tilt(mount):
+    # gravity_base = −m g [cos α sin β, −sin α, cos α cos β] (the model's tilt convention)
+    alpha, beta = np.radians(MOUNT_TABLE[mount].tilt_deg)
+    from_tilt = -np.array([np.cos(alpha) * np.sin(beta), -np.sin(alpha), np.cos(alpha) * np.cos(beta)])
+    np.testing.assert_allclose(MOUNT_TABLE[mount].down_base, from_tilt, atol=1e-12)
+
+
+@pytest.mark.parametrize("mount", MOUNTS)
 def test_tool_down_points_along_gravity(mount):
     rotation = tool_down_rotation(mount)
-    np.testing.assert_allclose(rotation[:, 2], DOWN_BASE[mount])
+    np.testing.assert_allclose(rotation[:, 2], MOUNT_TABLE[mount].down_base)
     np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(rotation) == pytest.approx(1.0)
 

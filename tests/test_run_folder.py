@@ -11,9 +11,10 @@ from ftacq.app.config import CellConfig
 from ftacq.errors import InputError
 from ftacq.posefile import POSE_CSV_HEADER, read_pose_csv
 from procedures import events
-from procedures.calibration import Identify, Measure, Move, Validate, calibration_steps, count_measurements
+from procedures.calibration_procedure import Identify, Measure, Move, Validate, calibration_steps, count_measurements
 from procedures.plan import Plan, PlanSettings
-from procedures.run_folder import RUN_JSON, RunFolder, RunFolderWriter, drift_label
+from procedures.measured import drift_label
+from procedures.run_folder import RUN_JSON, RunFolder, RunFolderWriter
 
 LABELS = ("A01", "E01", "V01", "E02")
 SETS = ("A", "E", "V", "E")
@@ -187,7 +188,7 @@ def test_progress_counts_agree_with_the_stop_message_on_a_resumed_run():
 
 
 def test_stop_message_counts_like_the_progress_display():
-    from procedures.calibration import CalibrationProcedure, ProcedureOptions
+    from procedures.calibration_procedure import CalibrationProcedure, ProcedureOptions
 
     plan = small_plan()  # 4 poses + the drift-check revisit = 5 measurements
     seen = []
@@ -208,8 +209,8 @@ def test_calibrate_needs_a_source(capsys):
 
 
 def test_report_of_a_failed_run_lists_what_was_measured(tmp_path):
-    from procedures.calibration import ProcedureResult
-    from procedures.report import write_report
+    from procedures.calibration_procedure import ProcedureResult
+    from procedures.run_report import write_report
 
     folder = RunFolder.create(tmp_path, CellConfig().to_dict(), small_plan().to_json(), name="r")
     folder.append_pose(measured_event(0))

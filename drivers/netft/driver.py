@@ -314,6 +314,11 @@ class NetFTSensor(SensorBase):
         return self._receiver.overflowed if self._receiver is not None else 0
 
     @property
+    def receive_buffer_bytes(self) -> int:
+        """The socket's receive buffer as the kernel granted it, bytes (0 before start)."""
+        return self._receiver.receive_buffer_bytes if self._receiver is not None else 0
+
+    @property
     def ft_backward(self) -> int:
         return self._tracker.counters.ft_backward
 

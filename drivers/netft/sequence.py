@@ -134,6 +134,8 @@ class SequenceTracker:
                 self._order(records, times, now, out, release_all=False)
             return _join(out)
         rdt = records["rdt_sequence"].astype(np.int64)
+        if self._in_order(records, times, rdt, first_index + n):
+            return records, times
         if self._fast(rdt, first_index + n):
             self._order(records, times, now, out, release_all=False)
         else:
@@ -141,6 +143,30 @@ class SequenceTracker:
         return _join(out)
 
     # ------------------------------------------------------------------ stage 1: which stream a record belongs to
+
+    def _in_order(self, records: np.ndarray, times: np.ndarray, rdt: np.ndarray, end_index: int) -> bool:
+        """The common case, in a few numpy operations: each record +1 after the last delivered, nothing held, no
+        start of ours in play. Deliver (update the stream) and return True; else change nothing, return False."""
+        last = self._last_rdt
+        if (last is None or len(self._held) or self._active_since is not None or self._bias_pending
+                or self._fresh_stream or (self._starts and self._starts[0][0] < end_index)):
+            return False
+        if rdt[0] != ((last + 1) & UINT32_MASK) or (len(rdt) > 1 and not bool(np.all(np.diff(rdt) == 1))):
+            return False
+        ft = records["ft_sequence"].astype(np.int64)
+        step = np.diff(ft, prepend=self._last_ft) & UINT32_MASK
+        counters = self.counters
+        counters.stalled += int(np.count_nonzero(step == 0))
+        backward = int(np.count_nonzero(step >= HALF_RANGE))
+        if backward:
+            counters.ft_backward += backward
+        if 0 < step[-1] < HALF_RANGE:
+            self._ft_step = int(step[-1])
+        self._last_rdt = self._head_rdt = int(rdt[-1])
+        self._last_ft = self._head_ft = int(ft[-1])
+        self._last_time = float(times[-1])
+        self._stale_run = 0
+        return True
 
     def _fast(self, rdt: np.ndarray, end_index: int) -> bool:
         """Whether every record steps forward within the current stream and no start of ours is in play."""

@@ -32,20 +32,20 @@ from ftacq.identification.pose_error import estimate_noise, orientation_sensitiv
 from ftacq.identification.refine import (
     PARAMETER_SLICES,
     ModelParameters,
-    PoseSet,
+    OrientationBlock,
     gravity_in_sensor,
     levenberg_marquardt,
     normal_equations,
     predict,
 )
 from ftacq.identification.srom import DEFAULT_SPECIAL_TOLERANCE_DEG, match_special, missing_special, srom_gravity_base
-from ftacq.identification.tilt import MOUNT_TILT_DEG, nearest_mount, relative_tilt_deg, tilt_deg, tilt_jacobian_deg
+from ftacq.identification.tilt import nearest_mount, relative_tilt_deg, tilt_deg, tilt_jacobian_deg
 from ftacq.identification.torque import torque_least_squares
 from ftacq.identification.wahba import wahba
+from ftacq.mounts import MOUNTS
 from ftacq.posefile import PoseRecord
 
 METHODS = ("auto", "srom", "lrom")
-MOUNTS = tuple(MOUNT_TILT_DEG)
 CLOSED_FORM_ROBUST_PASSES = 3
 """Closed-form re-solves with robust weights when a pose looks disturbed."""
 MAX_ROBUST_ITERATIONS = 40
@@ -181,7 +181,7 @@ def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.nda
     )
 
 
-def _covariance(params: ModelParameters, rotations: PoseSet, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _covariance(params: ModelParameters, rotations: OrientationBlock, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return (JᵀWJ, its inverse) at ``params`` with ``weight`` as in refine.normal_equations."""
     information, *_ = normal_equations(params, rotations, np.zeros((len(rotations), 6)), weight)
     try:
@@ -323,7 +323,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         # channels it fits sub-optimally; extra scatter τ is re-estimated after each refit
         sigma = np.sqrt(np.maximum(standard_error, floor) ** 2)
     converged, iterations = True, 0
-    pose_set = PoseSet(rotations)
+    orientations = OrientationBlock(rotations)
     noise = None  # the full noise model (pose_error.py), once the refinement has residuals to estimate it from
     if refine:
         converged = False
@@ -331,7 +331,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         weight = pose_weight[:, None] / sigma**2
         total_sigma = sigma
         for _ in range(MAX_ROBUST_ITERATIONS):
-            result = levenberg_marquardt(params, pose_set, wrench, weight, max_iterations=INNER_ITERATIONS)
+            result = levenberg_marquardt(params, orientations, wrench, weight, max_iterations=INNER_ITERATIONS)
             iterations += result.iterations
             step_ok = covariance is None or bool(
                 np.all(
@@ -368,7 +368,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
             weight_change = float(np.max(np.abs(new_weight - pose_weight)))
             pose_weight = new_weight
             weight = noise.weight(pose_weight)
-            _, covariance = _covariance(params, pose_set, weight)
+            _, covariance = _covariance(params, orientations, weight)
             if weight_change <= ROBUST_WEIGHT_TOLERANCE and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok and result.converged:
                 converged = True
                 break
@@ -382,7 +382,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
     residual = wrench - predict(params, rotations)
     d2 = noise.pose_statistic(residual) if noise is not None else robust.pose_statistic(residual, sigma)
     weight = noise.weight(pose_weight) if noise is not None else pose_weight[:, None] / sigma**2
-    information, covariance = _covariance(params, pose_set, weight)
+    information, covariance = _covariance(params, orientations, weight)
     conditioning = diagnostics.fisher_conditioning(information)
     uncertainty = _uncertainty(params, covariance, mount)
     mass_kg = float(np.linalg.norm(params.gravity_base) / STANDARD_GRAVITY_M_S2)

@@ -103,7 +103,7 @@ def jacobian(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
     return _jacobian_t(params, rotations_t).transpose(2, 1, 0)
 
 
-class PoseSet:
+class OrientationBlock:
     """Orientations laid out for vectorised refinement: ``rotations_t`` (3, 3, N) contiguous per element."""
 
     def __init__(self, flange_R_base: np.ndarray) -> None:
@@ -164,8 +164,8 @@ CHUNK_POSES = 2048
 """Poses per block when accumulating the normal equations (bounds the Jacobian block's memory)."""
 
 
-def _as_pose_set(flange_R_base) -> PoseSet:
-    return flange_R_base if isinstance(flange_R_base, PoseSet) else PoseSet(flange_R_base)
+def _as_orientation_block(flange_R_base) -> OrientationBlock:
+    return flange_R_base if isinstance(flange_R_base, OrientationBlock) else OrientationBlock(flange_R_base)
 
 
 def normal_equations(
@@ -175,9 +175,9 @@ def normal_equations(
 
     ``weight`` is (N, 6) = w_i / σ_i,ch² (independent channels) or (N, 6, 6) whitening matrices
     A_i = √w_i L_i⁻¹ with L_i L_iᵀ = C_i the pose's full noise covariance (pose_error.py): W_i = A_iᵀ A_i.
-    ``flange_R_base`` is (N, 3, 3) or a :class:`PoseSet` (reused across calls).
+    ``flange_R_base`` is (N, 3, 3) or a :class:`OrientationBlock` (reused across calls).
     """
-    poses = _as_pose_set(flange_R_base)
+    poses = _as_orientation_block(flange_R_base)
     n = len(poses)
     full = weight.ndim == 3
     information = np.zeros((15, 15))
@@ -207,7 +207,7 @@ def normal_equations(
 
 def cost(params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray) -> float:
     """Return rᵀ W r at ``params`` (``weight`` as in :func:`normal_equations`)."""
-    poses = _as_pose_set(flange_R_base)
+    poses = _as_orientation_block(flange_R_base)
     residual = wrench.T - _predict_t(params, poses.rotations_t)
     if weight.ndim == 3:
         whitened = weight @ residual.T[:, :, None]
@@ -234,7 +234,7 @@ def levenberg_marquardt(
 ) -> RefineResult:
     """Minimise rᵀ W r from ``params`` (``weight`` (N, 6) = w_i / σ_i,ch² or (N, 6, 6) whitening matrices, as in
     :func:`normal_equations`); return the optimum."""
-    flange_R_base = _as_pose_set(flange_R_base)
+    flange_R_base = _as_orientation_block(flange_R_base)
     damping = INITIAL_DAMPING
     jtj, jtr, current, _ = normal_equations(params, flange_R_base, wrench, weight)
     for iteration in range(1, max_iterations + 1):

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-MOUNT_TILT_DEG = {"floor": (0.0, 0.0), "wall": (0.0, 90.0), "ceiling": (0.0, 180.0)}
-"""Nominal (α, β) in degrees of each mount name."""
+from ftacq.mounts import MOUNT_TABLE
+
+MOUNT_TILT_DEG = {name: mount.tilt_deg for name, mount in MOUNT_TABLE.items()}
+"""Nominal (α, β) in degrees of each mount name (from :data:`ftacq.mounts.MOUNT_TABLE`)."""
 
 
 def wrap_deg(angle: float | np.ndarray) -> float | np.ndarray:

@@ -196,7 +196,7 @@ def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, pl
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
-    from procedures.calibration import CalibrationProcedure, ProcedureOptions
+    from procedures.calibration_procedure import CalibrationProcedure, ProcedureOptions
     from procedures.plan import make_plan
 
     settings = config.plan_settings()

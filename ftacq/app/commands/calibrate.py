@@ -21,6 +21,7 @@ from pathlib import Path
 from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
+from ftacq.mounts import MOUNTS
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help=f"simulated time runs X times faster than real time (0 = instant moves; default "
                           f"{DEFAULT_SIM_TIME_SCALE:g}); settle and averaging times shrink by the same factor")
     sim.add_argument("--model", default="UR5e", help="simulated UR model without --config (default %(default)s)")
-    sim.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor",
+    sim.add_argument("--mount", choices=MOUNTS, default=MOUNTS[0],
                      help="simulated mount without --config (default %(default)s)")
     sim.add_argument("--sim-wrong-tool", action="store_true",
                      help="fault: the validation poses are measured with a part (0.2 kg) left in the gripper, "
@@ -145,7 +146,7 @@ def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.app.config import config_from_dict, load_config
-    from procedures.calibration import (
+    from procedures.calibration_procedure import (
         CalibrationProcedure,
         Move,
         ProcedureOptions,
@@ -300,26 +301,17 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, m
     return background
 
 
-def _input_summary(folder, result) -> dict:
-    import hashlib
-
-    poses = folder.poses_csv
-    sets = [m.set_name for m in result.measured.values()]
-    return {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(), "poses": len(sets),
-            "sets": {name: sets.count(name) for name in sorted(set(sets))}, "identified_on": ["A", "E"],
-            "has_std": True, "has_count": True}
-
-
 def _finish(args, folder, plan, config, result, cell, options, sensor_info=None) -> int:
     """Write calibration.json and the report, print the summary and the verdict last; raise AbortedError for a
     stopped/failed run. Returns 1 when the verdict is FAIL (the calibration is kept but must not be used)."""
     import numpy as np
 
     from ftacq.calfile import save_calibration
-    from ftacq.provenance import with_provenance
+    from ftacq.posesets import IDENTIFICATION_SETS
+    from ftacq.provenance import input_record, with_provenance
     from ftacq.verdict import FAIL, format_verdict
     from procedures.acceptance import run_verdict
-    from procedures.report import format_truth_comparison, validation_dict, write_report
+    from procedures.run_report import format_truth_comparison, validation_dict, write_report
     from procedures.run_folder import CALIBRATION_JSON
 
     truth = cell.truth.calibration() if cell is not None else None
@@ -333,20 +325,16 @@ def _finish(args, folder, plan, config, result, cell, options, sensor_info=None)
         log.warning("could not judge the %s run", result.status, exc_info=True)
     if result.identification is not None:
         calibration = result.identification.calibration
-        from dataclasses import replace
-
-        metadata = dict(calibration.metadata)
-        metadata["run_folder"] = str(folder.path)
-        if result.validation is not None:
-            metadata["validation"] = validation_dict(result.validation)
-        metadata["input"] = _input_summary(folder, result)
+        drift_check = None
         if result.drift is not None:
-            metadata["drift_check"] = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
-                                       "elapsed_s": result.drift.elapsed_s}
-        if verdict is not None:
-            metadata["verdict"] = verdict.to_dict()
-        calibration = with_provenance(replace(calibration, metadata=metadata), sensor_info,
-                                      getattr(config.tool, "name", None))
+            drift_check = {"label": result.drift.label, "drift": np.asarray(result.drift.drift).tolist(),
+                           "elapsed_s": result.drift.elapsed_s}
+        sets = [m.set_name for m in result.measured.values()]
+        calibration = with_provenance(
+            calibration, sensor_info, getattr(config.tool, "name", None), run_folder=str(folder.path),
+            validation=None if result.validation is None else validation_dict(result.validation),
+            input=input_record(folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True),
+            drift_check=drift_check, verdict=None if verdict is None else verdict.to_dict())
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,

@@ -42,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run_init(args: argparse.Namespace) -> int:
     """Write the example configuration; refuse to overwrite without --force."""
-    from ftacq.app.config import example_config_text
+    from ftacq.app.config import EDIT_MARK, SCHEMA, example_config_text
     from ftacq.fileio import atomic_write
 
     from ftacq.validation import check_output_file
@@ -55,7 +55,8 @@ def run_init(args: argparse.Namespace) -> int:
     check_output_file(path, "configuration file")
     with atomic_write(path) as handle:
         handle.write(example_config_text())
-    print(f"wrote {path}: edit robot.host, robot.model, sensor.url and the tool cylinder, then run "
+    to_edit = ", ".join(key.key for keys in SCHEMA.values() for key in keys.values() if key.edit)
+    print(f"wrote {path}: set the keys marked {EDIT_MARK} for your cell ({to_edit}), then run "
           f"`ftacq calibrate --config {path} --dry-run` to check the plan", file=sys.stderr)
     return 0
 

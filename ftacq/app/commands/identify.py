@@ -3,17 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 from pathlib import Path
 
 from ftacq.app.helptext import examples
-
-REVISIT_SUFFIX = "-revisit"
-"""A D row labelled ``<label>-revisit`` measures pose ``<label>`` again: their difference is the bias drift."""
-HELD_OUT_SETS = ("V", "D")
-"""Poses of these sets (column ``set``: V validation, D the procedure's drift-check revisit) are held out of the
-fit, as the calibration procedure does, and used to report the compensation error."""
+from ftacq.mounts import MOUNTS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -36,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
     parser.add_argument(
         "--mount",
-        choices=("floor", "wall", "ceiling"),
+        choices=MOUNTS,
         help="nominal robot mount: also report the base tilt relative to it",
     )
     parser.add_argument(
@@ -67,11 +61,12 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ftacq.calfile import save_calibration
-    from ftacq.calibration import Calibration
     from ftacq.errors import IdentificationError, InputError
     from ftacq.identification import identify
     from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.posefile import read_pose_csv
+    from ftacq.posesets import is_identified_on
+    from ftacq.provenance import input_record, with_provenance
     from ftacq.report import format_identification_report, validation_errors
     from ftacq.verdict import FAIL, format_verdict
 
@@ -84,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, "-o/--output")
     path = Path(args.poses)
     record = read_pose_csv(path)
-    held_out = np.array([name.strip().upper() in HELD_OUT_SETS for name in record.sets])
+    held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
     validation = None
     fit_record = record
     if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
@@ -103,30 +98,10 @@ def run(args: argparse.Namespace) -> int:
     if held_out_record is not None:
         validation = validation_errors(result.calibration, held_out_record)
     verdict = _verdict(result, held_out_record, record)
-    metadata = dict(result.calibration.metadata)
-    if validation is not None:
-        metadata["validation"] = validation
-    metadata["verdict"] = verdict.to_dict()
-    metadata["input"] = {
-        "file": str(path),
-        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
-        "poses": len(record),
-        "sets": {name: record.sets.count(name) for name in sorted(set(record.sets))},
-        "has_std": record.std is not None,
-        "has_count": record.count is not None,
-    }
-    calibration = Calibration(
-        sensor_rotation=result.calibration.sensor_rotation,
-        force_bias=result.calibration.force_bias,
-        torque_bias=result.calibration.torque_bias,
-        gravity_base=result.calibration.gravity_base,
-        center_of_mass=result.calibration.center_of_mass,
-        uncertainty=result.calibration.uncertainty,
-        metadata=metadata,
-    )
-    from ftacq.provenance import with_provenance
-
-    calibration = with_provenance(calibration, None, None)  # a pose file does not say which sensor measured it
+    calibration = with_provenance(  # a pose file does not say which sensor measured it
+        result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
+        input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
+                           has_count=record.count is not None))
     report = format_identification_report(result, validation=validation)
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
@@ -142,13 +117,15 @@ def _verdict(result, held_out_record, record):
     import numpy as np
 
     from ftacq.app.config import SamplingConfig
+    from ftacq.posesets import DRIFT_SET
     from ftacq.verdict import drift_finding, identification_findings, judge
+    from procedures.measured import DRIFT_SUFFIX
 
     findings = identification_findings(result, held_out_record)
     labels = list(record.labels)
     for i, (label, set_name) in enumerate(zip(labels, record.sets)):
-        first = label[: -len(REVISIT_SUFFIX)] if label.endswith(REVISIT_SUFFIX) else None
-        if set_name.strip().upper() != "D" or first not in labels:
+        first = label[: -len(DRIFT_SUFFIX)] if label.endswith(DRIFT_SUFFIX) else None
+        if set_name.strip().upper() != DRIFT_SET or first not in labels:
             continue
         j = labels.index(first)
         t_end = record.extra.get("t_end_s")

@@ -83,7 +83,7 @@ def _run(args: argparse.Namespace) -> int:
     from ftacq.bias_estimate import apply_estimate
     from ftacq.calfile import load_calibration, save_calibration
     from ftacq.provenance import require_same_sensor, sensor_record, tool_record
-    from procedures.calibration import ProcedureOptions
+    from procedures.calibration_procedure import ProcedureOptions
     from procedures.settle import SettleSettings
     from procedures.tare import TareProcedure, tare_here, tare_plan_settings
 
@@ -128,7 +128,7 @@ def _run(args: argparse.Namespace) -> int:
         robot.start()
         plan = None
         if args.poses:
-            from procedures.calibration import Move, calibration_steps, check_steps
+            from procedures.calibration_procedure import Move, calibration_steps, check_steps
             from procedures.plan import format_plan, make_plan
 
             plan = make_plan(tare_plan_settings(settings, args.poses), robot.joint_positions())
@@ -157,12 +157,13 @@ def _run(args: argparse.Namespace) -> int:
         note = require_same_sensor(calibration, sensor.info, args.force, "ftacq tare")
         if note:
             print(note, file=sys.stderr, flush=True)
+        sampled = config.replace_section("sampling", **_as_dict(sampling))
         if plan is None:
             print("taring at the current pose (the robot does not move): keep the arm still and the tool untouched",
                   flush=True)
-            result = tare_here(robot, sensor, calibration, SettleSettings.from_sampling(sampling))
+            result = tare_here(robot, sensor, calibration, SettleSettings.from_config(sampled))
         else:
-            options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
+            options = ProcedureOptions.from_config(sampled)
             procedure = TareProcedure(plan, robot, sensor, calibration, options)
             outcome = procedure.run()
             if outcome.status != "done" or procedure.result is None:

@@ -11,7 +11,8 @@ Entity paths::
     world                                                  robot base frame B (z up, metres)
     world/robot/link1 … link6                              DH frame i: base_T_i (Transform3D, per time)
     world/robot/link1/shape … link6/shape                  the link drawn in its own frame (static)
-    world/flange                                           base_T_flange (Transform3D, per time) and its axes
+    world/flange                                           base_T_flange (Transform3D, per time)
+    world/flange/axes                                      the flange frame's axes (static)
     world/flange/sensor                                    flange_T_sensor (from the calibration) and its axes
     world/flange/sensor/contact_force                      the compensated contact force, sensor frame
     world/gravity                                          the tool's weight (base frame) at the flange
@@ -30,6 +31,7 @@ from typing import Any
 import rerun.blueprint as rrb
 
 from ftacq.app.dashboard.sinks import APP_ID  # noqa: F401 - the recording's id, re-exported with the layout
+from ftacq.posesets import POSE_SETS, UNKNOWN_SET_COLOUR_RGB
 
 # ------------------------------------------------------------------------------------------------ timelines
 
@@ -54,6 +56,7 @@ LINK_FRAMES = tuple(f"{ROBOT}/link{i}" for i in range(1, 7))
 LINK_SHAPES = tuple(f"{frame}/shape" for frame in LINK_FRAMES)
 """Each link drawn once (static) in its own DH frame."""
 FLANGE = "world/flange"
+FLANGE_AXES = "world/flange/axes"
 SENSOR = "world/flange/sensor"
 CONTACT_FORCE = "world/flange/sensor/contact_force"
 GRAVITY = "world/gravity"
@@ -97,9 +100,9 @@ HEALTH_COUNT_NAMES = ("lost", "saturated", "status_errors", "dropped")
 HEALTH_COUNT_COLORS = ((230, 57, 70), (240, 160, 30), (150, 60, 200), (120, 120, 120))
 JOINT_NAMES = tuple(f"q{i}" for i in range(1, 7))
 JOINT_COLORS = ((230, 57, 70), (240, 160, 30), (200, 200, 40), (42, 157, 90), (38, 103, 230), (150, 60, 200))
-SET_COLORS = {"A": (38, 103, 230), "E": (240, 160, 30), "V": (42, 157, 90)}
-"""Plan colours by pose set: A cube rotations blue, E random cone orange, V validation green."""
-UNKNOWN_SET_COLOR = (160, 160, 160)
+SET_COLORS = {name: kind.colour_rgb for name, kind in POSE_SETS.items()}
+"""Plan colours by pose set (:data:`ftacq.posesets.POSE_SETS`: A blue, E orange, V green, D red)."""
+UNKNOWN_SET_COLOR = UNKNOWN_SET_COLOUR_RGB
 LINK_COLOR = (190, 195, 205)
 JOINT_COLOR = (60, 60, 70)
 CONTACT_COLOR = (230, 57, 70)
@@ -110,6 +113,8 @@ CURRENT_POSE_COLOR = (255, 255, 255)
 FORCE_ARROW_SCALE_M_PER_N = 0.01
 """Length of force arrows in the 3-D view: 10 N draws 0.1 m."""
 ARROW_RADIUS_M = 0.004
+LABEL_RADIUS_M = 0.002
+"""The labels' anchor points: small, the text is what shows."""
 LABEL_CLEARANCE_M = 0.04
 """A label sits this far beyond its arrow's tip and at least this far from either arrow."""
 LABEL_MIN_SEPARATION_M = 0.10

@@ -7,10 +7,11 @@ Stream (the monitor, and every sensor read of the calibration): samples → the 
 the arm, sent as columns about every :data:`ARM_SEND_PERIOD_S`; sensor status → health plots; notices → the log.
 
 During a calibration the compensated wrench cannot be known before the identification: the listener keeps the
-raw samples it was sent, thinned to at most :data:`BACKFILL_RATE_HZ` and :data:`BACKFILL_MAX_SAMPLES`, each with
-the pose it was read at (the next PoseMeasured's: the procedure reads the sensor only at a still pose), and when
-the calibration is identified logs their compensated wrench on the same times; later samples are compensated as
-they come.
+raw samples of every averaging window, thinned to at most :data:`BACKFILL_RATE_HZ` and
+:data:`BACKFILL_MAX_SAMPLES`, with the pose they were measured at (PoseMeasured: window and pose), and when the
+calibration is identified logs their compensated wrench on the same times (it should be ≈ 0: no contact while
+calibrating); later samples are compensated as they come. Settling samples get no compensated value: the driver
+may still hold samples from before the move when settling starts.
 """
 
 from __future__ import annotations
@@ -110,11 +111,22 @@ class DashboardListener:
             self._backfill.append((*part, np.asarray(pose, dtype=float)))
         self._backfill_samples += keep.size
 
-    def _place_backfill(self, pose: np.ndarray) -> None:
-        """The samples read since the last measured pose were read at ``pose``."""
-        if self._backfill is not None:
-            self._backfill += [(t, w, np.asarray(pose, dtype=float)) for t, w in self._unplaced]
-        self._unplaced = []
+    def _place_backfill(self, event: events.PoseMeasured) -> None:
+        """Keep the samples of the pose's averaging window (the arm surely still at ``event.pose``); the others
+        read since the last measured pose (settling, and what the driver held from before the move) get none."""
+        unplaced, self._unplaced = self._unplaced, []
+        if self._backfill is None:
+            return
+        pose = np.asarray(event.pose, dtype=float)
+        if event.t_start_s is None or event.t_end_s is None:
+            self._backfill += [(t, w, pose) for t, w in unplaced]
+            return
+        unix_minus_monotonic_s = time.time() - time.monotonic()  # the window is in UNIX time, samples monotonic
+        start_s, end_s = event.t_start_s - unix_minus_monotonic_s, event.t_end_s - unix_minus_monotonic_s
+        for t, w in unplaced:
+            inside = (t >= start_s) & (t <= end_s)
+            if inside.any():
+                self._backfill.append((t[inside], w[inside], pose))
 
     def _log_backfill(self) -> None:
         """Log the compensated wrench of the samples kept before the calibration was known."""
@@ -186,7 +198,7 @@ class DashboardListener:
                 self._send_arm()
         elif isinstance(event, events.PoseMeasured):
             dash.log_pose_measured(now, event.index, event.mean)
-            self._place_backfill(event.pose)
+            self._place_backfill(event)
             self._send_arm()
             dash.log_arm(np.array([now]), np.asarray(event.pose)[None, :],
                          None if self.model is None else np.asarray(event.joint_positions_rad)[None, :])

@@ -3,8 +3,10 @@
 Everything is logged to a :class:`rerun.RecordingStream` handed in explicitly (never the global one), so a
 test records to a file and a live run to a viewer with the same code. Streams go as numpy columns
 (``send_columns``: one call per plot per batch, never one Python object per sample); fixed things are logged
-once, static (axis names and colours, the arm's link shapes, arrow styles), so a recording shows them whatever
-the time cursor, as recorded.
+once, static (axis names and colours, the arm's link shapes, frame axes), so a recording shows them whatever
+the time cursor, as recorded. No entity of the 3-D view mixes static and temporal data: a file written live showed
+such entities only after ``rerun rrd optimize`` (the arrows and labels, in a 20 s recording viewed with rerun
+0.41), so an arrow's colour and radius go with every row and frame axes sit on a child entity of their frame.
 
 Strict mode (``Dashboard(recording, strict=True)``) turns Rerun API misuse into exceptions (tests); the
 default is warn-only, so a visualisation problem never stops acquisition or the robot.
@@ -21,16 +23,18 @@ import rerun as rr
 
 from ftacq.app.dashboard.arm import label_anchors, link_frames, link_shapes
 from ftacq.app.dashboard.layout import (
-    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, BIAS_DRIFT_FORCE, BIAS_DRIFT_TORQUE, CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
-    FLANGE, FORCE_ARROW_SCALE_M_PER_N, FORCE_AXES, FRAME_AXIS_LENGTH_M, GRAVITY, GRAVITY_COLOR, HEALTH_COUNT_COLORS,
+    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, BIAS_DRIFT_FORCE, BIAS_DRIFT_TORQUE,
+    CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
+    FLANGE, FLANGE_AXES, FORCE_ARROW_SCALE_M_PER_N, FORCE_AXES, FRAME_AXIS_LENGTH_M, GRAVITY, GRAVITY_COLOR, HEALTH_COUNT_COLORS,
     HEALTH_COUNT_NAMES, HEALTH_COUNTS, HEALTH_RATE, HEALTH_STATUS, JOINT_ANGLES, JOINT_COLOR, JOINT_COLORS,
-    JOINT_NAMES, LABEL_COLORS, LABELS, LINK_COLOR, LINK_FRAMES, LINK_SHAPES, MEASURED_FORCE, MEASURED_TORQUE,
+    JOINT_NAMES, LABEL_COLORS, LABEL_RADIUS_M, LABELS, LINK_COLOR, LINK_FRAMES, LINK_SHAPES, MEASURED_FORCE, MEASURED_TORQUE,
     MONITOR_LOG, PLAN, PLAN_AXIS_LENGTH_M, POSE_TIMELINE, RESIDUAL_FORCE, RESIDUAL_FORCE_NORM, RESIDUAL_TORQUE,
     RESIDUAL_TORQUE_NORM, SENSOR, SENSOR_TIMELINE, SET_COLORS, TORQUE_AXES, UNKNOWN_SET_COLOR,
     VALIDATION_FORCE_NORM, WORLD, WRENCH_PATHS, blueprint,
 )
 from ftacq.app.dashboard.sinks import RECORDING_FLUSH_TIMEOUT_S
 from ftacq.kinematics import URModel
+from ftacq.posesets import VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 
 
@@ -94,13 +98,8 @@ class Dashboard:
         self._static(JOINT_ANGLES, rr.SeriesLines(colors=JOINT_COLORS, names=JOINT_NAMES))
         self._static(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP)
         self._static(BASE_AXES, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M * 1.5))
-        self._static(FLANGE, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M))
+        self._static(FLANGE_AXES, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M))
         self._static(SENSOR, rr.TransformAxes3D(FRAME_AXIS_LENGTH_M * 0.75))
-        self._static(CONTACT_FORCE, rr.Arrows3D.from_fields(colors=[CONTACT_COLOR], radii=[ARROW_RADIUS_M],
-                                                            show_labels=False))
-        self._static(GRAVITY, rr.Arrows3D.from_fields(colors=[GRAVITY_COLOR], radii=[ARROW_RADIUS_M],
-                                                      show_labels=False))
-        self._static(LABELS, rr.Points3D.from_fields(colors=LABEL_COLORS, radii=[0.002], show_labels=True))
 
     # -- what stays fixed --------------------------------------------------------------------------------------
 
@@ -153,8 +152,9 @@ class Dashboard:
                 self._scalars(WRENCH_PATHS[2], time_s, compensated[:, :3])
                 self._scalars(WRENCH_PATHS[3], time_s, compensated[:, 3:])
                 self._contact_sensor = compensated[-1, :3].copy()
-                self._at(time_s[-1], CONTACT_FORCE,
-                         rr.Arrows3D.from_fields(vectors=[self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N]))
+                self._at(time_s[-1], CONTACT_FORCE, rr.Arrows3D(
+                    vectors=[self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N], colors=[CONTACT_COLOR],
+                    radii=[ARROW_RADIUS_M]))
 
     def log_arm(self, time_s: np.ndarray, flange_pose: np.ndarray, q_rad: np.ndarray | None = None) -> None:
         """Log N states of the arm as columns: ``time_s`` (N,) s (sensor clock), ``flange_pose`` (N, 6)
@@ -179,7 +179,9 @@ class Dashboard:
             self._send(FLANGE, time_s, rr.Transform3D.columns(translation=flange_pose[:, :3], mat3x3=base_R_flange))
             if self._gravity_base is not None:
                 weight = np.broadcast_to(self._gravity_base * FORCE_ARROW_SCALE_M_PER_N, (n, 3))
-                self._send(GRAVITY, time_s, rr.Arrows3D.columns(origins=flange_pose[:, :3], vectors=weight))
+                self._send(GRAVITY, time_s, rr.Arrows3D.columns(
+                    origins=flange_pose[:, :3], vectors=weight, colors=np.tile(np.array(GRAVITY_COLOR, np.uint8), (n, 1)),
+                    radii=np.full(n, ARROW_RADIUS_M)))
                 self._log_labels(time_s, flange_pose[:, :3], base_R_flange, weight)
 
     def _log_labels(self, time_s: np.ndarray, origins: np.ndarray, base_R_flange: np.ndarray,
@@ -192,8 +194,11 @@ class Dashboard:
         for k in range(time_s.shape[0]):  # per arm state (30 Hz), not per sample
             contact = base_R_flange[k] @ flange_R_sensor @ self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N
             anchors[k] = label_anchors(origins[k], weight[k], contact)
-        columns = rr.Points3D.columns(positions=anchors.reshape(-1, 3), labels=texts * time_s.shape[0])
-        self._send(LABELS, time_s, columns.partition(np.full(time_s.shape[0], 2)))
+        n = time_s.shape[0]
+        columns = rr.Points3D.columns(positions=anchors.reshape(-1, 3), labels=texts * n,
+                                      colors=np.tile(np.array(LABEL_COLORS, np.uint8), (n, 1)),
+                                      radii=np.full(2 * n, LABEL_RADIUS_M))
+        self._send(LABELS, time_s, columns.partition(np.full(n, 2)))
 
     def log_health(self, time_s: float, health, dropped: int = 0) -> None:
         """Log a :class:`drivers.sensor.SensorHealth` snapshot at ``time_s`` (s, sensor clock): receive rate [Hz],
@@ -274,7 +279,7 @@ class Dashboard:
         errors = np.asarray(errors, dtype=np.float64).reshape(-1, 6)
         with self._lock:
             self._at(time_s, VALIDATION_FORCE_NORM, rr.BarChart(np.linalg.norm(errors[:, :3], axis=1),
-                                                                color=SET_COLORS["V"]))
+                                                                color=SET_COLORS[VALIDATION_SET]))
 
     def flush(self, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S) -> None:
         """Push everything logged so far to the sink, waiting at most ``timeout_s`` seconds."""

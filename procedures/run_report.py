@@ -19,11 +19,17 @@ import numpy as np
 
 from ftacq import __version__
 from ftacq.fileio import atomic_write
+from ftacq.posesets import POSE_SETS, set_colour_rgb
 
 CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 UNITS = ("N", "N", "N", "N·m", "N·m", "N·m")
-SET_COLOURS = {"A": "tab:blue", "E": "tab:orange", "V": "tab:green", "D": "tab:red", "": "tab:gray"}
 FIGURE_DPI = 110
+
+
+def _colour(set_name: str) -> tuple[float, float, float]:
+    """The matplotlib colour (0-1 RGB) of a pose set (:mod:`ftacq.posesets`)."""
+    r, g, b = set_colour_rgb(set_name)
+    return (r / 255.0, g / 255.0, b / 255.0)
 
 
 def _pyplot():
@@ -49,7 +55,7 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
     columns = [(raw, "raw mean")] + ([] if compensated is None else [(compensated, "compensated")])
     fig, axes = plt.subplots(6, len(columns), figsize=(6 * len(columns), 12), sharex=True, squeeze=False)
     x = np.arange(len(labels))
-    colours = [SET_COLOURS.get(s, "tab:gray") for s in sets]
+    colours = [_colour(s) for s in sets]
     for k in range(6):
         for col, (data, title) in enumerate(columns):
             ax = axes[k, col]
@@ -59,8 +65,12 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
                 ax.axhspan(-band[k], band[k], color="lightgray", zorder=0)
             ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
             if k == 0:
-                ax.set_title(f"{title} (colour = set: A blue, E orange, V green, D red)"
+                ax.set_title(f"{title} (colour = pose set)"
                              + ("; grey: acceptance band" if band is not None and col == 1 else ""))
+    for name in sorted(set(sets), key=lambda s: list(POSE_SETS).index(s) if s in POSE_SETS else len(POSE_SETS)):
+        kind = POSE_SETS.get(name)
+        axes[0, -1].scatter([], [], color=_colour(name), s=12, label=f"{name}: {kind.title}" if kind else name or "?")
+    axes[0, -1].legend(loc="upper right", fontsize="small")
     for ax in axes[-1]:
         ax.set_xlabel("pose (execution order)")
     fig.tight_layout()
@@ -186,7 +196,7 @@ def _band(verdict) -> np.ndarray | None:
 
 def write_report(folder: Path, result, plan, config: dict, *, truth=None, title: str = "ftacq calibration",
                  verdict=None) -> Path:
-    """Write ``report.md`` and its PNGs into ``folder`` for a :class:`procedures.calibration.ProcedureResult`.
+    """Write ``report.md`` and its PNGs into ``folder`` for a :class:`procedures.calibration_procedure.ProcedureResult`.
 
     Returns the report's path. ``verdict`` (:class:`ftacq.verdict.Verdict`) opens the report and gives the
     plots their acceptance band. Without identification the report lists what was measured and plots the raw

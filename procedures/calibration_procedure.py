@@ -32,8 +32,10 @@ import numpy as np
 from drivers.robot import Robot
 from drivers.sensor import ForceTorqueSensor
 from ftacq.errors import FtacqError, MotionLimitError, PlanError, RobotError
+from ftacq.posesets import DRIFT_SET, IDENTIFICATION_SETS, VALIDATION_SET
+from ftacq.settings import from_setting, values_from
 from procedures import events
-from procedures.run_folder import DRIFT_SET, MeasuredPose, drift_label
+from procedures.measured import MeasuredPose, drift_label
 from procedures.settle import SettleSettings, StopRequested, average_at_pose, wait_until_settled
 from procedures.tap import SensorTap
 
@@ -41,8 +43,6 @@ log = logging.getLogger(__name__)
 
 TARGET_TOLERANCE_RAD = 0.01
 """After a move, every joint must be within this of its target (else the robot did not do what was planned)."""
-IDENTIFICATION_SETS = ("A", "E")
-"""Sets identified on (V is held out for validation, D is the drift-check revisit)."""
 
 TERMINAL_STATES = ("done", "stopped", "failed")
 TRANSITIONS: dict[str, tuple[str, ...]] = {
@@ -145,20 +145,17 @@ class ProcedureOptions:
     """Execution settings (SI units). ``mount`` names the nominal mount for the tilt report."""
 
     settle: SettleSettings = field(default_factory=SettleSettings)
-    move_timeout_s: float = 60.0
-    drift_check: bool = True
-    drift_warn_force_n: float = 0.5
-    drift_warn_torque_nm: float = 0.02
+    move_timeout_s: float = from_setting("robot.move_timeout_s")
+    drift_check: bool = from_setting("sampling.drift_check")
+    drift_warn_force_n: float = from_setting("sampling.drift_warn_force_n")
+    drift_warn_torque_nm: float = from_setting("sampling.drift_warn_torque_nm")
     mount: str | None = None
     target_tolerance_rad: float = TARGET_TOLERANCE_RAD
 
     @classmethod
     def from_config(cls, config) -> "ProcedureOptions":
         """Build from :class:`ftacq.app.config.CellConfig`."""
-        s = config.sampling
-        return cls(settle=SettleSettings.from_sampling(s), move_timeout_s=config.robot.move_timeout_s,
-                   drift_check=s.drift_check, drift_warn_force_n=s.drift_warn_force_n,
-                   drift_warn_torque_nm=s.drift_warn_torque_nm, mount=config.robot.mount)
+        return cls(settle=SettleSettings.from_config(config), mount=config.robot.mount, **values_from(config, cls))
 
 
 @dataclass
@@ -214,10 +211,6 @@ class CalibrationProcedure:
         self._moved = False
 
     # ------------------------------------------------------------------ control
-
-    def subscribe(self, listener: events.Listener) -> None:
-        """Add a listener (before :meth:`run`)."""
-        self.listeners.append(listener)
 
     def request_stop(self) -> None:
         """Ask for a planned stop: the run ends at the next checkpoint (between reads), robot stopped, data kept,
@@ -444,7 +437,7 @@ class CalibrationProcedure:
 
     def _validate(self) -> None:
         result = self._result_parts.get("identification")
-        record = self._record_of([i for i, s in enumerate(self.plan.set_names) if s == "V"])
+        record = self._record_of([i for i, s in enumerate(self.plan.set_names) if s == VALIDATION_SET])
         if result is None or record is None:
             return
         self._enter("validating")

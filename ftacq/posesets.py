@@ -1,0 +1,66 @@
+"""The pose sets of a calibration run (A, E, V, D): the one table every layer reads.
+
+Each measured pose belongs to one set, written in the ``set`` column of a pose record (:mod:`ftacq.posefile`):
+
+- ``A``: the 24 special orientations (cube rotations, paper eqs 14-23), identified on (SROM needs all 24);
+- ``E``: random orientations in a cone, and the user's explicit poses (labels ``X01``…), identified on;
+- ``V``: validation poses, held out: never identified on, compensated with the result to measure its error;
+- ``D``: the drift-check revisit of the first pose at the end of a run, held out (it measures the bias drift).
+
+Whether a set is identified on, and its colour in the dashboard and the report, come from :data:`POSE_SETS`;
+nothing else names the rule. A new set is one row here (and, if the planner makes it, its generator in
+``procedures.plan_settings.build_pose_set``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PoseSetKind:
+    """One pose set: its one-letter ``name``, a ``title`` for people, ``colour_rgb`` (0-255) for plots, and
+    ``identify``: True when its poses are identified on (False: held out)."""
+
+    name: str
+    title: str
+    colour_rgb: tuple[int, int, int]
+    identify: bool
+
+
+POSE_SETS: dict[str, PoseSetKind] = {s.name: s for s in (
+    PoseSetKind("A", "special orientations", (38, 103, 230), True),
+    PoseSetKind("E", "random orientations in the cone", (240, 160, 30), True),
+    PoseSetKind("V", "validation (held out)", (42, 157, 90), False),
+    PoseSetKind("D", "drift-check revisit (held out)", (214, 39, 40), False),
+)}
+"""Every pose set by name, in the order reports list them."""
+
+UNKNOWN_SET_COLOUR_RGB = (160, 160, 160)
+"""Colour of poses whose set is unknown (a pose record without a ``set`` column)."""
+SPECIAL_SET, RANDOM_SET, VALIDATION_SET, DRIFT_SET = "A", "E", "V", "D"
+"""The names the planner and the procedure produce (each a row of :data:`POSE_SETS`)."""
+IDENTIFICATION_SETS: tuple[str, ...] = tuple(s.name for s in POSE_SETS.values() if s.identify)
+"""Sets identified on (A, E)."""
+HELD_OUT_SETS: tuple[str, ...] = tuple(s.name for s in POSE_SETS.values() if not s.identify)
+"""Sets never identified on (V, D)."""
+PLANNED_SETS: tuple[str, ...] = (SPECIAL_SET, RANDOM_SET, VALIDATION_SET)
+"""Sets a plan contains, in the order the plan summary lists them."""
+
+
+def is_identified_on(set_name: str) -> bool:
+    """True when poses of ``set_name`` are identified on (an unknown or empty set name counts as identified on:
+    a pose record without sets is all identification data). Case and surrounding spaces are ignored."""
+    kind = POSE_SETS.get(set_name.strip().upper())
+    return True if kind is None else kind.identify
+
+
+def set_colour_rgb(set_name: str) -> tuple[int, int, int]:
+    """Return the plot colour (0-255 RGB) of a set, grey when unknown."""
+    kind = POSE_SETS.get(set_name)
+    return UNKNOWN_SET_COLOUR_RGB if kind is None else kind.colour_rgb
+
+
+__all__ = ["PoseSetKind", "POSE_SETS", "IDENTIFICATION_SETS", "HELD_OUT_SETS", "PLANNED_SETS", "SPECIAL_SET",
+           "RANDOM_SET", "VALIDATION_SET", "DRIFT_SET", "UNKNOWN_SET_COLOUR_RGB", "is_identified_on",
+           "set_colour_rgb"]
