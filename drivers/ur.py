@@ -483,6 +483,27 @@ class URRobot:
             log.warning("robot %s: stop failed: %s", self.host, error)
 
     # ------------------------------------------------------------------ recovery
+    def set_payload(self, mass_kg: float, cog_m, inertia_kg_m2=None) -> str:
+        """Set the payload (drivers/ur_payload.py): setTargetPayload with the inertia on PolyScope 5.10+ and X,
+        setPayload (mass and centre of gravity only) before. Returns the ur-rtde method used; raises RobotError
+        when the controller refuses."""
+        from drivers.ur_payload import takes_target_payload
+
+        cog = [float(v) for v in cog_m]
+        if takes_target_payload(self.info.software_version if self.info else None):
+            inertia = [0.0] * 6 if inertia_kg_m2 is None else [float(v) for v in inertia_kg_m2]
+            method, ok = "setTargetPayload", self._call("setTargetPayload", float(mass_kg), cog, inertia)
+        else:
+            method, ok = "setPayload", self._call("setPayload", float(mass_kg), cog)
+        if not ok:
+            raise RobotError(f"robot controller {self.host}: {method} was refused")
+        return method
+
+    def set_gravity(self, gravity_m_s2) -> None:
+        """Set the gravity direction: [m/s²] in the base frame, away from the earth's centre (setGravity)."""
+        if not self._call("setGravity", [float(v) for v in gravity_m_s2]):
+            raise RobotError(f"robot controller {self.host}: setGravity was refused")
+
     def _dashboard_server(self, *commands: str) -> None:
         """Run recovery commands (methods of :class:`DashboardServerClient`) on the UR Dashboard Server."""
         try:

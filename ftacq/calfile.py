@@ -38,6 +38,7 @@ import numpy as np
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calibration import Calibration
 from ftacq.errors import InputError
+from ftacq.exports import ros2_parameters_text, ur_payload_text
 from ftacq.fileio import atomic_write
 from ftacq.validation import (
     MAX_CENTER_OF_MASS_M,
@@ -133,8 +134,11 @@ CalibrationWriter = Callable[[Calibration], str]
 
 WRITERS: dict[str, CalibrationWriter] = {
     "json": calibration_json_text,
+    "ur": ur_payload_text,
+    "ros2": ros2_parameters_text,
 }
-"""Every calibration file format ftacq writes, by name (``json`` is the one it reads back)."""
+"""Every calibration file format ftacq writes, by name (``json`` is the one it reads back; ``ur`` the UR payload
+and ``ros2`` the ROS 2 parameters of :mod:`ftacq.exports`)."""
 
 
 def write_calibration(path: str | os.PathLike, calibration: Calibration, format: str = "json") -> None:

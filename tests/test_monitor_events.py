@@ -22,7 +22,7 @@ from procedures.tap import SensorTap
 from tests.conftest import wait_until
 from tests.fakes.netft import FakeNetFT
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
-from tests.test_dashboard import BATCH_SAMPLES, Q_HOME_RAD, FixedRobotState, ScriptedSensor, physics_batches, \
+from tests.scripted import BATCH_SAMPLES, Q_HOME_RAD, FixedRobotState, ScriptedSensor, physics_batches, \
     run_until_exhausted
 
 ROOT = Path(__file__).resolve().parents[1]

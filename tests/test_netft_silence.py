@@ -3,13 +3,16 @@
 The fake box logs every record it puts on the wire (:meth:`tests.fakes.netft_box.NetFTBox.sent_records`); each test
 checks that every one of them reached the client exactly once, in order. A record is identified by its
 ``rdt_sequence`` and its six counts (the counts carry the simulated noise, so two records never share them).
-Silences are measured in records the box produced into the quiet link (``records_silenced``), not in sleeps.
+A silence is a stretch of host time during which the test keeps reading (the fault itself, not a
+synchronisation); what the box produced meanwhile is ``records_silenced``, and exactly that is lost. Under load the
+fake may run behind its schedule, so the tests assert counts (exact) rather than durations.
 """
 
 from __future__ import annotations
 
 import csv
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -57,8 +60,6 @@ def assert_received_exactly_once(sent: np.ndarray, received: np.ndarray) -> None
 
 def read_until_sent_delivered(sensor: NetFTSensor, fake: FakeNetFT, batches: list[WrenchBatch]) -> np.ndarray:
     """Read until the client delivered as many records as the box sent (stream stopped first); return them."""
-    import time
-
     deadline = time.monotonic() + DRAIN_TIMEOUT_S
     target = fake.records_sent
     while sum(len(b) for b in batches) < target and time.monotonic() < deadline:
@@ -72,11 +73,9 @@ def read_until_sent_delivered(sensor: NetFTSensor, fake: FakeNetFT, batches: lis
 
 def stream_through(fake: FakeNetFT, sensor: NetFTSensor, silence_s: float, batches: list[WrenchBatch],
                    before: int = BEFORE_SILENCE_RECORDS, after: int = 3500) -> None:
-    """Stream ``before`` records, go silent for ``silence_s`` (records into the quiet link), resume, stream
-    ``after`` more; the test thread keeps reading meanwhile."""
+    """Stream ``before`` records, go silent for ``silence_s`` of host time (the box streams into the quiet link),
+    resume, stream ``after`` more; the test thread keeps reading meanwhile."""
     def read_until(predicate) -> None:
-        import time
-
         deadline = time.monotonic() + DRAIN_TIMEOUT_S
         while not predicate(fake):
             assert time.monotonic() < deadline, f"fake did not reach its state: {fake.stats()}"
@@ -86,8 +85,9 @@ def stream_through(fake: FakeNetFT, sensor: NetFTSensor, silence_s: float, batch
                 pass
 
     read_until(lambda f: f.records_sent >= before)
+    silent_at = time.monotonic()
     fake.go_silent()
-    read_until(lambda f: f.records_silenced >= silence_s * RATE_HZ)
+    read_until(lambda f: time.monotonic() - silent_at >= silence_s and f.records_silenced > 0)
     fake.resume()
     sent_at_resume = fake.records_sent
     read_until(lambda f: f.records_sent >= sent_at_resume + after)
@@ -102,10 +102,11 @@ def test_every_record_sent_after_a_silence_is_received(fake, silence_s) -> None:
         received = read_until_sent_delivered(sensor, fake, batches)
         health = sensor.health()
     assert_received_exactly_once(sent_identities(fake), received)
-    assert health.reconnects >= 1 and health.duplicate == 0 and health.restarts == 0, (health, fake.stats())
-    # the box streamed on into the quiet link: those are the lost records, in one gap about as long as the silence
-    assert health.lost == fake.records_silenced and health.gaps == 1
-    assert health.longest_gap_s >= silence_s - 0.01  # the box forces one record out per start
+    assert health.duplicate == 0 and health.restarts == 0, (health, fake.stats())
+    # the box streamed on into the quiet link: exactly those records are lost, in one gap
+    assert health.lost == fake.records_silenced and health.gaps == 1, (health, fake.stats())
+    if silence_s >= 1.0:  # four times the driver's silence timeout: it re-sent its start, the box restarted
+        assert health.reconnects >= 1 and fake.stats()["streams_started"] >= 2, (health, fake.stats())
 
 
 @pytest.mark.parametrize("faults", ["drop", "reorder", "duplicate"])
@@ -153,8 +154,9 @@ def test_record_through_a_two_second_silence_keeps_every_record_sent(fake, tmp_p
     def silence() -> None:
         try:
             fake.wait_until(lambda f: f.records_sent >= BEFORE_SILENCE_RECORDS, timeout_s=DRAIN_TIMEOUT_S)
+            silent_at = time.monotonic()
             fake.go_silent()
-            fake.wait_until(lambda f: f.records_silenced >= 2.0 * RATE_HZ, timeout_s=DRAIN_TIMEOUT_S)
+            fake.wait_until(lambda f: time.monotonic() - silent_at >= 2.0, timeout_s=DRAIN_TIMEOUT_S)
             fake.resume()
         except BaseException as error:  # noqa: BLE001 (reported by the test)
             errors.append(error)
@@ -174,7 +176,7 @@ def test_record_through_a_two_second_silence_keeps_every_record_sent(fake, tmp_p
     last = np.flatnonzero((sent == received[-1]).all(axis=1))
     assert len(last) == 1
     assert_received_exactly_once(sent[:last[0] + 1], received)
-    assert fake.records_silenced >= 2.0 * RATE_HZ
+    assert fake.records_silenced > 0
     assert "gaps 1" in out.out and f"lost {fake.records_silenced}" in out.out
     assert status == 1 and "lost beyond" in out.err
 
@@ -201,8 +203,9 @@ def test_a_silence_shorter_than_sensor_timeout_never_aborts_a_pose(fake, phase) 
         def silence() -> None:
             if phase == "averaging":
                 fake.wait_until(lambda f: done.is_set(), timeout_s=DRAIN_TIMEOUT_S)
+            silent_at = time.monotonic()
             fake.go_silent()
-            fake.wait_until(lambda f: f.records_silenced >= 1.0 * RATE_HZ, timeout_s=DRAIN_TIMEOUT_S)
+            fake.wait_until(lambda f: time.monotonic() - silent_at >= 1.0, timeout_s=DRAIN_TIMEOUT_S)
             fake.resume()
 
         thread = threading.Thread(target=silence, name="silence")

@@ -33,6 +33,7 @@ COMMAND_MODULES = (
     "ftacq.app.commands.config",
     "ftacq.app.commands.monitor",
     "ftacq.app.commands.tare",
+    "ftacq.app.commands.export",
 )
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141

@@ -43,6 +43,9 @@ CMD_SET_PAYLOAD, CMD_SET_TCP, CMD_PROTECTIVE_STOP, CMD_STOPL, CMD_STOPJ = 17, 29
 CMD_GET_TCP_OFFSET, CMD_FK_DEFAULT, CMD_FK_ARGS, CMD_MOVE_PATH, CMD_IS_STEADY = 40, 43, 44, 45, 47
 CMD_GET_FLANGE_POSE, CMD_STOP_SCRIPT = 58, 255
 CMD_SET_EXTERNAL_FORCE_TORQUE, CMD_FT_RTDE_INPUT_ENABLE, CMD_ENABLE_EXTERNAL_FT_SENSOR = 55, 56, 57
+CMD_SET_GRAVITY, CMD_SET_TARGET_PAYLOAD = 59, 65
+SET_TARGET_PAYLOAD_SINCE = (5, 10)
+"""ur-rtde's script calls set_target_payload only on controllers from 5.10 (``$5.10`` lines); older ones ignore it."""
 FT_RTDE_INPUT_ENABLE_SINCE = (5, 9)
 """ur-rtde's script calls ft_rtde_input_enable only on controllers from 5.9 (a ``$5.9`` line)."""
 REALTIME_COMMANDS = frozenset({6, 9, 10, 11, 24, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
@@ -129,7 +132,9 @@ class URSimulator:
         self.qdd_switch_in_s = math.inf  # motion time until q̈ changes next, and q̈ after that
         self.qdd_next = np.zeros(6)
         self.tcp_offset = np.zeros(6)
-        self.payload_kg, self.payload_cog = 0.0, np.zeros(3)
+        self.payload_kg, self.payload_cog, self.payload_inertia = 0.0, np.zeros(3), np.zeros(6)
+        self.gravity_m_s2 = {"floor": (0.0, 0.0, 9.82), "wall": (9.82, 0.0, 0.0), "ceiling": (0.0, 0.0, -9.82)}[mount]
+        """set_gravity's vector: the acceleration away from the earth's centre, base frame (the installation's)."""
         self.robot_mode = ROBOT_MODE_RUNNING
         self.safety_mode = SAFETY_NORMAL
         self.estop_pressed = False
@@ -570,8 +575,23 @@ class URSimulator:
         elif cmd == CMD_SET_TCP:
             self.tcp_offset = np.array(d[off:off + 6])
             self._event("tcp_set", tcp=list(self.tcp_offset))
-        elif cmd == CMD_SET_PAYLOAD:
-            self.payload_kg, self.payload_cog = d[off], np.array(d[off + 1:off + 4])
+        elif cmd == CMD_SET_PAYLOAD:  # the control script keeps the current CoG when all three are 0
+            cog = np.array(d[off + 1:off + 4])
+            self.payload_kg = d[off]
+            self.payload_cog = self.payload_cog if not np.any(cog) else cog
+            self._event("set_payload", mass_kg=float(d[off]), cog_m=[float(v) for v in cog])
+        elif cmd == CMD_SET_TARGET_PAYLOAD:
+            cog, inertia = np.array(d[off + 1:off + 4]), np.array(d[off + 4:off + 10])
+            applied = self.version[:2] >= SET_TARGET_PAYLOAD_SINCE
+            if applied:
+                self.payload_kg = d[off]
+                self.payload_cog = self.payload_cog if not np.any(cog) else cog
+                self.payload_inertia = inertia
+            self._event("set_target_payload", mass_kg=float(d[off]), cog_m=[float(v) for v in cog],
+                        inertia_kg_m2=[float(v) for v in inertia], applied=applied)
+        elif cmd == CMD_SET_GRAVITY:
+            self.gravity_m_s2 = tuple(float(v) for v in d[off:off + 3])
+            self._event("set_gravity", gravity_m_s2=list(self.gravity_m_s2))
         elif cmd == CMD_PROTECTIVE_STOP:
             self._fire(Fault("protective_stop"))
         elif cmd in (CMD_FT_RTDE_INPUT_ENABLE, CMD_ENABLE_EXTERNAL_FT_SENSOR):
@@ -681,6 +701,7 @@ class URSimulator:
             "runtime_state": int(self.runtime_state), "robot_status_bits": self.robot_status_bits(),
             "safety_status_bits": self.safety_status_bits(),
             "payload": float(self.payload_kg), "payload_cog": tuple(self.payload_cog.tolist()),
+            "payload_inertia": tuple(self.payload_inertia.tolist()),
             "target_gravity": gravity,
         }
         return {"seq": self.tick_seq, "fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
@@ -701,4 +722,6 @@ class URSimulator:
                 "move_count": self.move_count, "motion_number": self._motion_number if self.motion else None,
                 "time_scale": self.time_scale, "script_offset": self.script.int_offset if self.script else None,
                 "pending_faults": len(self.faults), "popup": self.popup,
+                "payload_kg": float(self.payload_kg), "payload_cog_m": self.payload_cog.tolist(),
+                "payload_inertia_kg_m2": self.payload_inertia.tolist(), "gravity_m_s2": list(self.gravity_m_s2),
             }

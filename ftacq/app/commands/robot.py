@@ -1,10 +1,15 @@
-"""``ftacq robot``: look at a UR controller without moving it.
+"""``ftacq robot``: look at a UR controller, and give it the calibration's payload. Never moves the arm.
 
     ftacq robot info HOST [--model UR5e] [--json]
+    ftacq robot set-payload (--config CELL.toml | --sim) --calibration CAL.json [--gravity-from-tilt] [--yes]
 
 Prints model, software version, serial number, joint angles, flange pose (from the joint angles, TCP offset
 excluded), the pose the controller reports for its TCP, and the robot, safety and program modes. Uses only the
 UR Dashboard Server and an RTDE receive connection: it never uploads a program or moves the arm.
+
+``set-payload`` sends the payload (mass, centre of gravity in the tool-flange frame, inertia) computed from a
+calibration (:mod:`ftacq.exports`), and optionally the gravity direction from the identified base tilt, after
+confirmation; it reads the payload back over RTDE and prints both (:mod:`drivers.ur_payload`).
 """
 
 from __future__ import annotations
@@ -17,9 +22,13 @@ import numpy as np
 from ftacq.app.helptext import examples
 
 
+READBACK_TOLERANCE = 1e-6
+"""The payload read back may differ from the one sent by this much (kg, m): RTDE carries float64."""
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
-    """Add the ``robot`` sub-command with its ``info`` action."""
-    parser = subparsers.add_parser("robot", help="inspect a Universal Robots controller (never moves it)",
+    """Add the ``robot`` sub-command with its ``info`` and ``set-payload`` actions."""
+    parser = subparsers.add_parser("robot", help="inspect a UR controller, or set its payload (never moves it)",
                                    description="Read a UR controller's identity and state over the UR "
                                                "Dashboard Server and RTDE (receive only).",
                                    **examples("ftacq robot info 192.168.1.10"))
@@ -32,6 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info.add_argument("--model", default=None, help="UR model (e.g. UR5e) when the UR Dashboard Server cannot tell")
     info.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     info.set_defaults(func=run_info)
+    _register_set_payload(actions)
 
 
 def collect_info(host: str, model: str | None = None) -> dict:
@@ -86,7 +96,7 @@ def collect_info(host: str, model: str | None = None) -> dict:
 
 
 def _fmt(values, digits: int = 4) -> str:
-    return "[" + ", ".join(f"{v:.{digits}f}" for v in values) + "]" if values is not None else "n/a"
+    return "[" + ", ".join(f"{round(float(v), digits) + 0.0:.{digits}f}" for v in values) + "]" if values is not None else "n/a"
 
 
 def run_info(args: argparse.Namespace) -> int:
@@ -118,4 +128,127 @@ def run_info(args: argparse.Namespace) -> int:
     for name, value in rows:
         table.add_row(Text(name), Text(str(value)))  # Text: "[m, rad]" is not markup
     Console(width=120).print(table)
+    return 0
+
+
+def _register_set_payload(actions) -> None:
+    from pathlib import Path
+
+    parser = actions.add_parser(
+        "set-payload", help="send the calibration's payload (and gravity direction) to the controller",
+        description="Compute the payload the UR controller takes from a calibration (mass, centre of gravity in "
+                    "the tool-flange frame, inertia when the calibration has one: docs/exports.md), print it, and "
+                    "after confirmation send it (setTargetPayload; setPayload before PolyScope 5.10), optionally "
+                    "with the gravity direction from the identified base tilt (setGravity). Reads the payload "
+                    "back over RTDE and prints both. Moves nothing.",
+        **examples("ftacq robot set-payload --config CELL.toml --calibration runs/20260101-120000/calibration.json",
+                   "ftacq robot set-payload --config CELL.toml --calibration cal.json --gravity-from-tilt --yes",
+                   "ftacq robot set-payload --sim --calibration cal.json --sensor-offset-m 0 0 0.012 --yes"))
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--config", type=Path, metavar="CELL.toml", help="cell configuration (robot.host)")
+    source.add_argument("--sim", action="store_true", help="send to the simulated controller and show what it "
+                                                           "recorded")
+    parser.add_argument("--calibration", type=Path, required=True, metavar="CAL.json",
+                        help="calibration from calibrate or identify")
+    parser.add_argument("--gravity-from-tilt", action="store_true",
+                        help="also set the gravity direction from the identified base tilt (setGravity)")
+    parser.add_argument("--sensor-offset-m", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                        help="sensor origin in the flange frame, m, when neither the calibration nor CELL.toml has it")
+    parser.add_argument("--yes", "-y", action="store_true", help="send without asking")
+    parser.add_argument("--force", action="store_true", help="send a calibration whose verdict is FAIL")
+    parser.set_defaults(func=run_set_payload)
+
+
+def _confirm(args: argparse.Namespace, question: str) -> None:
+    import sys
+
+    from ftacq.errors import AbortedError, InputError
+
+    if args.yes:
+        return
+    if not sys.stdin or not sys.stdin.isatty():
+        raise InputError("refusing to change the controller's payload: no terminal to confirm on (stdin is not a "
+                         "tty); check the values above and pass --yes")
+    if input(question + " [y/N] ").strip().lower() not in ("y", "yes"):
+        raise AbortedError("not confirmed: nothing was sent")
+
+
+def run_set_payload(args: argparse.Namespace) -> int:
+    """Send the payload (and gravity), read back, print both; return the exit status."""
+    import contextlib
+
+    from drivers.robot import MotionLimits
+    from drivers.ur import URRobot
+    from drivers.ur_payload import gravity_from_weight, read_payload, takes_target_payload
+    from ftacq.calfile import load_calibration
+    from ftacq.errors import InputError
+    from ftacq.exports import sensor_offset_m, ur_payload, with_sensor_offset
+
+    calibration = load_calibration(args.calibration)
+    config = None
+    if args.config is not None:
+        from ftacq.app.config import load_config
+
+        config = load_config(args.config)
+    if args.sensor_offset_m is not None:
+        calibration = with_sensor_offset(calibration, args.sensor_offset_m)
+    elif sensor_offset_m(calibration) is None and config is not None \
+            and getattr(config.tool, "sensor_offset_m", None) is not None:
+        calibration = with_sensor_offset(calibration, config.tool.sensor_offset_m)
+    verdict = (calibration.metadata.get("verdict") or {}).get("status")
+    if verdict == "FAIL" and not args.force:
+        raise InputError(f"{args.calibration}: the calibration's verdict is FAIL: not sending it to the controller "
+                         "(--force sends it anyway)")
+    payload = ur_payload(calibration)
+    gravity = gravity_from_weight(calibration.gravity_base, calibration.mass_kg) if args.gravity_from_tilt else None
+    print(f"payload from {args.calibration} (verdict {verdict or 'not recorded'}):")
+    print(f"  mass            {payload.mass_kg:.4f} kg")
+    print(f"  centre of grav. {_fmt(payload.cog_flange_m, 5)} m (tool-flange frame)")
+    print("  inertia         " + ("none in the calibration (the controller uses zeros)"
+                                  if payload.inertia_flange_kg_m2 is None
+                                  else _fmt(payload.inertia_flange_kg_m2, 6) + " kg·m² [Ixx Iyy Izz Ixy Ixz Iyz] "
+                                  "about the centre of gravity, flange axes"))
+    if gravity is not None:
+        print(f"  gravity         {_fmt(gravity, 4)} m/s² (base frame, away from the earth; from the base tilt)")
+    print(f"  URScript: {payload.urscript()}")
+    where = "the simulated controller" if args.sim else f"the controller at {config.robot.host}"
+    _confirm(args, f"Send this payload{' and gravity' if gravity is not None else ''} to {where}?")
+    with contextlib.ExitStack() as stack:
+        cell = None
+        if args.sim:
+            from ftacq.app.simcell import simulated_cell
+
+            cell = stack.enter_context(simulated_cell(sensor="netft", time_scale=0.0))
+            host = cell.robot_host
+        else:
+            host = config.robot.host
+        robot = stack.enter_context(URRobot(host, MotionLimits(), model=None if args.sim else config.robot.model))
+        method = robot.set_payload(payload.mass_kg, payload.cog_flange_m, payload.inertia_flange_kg_m2)
+        if gravity is not None:
+            robot.set_gravity(gravity)
+        back = read_payload(host)
+        recorded = [] if cell is None else [
+            e for e in cell.controller.events() if e.get("event") in ("set_payload", "set_target_payload", "set_gravity")]
+    version = robot.info.software_version if robot.info else None
+    print(f"sent with {method} (controller software {version or 'unknown'}"
+          + ("" if takes_target_payload(version) else "; no setTargetPayload before 5.10: inertia not sent") + ")")
+    sent_inertia = payload.inertia_flange_kg_m2 if payload.inertia_flange_kg_m2 is not None else np.zeros(6)
+    rows = [("mass kg", f"{payload.mass_kg:.4f}", f"{back.mass_kg:.4f}"),
+            ("CoG m", _fmt(payload.cog_flange_m, 5), _fmt(back.cog_m, 5)),
+            ("inertia kg·m²", _fmt(sent_inertia, 6),
+             "not reported before 5.11" if back.inertia_kg_m2 is None else _fmt(back.inertia_kg_m2, 6))]
+    if gravity is not None:
+        rows.append(("gravity m/s²", _fmt(gravity, 4), "not reported over RTDE: check Installation → Mounting"))
+    for name, sent, read in rows:
+        print(f"  {name:<14} sent       {sent}")
+        print(f"  {'':<14} read back  {read}")
+    if cell is not None:
+        print("the simulated controller recorded:")
+        for event in recorded:
+            print("  " + json.dumps(event))
+    if abs(back.mass_kg - payload.mass_kg) > READBACK_TOLERANCE or \
+            np.max(np.abs(back.cog_m - payload.cog_flange_m)) > READBACK_TOLERANCE:
+        from ftacq.errors import RobotError
+
+        raise RobotError(f"robot controller {host}: the payload read back differs from the one sent (see above)")
     return 0
