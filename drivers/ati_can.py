@@ -31,7 +31,9 @@ import logging
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 from urllib.parse import unquote, urlsplit
 
 import numpy as np
@@ -712,7 +714,7 @@ class AtiCanSensor(SensorBase):
             saturated=table[:, 10].astype(bool),
         )
 
-_URL_KEYS = {
+_URL_KEYS: dict[str, tuple[str, Callable[[str], Any]]] = {
     "base": ("base", lambda v: int(v, 0)),
     "bitrate": ("bitrate", int),
     "rate_hz": ("rate_hz", float),

@@ -22,7 +22,7 @@ import threading
 import time
 import warnings
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 from urllib.parse import parse_qsl, urlsplit
 
 import numpy as np
@@ -234,6 +234,16 @@ class SensorBase:
     info: SensorInfo
     URL_FORM = ""
 
+    @classmethod
+    def parse_url(cls, url: str) -> dict:
+        """Check ``url`` without touching the network; return the constructor's keyword arguments."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_url(cls, url: str, **options: Any) -> "SensorBase":
+        """Return an unstarted driver for ``url``; ``options`` override the URL's keys."""
+        raise NotImplementedError
+
     def __init__(self) -> None:
         self._started = False
         self._closed = False
@@ -246,6 +256,10 @@ class SensorBase:
     def label(self) -> str:
         """The device as messages name it, e.g. ``Net F/T 192.168.1.1:49152``."""
         return type(self).__name__
+
+    def bias(self) -> None:
+        """Tare the sensor at the current load (device-specific)."""
+        raise NotImplementedError
 
     def _open(self) -> None:
         raise NotImplementedError
@@ -266,12 +280,12 @@ class SensorBase:
         """Return ``0x… (names)`` of a status word (drivers name their bits)."""
         return f"{status:#010x}"
 
-    def _begin_average(self) -> object:
+    def _begin_average(self) -> Any:
         """Discard what is waiting; return a token :meth:`_fresh` uses to keep only samples requested after."""
         self._take()
         return None
 
-    def _fresh(self, batch: WrenchBatch, token: object) -> WrenchBatch:
+    def _fresh(self, batch: WrenchBatch, token: Any) -> WrenchBatch:
         return batch
 
     def _lost_between(self, before: SensorHealth, after: SensorHealth) -> int:
@@ -398,7 +412,7 @@ def _scheme(url: str) -> str:
     return scheme
 
 
-def sensor_class(url: str) -> type:
+def sensor_class(url: str) -> type[SensorBase]:
     """Return the driver class for ``url``'s scheme (imported now). Raises InputError for an unknown scheme."""
     module_name, class_name, _ = SENSOR_TYPES[_scheme(url)]
     return getattr(importlib.import_module(module_name), class_name)

@@ -3,7 +3,9 @@
 The driver is split by idea: this module moves and supervises the arm; :mod:`drivers.ur_state` reads its state
 (:class:`URStateReader`, also used alone by the live monitor); :mod:`drivers.ur_dashboard_server` talks to the UR
 Dashboard Server (identity, protective-stop unlock); :mod:`drivers.ur_connection` reaches the controller with
-deadlines. ``URRobot``, ``URStateReader`` and ``MotionLimits`` stay importable from here.
+deadlines. ``URRobot``, ``URStateReader`` and ``MotionLimits`` stay importable from here. It is a little over 500
+lines because :class:`URRobot` is one supervisor: connecting, guarded calls, supervised moves, forward kinematics
+and recovery all share its connection state (the lost-link flag, the call lock, the stop event).
 
 The controller facts it relies on are written in docs/protocols-ur.md. In short:
 

@@ -14,6 +14,11 @@ Optional keys written from the identification: ``uncertainty`` (1σ per key abov
 ``diagnostics``, ``input``, ``software_version``, ``created_utc``. Unknown keys are kept in
 ``Calibration.metadata`` on load.
 
+Optional dynamics keys (version 2, :mod:`ftacq.dynamics`): ``sensor_offset_m`` [3] m, the sensor origin in the
+flange frame (CELL.toml ``tool.sensor_offset_m``); ``inertia_kg_m2`` 3×3, the tool's inertia about its centre of
+mass in the sensor frame, with its 1σ as ``uncertainty.inertia_kg_m2`` (3×3). A file without ``inertia_kg_m2``
+(every version-1 file) is a static-only calibration.
+
 Optional provenance keys (version 2, :mod:`ftacq.provenance`; their types are checked on load): ``sensor``
 (serial, model, transport, counts per force and torque, units, firmware), ``tool`` (name) and ``bias_history``
 (time, method, biases, 1σ of every bias estimate, oldest first). :func:`ftacq.provenance.with_provenance` builds
@@ -67,9 +72,16 @@ REQUIRED_KEYS = {
     "center_of_mass_m": (3,),
     "base_tilt_deg": (2,),
 }
+OPTIONAL_ARRAY_KEYS = {"sensor_offset_m": ("sensor_offset", (3,)), "inertia_kg_m2": ("inertia", (3, 3))}
+"""Optional model keys: file key → (Calibration field, shape)."""
+INERTIA_SYMMETRY_TOLERANCE_KG_M2 = 1e-9
 _FIELD_OF_KEY = {"center_of_mass_m": "center_of_mass"}
 MAX_BASE_TILT_DEG = 180.0
+MAX_SENSOR_OFFSET_M = 1.0
+"""|element| bound of ``sensor_offset_m``: an adapter is centimetres thick, not metres (a unit mistake)."""
 MAX_MASS_KG = MAX_FORCE_N / STANDARD_GRAVITY_M_S2
+MAX_INERTIA_KG_M2 = MAX_MASS_KG * MAX_CENTER_OF_MASS_M ** 2
+"""|element| bound of ``inertia_kg_m2``: the heaviest tool with all its mass at the farthest centre of mass."""
 _LIMIT_OF_KEY = {
     "sensor_rotation": 1.0 + ROTATION_ORTHONORMAL_TOLERANCE,
     "force_bias": MAX_FORCE_N,
@@ -78,9 +90,11 @@ _LIMIT_OF_KEY = {
     "mass_kg": MAX_MASS_KG,
     "center_of_mass_m": MAX_CENTER_OF_MASS_M,
     "base_tilt_deg": MAX_BASE_TILT_DEG,
+    "sensor_offset_m": MAX_SENSOR_OFFSET_M,
+    "inertia_kg_m2": MAX_INERTIA_KG_M2,
 }
 """|value| bound of every element of each required key (beyond a sensor's range: a unit or file mistake)."""
-_MODEL_KEYS = set(REQUIRED_KEYS) | {"format", "version", "uncertainty"}
+_MODEL_KEYS = set(REQUIRED_KEYS) | set(OPTIONAL_ARRAY_KEYS) | {"format", "version", "uncertainty"}
 
 
 def _jsonable(value: Any) -> Any:
@@ -116,6 +130,9 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
         "base_tilt_deg": list(calibration.base_tilt_deg),
         "uncertainty": dict(calibration.uncertainty),
     }
+    for key, (name, _shape) in OPTIONAL_ARRAY_KEYS.items():
+        if getattr(calibration, name) is not None:
+            document[key] = getattr(calibration, name)
     metadata.setdefault("software_version", f"ftacq {__version__}")
     metadata.setdefault("created_utc", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
     for key, value in metadata.items():
@@ -219,10 +236,26 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
         raise InputError(
             f"{path}: key 'mass_kg': {mass:.6g} kg disagrees with ‖gravity_base‖/g = {float(mass_from_gravity):.6g} kg"
         )
+    optional = {}
+    for key, (name, shape) in OPTIONAL_ARRAY_KEYS.items():
+        if document.get(key) is not None:
+            optional[name] = _array(path, document, key, shape)
+    inertia = optional.get("inertia")
+    if inertia is not None:
+        asymmetry = float(np.abs(inertia - inertia.T).max())
+        eigenvalues = np.linalg.eigvalsh(0.5 * (inertia + inertia.T))
+        if asymmetry > INERTIA_SYMMETRY_TOLERANCE_KG_M2 or eigenvalues[0] <= 0.0 or \
+                eigenvalues[2] > eigenvalues[0] + eigenvalues[1] + INERTIA_SYMMETRY_TOLERANCE_KG_M2:
+            raise InputError(
+                f"{path}: key 'inertia_kg_m2': not the inertia of a rigid body (asymmetry {asymmetry:.2e} kg·m², "
+                f"principal moments {', '.join(f'{v:.6g}' for v in eigenvalues)} kg·m²: they must be > 0 and each "
+                "at most the sum of the other two)")
     uncertainty = document.get("uncertainty", {})
     if not isinstance(uncertainty, dict):
         raise InputError(f"{path}: key 'uncertainty': expected an object, got {type(uncertainty).__name__}")
-    for name, sigma in uncertainty.items():  # 1σ: a number or a list of numbers, each ≥ 0 (null = unknown)
+    for name, sigma in uncertainty.items():  # 1σ: a number or a (nested: 3×3) list of numbers, each ≥ 0 (null = unknown)
+        if isinstance(sigma, list) and sigma and all(isinstance(row, list) for row in sigma):
+            sigma = [item for row in sigma for item in row]
         for k, item in enumerate(sigma if isinstance(sigma, list) else [sigma]):
             if item is not None:
                 check_number(item, f"{path}: key 'uncertainty.{name}'" + (f"[{k}]" if isinstance(sigma, list) else ""),
@@ -237,6 +270,7 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
         center_of_mass=values["center_of_mass_m"],
         uncertainty=uncertainty,
         metadata=metadata,
+        **optional,
     )
 
 

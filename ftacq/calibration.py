@@ -49,6 +49,9 @@ class Calibration:
         center_of_mass: the tool's centre of mass sP in the sensor frame, m.
         uncertainty: 1σ per parameter (same keys as the JSON file, e.g. ``force_bias``), or empty.
         metadata: method, residuals, outliers, software version, … (free-form, JSON-serialisable).
+        sensor_offset: the sensor origin in the flange frame, m (CELL.toml ``tool.sensor_offset_m``), or None.
+        inertia: the tool's inertia about its centre of mass, sensor frame (3×3, kg·m²), identified from motion
+            (:mod:`ftacq.dynamics`), or None: then the calibration is static only.
     """
 
     sensor_rotation: np.ndarray
@@ -58,8 +61,13 @@ class Calibration:
     center_of_mass: np.ndarray
     uncertainty: Mapping[str, Any] = field(default_factory=dict)
     metadata: Mapping[str, Any] = field(default_factory=dict)
+    sensor_offset: np.ndarray | None = None
+    inertia: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        for name, shape in (("sensor_offset", (3,)), ("inertia", (3, 3))):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _frozen_array(getattr(self, name), shape, name))
         for name, shape in (
             ("sensor_rotation", (3, 3)),
             ("force_bias", (3,)),
@@ -87,6 +95,11 @@ class Calibration:
         object.__setattr__(self, "_gain_rows", tuple(tuple(float(v) for v in row) for row in gain))
         object.__setattr__(self, "_gravity_tuple", tuple(float(v) for v in self.gravity_base))
         object.__setattr__(self, "_bias_tuple", tuple(float(v) for v in bias))
+
+    @property
+    def has_dynamics(self) -> bool:
+        """True when the tool's inertia is known: the wrench can be compensated while the arm moves."""
+        return self.inertia is not None
 
     @property
     def mass_kg(self) -> float:

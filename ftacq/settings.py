@@ -300,6 +300,10 @@ class ToolConfig:
                               unit="m", low=0.0, high=0.5, edit=True)
     length_m: float = setting(0.1, "length of that cylinder from the flange", unit="m", low=0.0, high=1.0,
                               edit=True)
+    sensor_offset_m: tuple[float, float, float] | None = setting(
+        None, "sensor origin in the flange frame [x, y, z], from the adapter drawing (compensation while the arm "
+        "moves, the UR payload export; absent = at the flange)", kind="vec3", unit="m", low=-0.5, high=0.5,
+        optional=True, example=[0.0, 0.0, 0.035])
     name: str | None = setting(None, "the tool's name, recorded in calibration.json (provenance; see "
                                "docs/drift-and-tare.md)", kind="str", optional=True, example="gripper-A")
 

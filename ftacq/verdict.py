@@ -152,7 +152,7 @@ def validation_finding(errors: np.ndarray, covariance: np.ndarray, labels: Seque
     torque = np.linalg.norm(errors[:, 3:], axis=1)
     worst = int(np.argmax(d2))
     pose_limit = float(stats.chi2.isf(VALIDATION_POSE_P / m, 6))
-    beyond = [str(labels[i]) for i in np.flatnonzero(d2 > pose_limit)]
+    beyond = [str(labels[int(i)]) for i in np.flatnonzero(d2 > pose_limit)]
     figures = {
         "poses": m, "chi2": total, "dof": dof, "p_value": p, "error_ratio": ratio, "pose_d2": d2.tolist(),
         "pose_d2_limit": pose_limit, "labels": [str(x) for x in labels],

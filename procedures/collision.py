@@ -218,7 +218,7 @@ class CollisionChecker:
         if limit:
             problems.append(limit[0])
         clearance = self.clearances(q)[0]
-        problems += [self._describe(c, clearance[c]) for c in np.flatnonzero(clearance < 0.0)]
+        problems += [self._describe(int(c), clearance[c]) for c in np.flatnonzero(clearance < 0.0)]
         return problems
 
     def path_samples(self, q_from: np.ndarray, q_to: np.ndarray,
@@ -258,7 +258,7 @@ class CollisionChecker:
             if violated.any():
                 for c in np.flatnonzero(violated.any(axis=0)):
                     k = int(np.argmax(violated[:, c]))
-                    problems.append(f"{self._describe(c, f[k, c])} at {100.0 * t[k]:.0f} % of the move")
+                    problems.append(f"{self._describe(int(c), f[k, c])} at {100.0 * t[k]:.0f} % of the move")
                 return problems
             worst = f.min(axis=1)
             dt = np.diff(t)
@@ -266,8 +266,8 @@ class CollisionChecker:
             open_ &= bound * dt > PATH_MIN_DISPLACEMENT_M
             if not open_.any():
                 return problems
-            k = np.flatnonzero(open_)
-            mids = (t[k] + t[k + 1]) / 2.0
+            gaps = np.flatnonzero(open_)
+            mids = (t[gaps] + t[gaps + 1]) / 2.0
             f_mid = self.clearances(q_from + mids[:, None] * (q_to - q_from))
-            t = np.insert(t, k + 1, mids)
-            f = np.insert(f, k + 1, f_mid, axis=0)
+            t = np.insert(t, gaps + 1, mids)
+            f = np.insert(f, gaps + 1, f_mid, axis=0)

@@ -158,7 +158,7 @@ class Plan:
                 joint_travel_rad=float(data["joint_travel_rad"]),
                 listing_travel_rad=float(data["listing_travel_rad"]),
                 settings=PlanSettings.from_dict(data["settings"]),
-                center_m=tuple(float(v) for v in data["center_m"]),
+                center_m=_xyz(data["center_m"]),
                 branch=str(data["branch"]),
                 start_q_rad=tuple(float(v) for v in data["start_q_rad"]),
                 warnings=tuple(str(w) for w in data.get("warnings", ())),
@@ -179,6 +179,12 @@ class Plan:
 # ------------------------------------------------------------------------------------------------------------
 # helpers
 # ------------------------------------------------------------------------------------------------------------
+
+def _xyz(values) -> tuple[float, float, float]:
+    """Three floats (x, y, z) from any 3-sequence."""
+    x, y, z = (float(v) for v in values)
+    return x, y, z
+
 
 def reach_m(model: URModel) -> float:
     """Return |a2| + |a3|: the distance from shoulder to wrist when stretched, m."""
@@ -329,6 +335,7 @@ def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -
 def _static_check(checker: CollisionChecker, result: IKResult) -> tuple[np.ndarray | None, str]:
     if not result.ok:
         return None, result.reason
+    assert result.q_rad is not None  # ok implies a solution
     problems = checker.problems_at(result.q_rad)
     if problems:
         return None, "collision: " + "; ".join(problems)
@@ -436,7 +443,7 @@ def _plan_from(settings: PlanSettings, candidate: _Candidate, start_q: np.ndarra
         joint_travel_rad=path_travel(start_q, q_exec, weights),
         listing_travel_rad=path_travel(start_q, q_listing, weights),
         settings=settings,
-        center_m=tuple(float(v) for v in candidate.center),
+        center_m=_xyz(candidate.center),
         branch=str(candidate.branch),
         start_q_rad=tuple(float(v) for v in start_q),
         warnings=tuple(warnings),

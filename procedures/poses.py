@@ -101,7 +101,7 @@ def cone_rotations(n: int, cone_half_angle_deg: float, nominal_base_R_flange: np
 
 
 def random_cone_poses(n: int, cone_half_angle_deg: float = 40.0, nominal_base_R_flange: np.ndarray | None = None,
-                      center_m: np.ndarray = (0.0, -0.45, 0.45), position_jitter_m: float = 0.0, seed: int = 0,
+                      center_m: np.ndarray | tuple[float, float, float] = (0.0, -0.45, 0.45), position_jitter_m: float = 0.0, seed: int = 0,
                       set_name: str = RANDOM_SET, mount: str = "floor") -> PoseSet:
     """Return ``n`` random poses in a cone (the E or V set), labelled ``E01``… or ``V01``….
 

@@ -136,8 +136,13 @@ def test_enable_feed_and_disable_as_the_controller_records_them(fake):
             sent = np.random.default_rng(0).normal(0, [10, 10, 10, 1, 1, 1], size=(100, 6))
             feeder.put(sent)
             wait_until(feeder.drained, what="100 cycles fed")
-            records = fake.external_ft_records()["received"]
-            first = int(np.flatnonzero(np.all(records[:, 2:] == sent[0], axis=1))[0])
+
+            def all_recorded():  # the controller records what arrives; the last packages may still be in flight
+                rows = fake.external_ft_records()["received"]
+                start = np.flatnonzero(np.all(rows[:, 2:] == sent[0], axis=1))
+                return (rows, int(start[0])) if start.size and rows.shape[0] >= start[0] + 100 else None
+
+            records, first = wait_until(all_recorded, what="the controller recorded the 100 inputs")
             np.testing.assert_array_equal(records[first:first + 100, 2:], sent)  # bit for bit, one per cycle
             assert np.all(np.diff(records[:, 0]) >= 0)  # arrival times (monotonic clock)
             # the controller's own report of the held value follows the documented model (ftacq.bridge_convention)

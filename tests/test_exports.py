@@ -167,3 +167,16 @@ def test_the_writer_table_has_every_export_and_refuses_an_unknown_one(tmp_path, 
     save_calibration(path, calibration())
     assert main(["export", str(path), "--format", "urdf"]) == 2
     assert "known: json, ur, ros2" in capsys.readouterr().err
+
+
+def test_cell_toml_declares_the_sensor_offset(tmp_path):
+    from ftacq.app.config import example_config_text, load_config
+    from ftacq.errors import ConfigError
+
+    path = tmp_path / "CELL.toml"
+    path.write_text("[tool]\nsensor_offset_m = [0.0, 0.0, 0.012]\n")
+    assert load_config(path).tool.sensor_offset_m == pytest.approx((0.0, 0.0, 0.012))
+    path.write_text("[tool]\nsensor_offset_m = [0.0, 0.0, 2.0]\n")
+    with pytest.raises(ConfigError, match="sensor_offset_m"):
+        load_config(path)
+    assert "sensor_offset_m" in example_config_text()

@@ -1,4 +1,4 @@
-"""The simulated UR controller driven by the unmodified ur-rtde client (RTDE, dashboard, script port, handshake).
+"""The simulated UR controller driven by the unmodified ur-rtde client (RTDE, UR Dashboard Server, script port, handshake).
 
 One controller (time scale 0: moves complete at once) and one pair of ur-rtde clients are shared by the module
 (ur-rtde's disconnect costs 0.5 s per interface); tests that break the connection start their own controller.
@@ -63,10 +63,10 @@ def at_home(fake, clients):
     """Start each test at HOME_Q with a normal safety state."""
     receive, control = clients
     if receive.isProtectiveStopped():
-        dashboard = dashboard_client.DashboardClient(fake.host)
-        dashboard.connect()
-        dashboard.unlockProtectiveStop()
-        dashboard.disconnect()
+        server = dashboard_client.DashboardClient(fake.host)
+        server.connect()
+        server.unlockProtectiveStop()
+        server.disconnect()
         wait_until(lambda: not receive.isProtectiveStopped(), what="unlock")
     # the control connection may still show the cleared stop for a few packages: retry until accepted
     wait_until(lambda: control.moveJ(HOME_Q, 1.0, 1.0), what="moveJ home accepted")
@@ -148,26 +148,26 @@ def test_path_move_runs_every_waypoint_in_order(fake, at_home):
     assert [(c["speed"], c["acceleration"]) for c in path] == [(0.8, 1.1), (0.7, 1.0)]
 
 
-def test_dashboard_replies_are_the_documented_lines(fake, clients):
-    dashboard = dashboard_client.DashboardClient(fake.host)
-    dashboard.connect()
+def test_dashboard_server_replies_are_the_documented_lines(fake, clients):
+    server = dashboard_client.DashboardClient(fake.host)
+    server.connect()
     try:
-        assert dashboard.polyscopeVersion() == "5.11.1.108318"
-        assert dashboard.getRobotModel() == "UR5"
-        assert dashboard.getSerialNumber() == "20235500123"
-        assert dashboard.isInRemoteControl() is True
-        assert dashboard.robotmode() == "Robotmode: RUNNING"
-        assert dashboard.safetymode() == "Safetymode: NORMAL"
-        assert dashboard.safetystatus() == "Safetystatus: NORMAL"
-        assert dashboard.programState() == "PLAYING rtde_control"
-        assert dashboard.running() is True
-        assert dashboard.getLoadedProgram() == "No program loaded"
-        dashboard.closeSafetyPopup()
-        dashboard.unlockProtectiveStop()  # raises unless the reply is exactly "Protective stop releasing"
+        assert server.polyscopeVersion() == "5.11.1.108318"
+        assert server.getRobotModel() == "UR5"
+        assert server.getSerialNumber() == "20235500123"
+        assert server.isInRemoteControl() is True
+        assert server.robotmode() == "Robotmode: RUNNING"
+        assert server.safetymode() == "Safetymode: NORMAL"
+        assert server.safetystatus() == "Safetystatus: NORMAL"
+        assert server.programState() == "PLAYING rtde_control"
+        assert server.running() is True
+        assert server.getLoadedProgram() == "No program loaded"
+        server.closeSafetyPopup()
+        server.unlockProtectiveStop()  # raises unless the reply is exactly "Protective stop releasing"
         with pytest.raises(RuntimeError):
-            dashboard.loadURP("missing.txt")
+            server.loadURP("missing.txt")
     finally:
-        dashboard.disconnect()
+        server.disconnect()
 
 
 def test_protective_stop_mid_move_refuses_commands_until_unlocked(fake, at_home):
@@ -179,10 +179,10 @@ def test_protective_stop_mid_move_refuses_commands_until_unlocked(fake, at_home)
     halfway = np.array(HOME_Q) + 0.5 * (np.array(target) - np.array(HOME_Q))
     np.testing.assert_allclose(receive.getActualQ(), halfway, atol=1e-9)  # stopped where the fault hit
     assert control.moveJ(target, 1.0, 1.0) is False  # refused while stopped
-    dashboard = dashboard_client.DashboardClient(fake.host)
-    dashboard.connect()
-    dashboard.unlockProtectiveStop()
-    dashboard.disconnect()
+    server = dashboard_client.DashboardClient(fake.host)
+    server.connect()
+    server.unlockProtectiveStop()
+    server.disconnect()
     wait_until(lambda: not receive.isProtectiveStopped(), what="protective stop cleared")
     # the control connection may trail the receive connection by a few packages (separate client threads)
     wait_until(lambda: control.moveJ(target, 1.0, 1.0), timeout_s=2.0, what="moveJ accepted after the unlock")

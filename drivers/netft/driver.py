@@ -21,6 +21,8 @@ import logging
 import socket
 import threading
 import time
+from collections.abc import Callable
+from typing import Any
 from urllib.parse import urlsplit
 
 import numpy as np
@@ -420,7 +422,7 @@ def _parse_bool(text: str) -> bool:
     raise ValueError(text)
 
 
-_URL_KEYS = {
+_URL_KEYS: dict[str, Callable[[str], Any]] = {
     "tcp_port": int, "http_port": int, "rate_hz": float, "buffered": _parse_bool, "buffer_size": int,
     "timeout_s": float, "counts_per_force": float, "counts_per_torque": float, "force_unit": str,
     "torque_unit": str, "status_map": str, "http_timeout_s": float, "tcp_timeout_s": float,

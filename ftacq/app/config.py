@@ -120,13 +120,13 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CellConfig
 def check_sensor_url(url: str, where: str) -> None:
     """Parse the sensor URL as its driver will (scheme, host, port, query keys) without touching the network.
 
-    Builds the driver from the URL and drops it (drivers do no I/O before ``start()``); raises ConfigError naming
+    Uses the driver's own URL parser (:func:`drivers.sensor.parse_sensor_url`, no I/O); raises ConfigError naming
     ``where`` and the URL, so ``ftacq config check`` and ``--dry-run`` refuse what the run would refuse.
     """
-    from drivers.sensor import open_sensor
+    from drivers.sensor import parse_sensor_url
 
     try:
-        open_sensor(url)
+        parse_sensor_url(url)
     except InputError as error:
         raise ConfigError(f"{where}: {error}") from None
     except (ValueError, TypeError) as error:  # urllib's own parse errors, e.g. "Invalid IPv6 URL"

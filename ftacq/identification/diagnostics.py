@@ -78,7 +78,7 @@ def check_record_values(pose: np.ndarray, wrench: np.ndarray, labels, std: np.nd
         value = values[row, column]
         why = "is not finite" if not np.isfinite(value) else (
             f"is beyond what a robot or an F/T sensor reports (|value| ≤ {limits[column]:g}); wrong units?")
-        raise IdentificationError(f"pose {labels[row]}, column {columns[column]!r}: value {value!r} {why}")
+        raise IdentificationError(f"pose {labels[row]}, column {columns[column]!r}: value {float(value)!r} {why}")
     rotation_norm = np.linalg.norm(values[:, 3:6], axis=1)
     if np.any(rotation_norm > MAX_ROTATION_VECTOR_RAD):
         row = int(np.argmax(rotation_norm > MAX_ROTATION_VECTOR_RAD))

@@ -495,13 +495,24 @@ class NetFTBox:
         """Take the current raw counts as the bias (lock held)."""
         self._bias_counts = self._raw_counts(self._draw(1))[0]
 
-    def _draw(self, n: int) -> np.ndarray:
-        """Return n physics samples (n, 6) in SI, drawing chunks so the pose is read once per chunk (lock held)."""
+    def _draw(self, n: int, due_s: float | None = None) -> np.ndarray:
+        """Return n physics samples (n, 6) in SI, drawing chunks so the pose is read once per chunk (lock held).
+        ``due_s``: when the first of them is due in the stream (the physics evaluates a moving arm at each
+        record's own time, however late this thread gets to it)."""
         if self._sample_buffer.shape[0] < n:
             chunk = max(n, int(self._settings["comrdtrate"] * SAMPLE_CHUNK_S), 1)
-            self._sample_buffer = np.concatenate([self._sample_buffer, self.physics.sample(chunk)])
+            start = None if due_s is None else due_s + self._sample_buffer.shape[0] / self._settings["comrdtrate"]
+            self._sample_buffer = np.concatenate([self._sample_buffer, self._physics_sample(chunk, start)])
         out, self._sample_buffer = self._sample_buffer[:n], self._sample_buffer[n:]
         return out
+
+    def _physics_sample(self, n: int, start_s: float | None) -> np.ndarray:
+        if start_s is None:
+            return self.physics.sample(n)
+        try:
+            return self.physics.sample(n, start_time_s=start_s)
+        except TypeError:  # a physics without sample times (tests' stand-ins)
+            return self.physics.sample(n)
 
     def _raw_counts(self, wrench_si: np.ndarray) -> np.ndarray:
         return np.clip(np.rint(wrench_si * self._si_to_counts), INT32_MIN, INT32_MAX).astype(np.int64)
@@ -520,7 +531,8 @@ class NetFTBox:
             self._stall_remaining -= stalled
         ft = (self._ft_sequence + np.cumsum(steps)) & UINT32_MASK
         self._rdt_sequence, self._ft_sequence = int(rdt[-1]), int(ft[-1])
-        counts = self._raw_counts(self._draw(n)) - self._bias_counts
+        due_s = self._stream_t0 + self._stream_done / self._settings["comrdtrate"] if self._target is not None else None
+        counts = self._raw_counts(self._draw(n, due_s)) - self._bias_counts
         self._last_counts = counts[-1] + self._bias_counts
         if self._settings["setmce"] and not self._latched and self._monitor_breached(counts):
             self._latched = True  # the status of these records already went out without the latch: next ones

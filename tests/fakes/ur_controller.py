@@ -3,10 +3,10 @@
     python -m tests.fakes.ur_controller --host 127.0.0.2 [--model UR5e] [--time-scale 1.0] [--pose-shm NAME]
         [--initial-q q0 .. q5] [--mount floor|wall|ceiling] [--version 5.11.1.108318]
 
-Listens on the controller's fixed ports of ``--host``: 30004 (RTDE), 29999 (dashboard), 30003 (script), and on a
+Listens on the controller's fixed ports of ``--host``: 30004 (RTDE), 29999 (UR Dashboard Server), 30003 (script), and on a
 line-based control port (port 0, reported) for tests. Prints one line when listening::
 
-    READY {"host": "127.0.0.2", "rtde": 30004, "dashboard": 29999, "script": 30003, "control": 40123, ...}
+    READY {"host": "127.0.0.2", "rtde": 30004, "dashboard_server": 29999, "script": 30003, "control": 40123, ...}
 
 or, when a fixed port is taken, ``BIND_ERROR {"host": ..., "port": ..., "error": ...}`` and exits with status 3
 (tests/fakes/ur_process.py then retries on another address). Why a process: ur-rtde's constructors hold the GIL,
@@ -25,7 +25,7 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
   cable). K counts moves from 1 as in
   ``commands``' ``move`` field; default: the next move.
 - ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
-  on the dashboard, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
+  on the UR Dashboard Server, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
 - ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
 """
 
@@ -46,10 +46,10 @@ import numpy as np
 
 from ftacq.kinematics import ur_model
 from tests.fakes import rtde_protocol as rp
-from tests.fakes.ur_dashboard import GREETING, dashboard_reply
+from tests.fakes.ur_dashboard_server import GREETING, dashboard_server_reply
 from tests.fakes.ur_simulator import Fault, URSimulator
 
-RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
+RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 TICK_HZ = 500.0
 IDLE_TICK_S = 0.01
 """Tick period while no client streams and nothing moves (keeps an idle controller CPU-light)."""
@@ -272,7 +272,7 @@ class ControllerServer:
     # -------------------------------------------------------------- setup
     def bind(self) -> None:
         """Bind the fixed ports, then the control port (raises OSError with ``.port`` set on failure)."""
-        for name, port in (("rtde", RTDE_PORT), ("dashboard", DASHBOARD_PORT), ("script", SCRIPT_PORT), ("control", 0)):
+        for name, port in (("rtde", RTDE_PORT), ("dashboard_server", DASHBOARD_SERVER_PORT), ("script", SCRIPT_PORT), ("control", 0)):
             try:
                 self.listeners[name] = _listener(self.host, port)
             except OSError as error:
@@ -281,12 +281,12 @@ class ControllerServer:
                 raise
 
     def ready_info(self) -> dict:
-        return {"host": self.host, "rtde": RTDE_PORT, "dashboard": DASHBOARD_PORT, "script": SCRIPT_PORT,
+        return {"host": self.host, "rtde": RTDE_PORT, "dashboard_server": DASHBOARD_SERVER_PORT, "script": SCRIPT_PORT,
                 "control": self.listeners["control"].getsockname()[1], "model": self.sim.model.name,
                 "version": ".".join(str(v) for v in self.sim.version), "time_scale": self.sim.time_scale}
 
     def start(self) -> None:
-        for name, handler in (("rtde", self._rtde_client), ("dashboard", self._dashboard_client),
+        for name, handler in (("rtde", self._rtde_client), ("dashboard_server", self._dashboard_server_client),
                               ("script", self._script_client), ("control", self._control_client)):
             self._spawn(f"ur-fake-accept-{name}", self._accept_loop, self.listeners[name], handler, name)
         self._spawn("ur-fake-tick", self._tick_loop)
@@ -386,7 +386,7 @@ class ControllerServer:
             else:
                 next_tick = time.monotonic()
 
-    # -------------------------------------------------------------- dashboard, script, control
+    # -------------------------------------------------------------- UR Dashboard Server, script, control
     def _track(self, sock: socket.socket) -> None:
         with self.lock:
             self.other_sockets.append(sock)
@@ -411,14 +411,14 @@ class ControllerServer:
             line, buffer = buffer.split(b"\n", 1)
             yield line.decode("utf-8", "replace").rstrip("\r")
 
-    def _dashboard_client(self, sock: socket.socket) -> None:
+    def _dashboard_server_client(self, sock: socket.socket) -> None:
         self._track(sock)
         try:
             sock.sendall((GREETING + "\n").encode())
             for line in self._lines(sock):
                 if self.frozen:
                     continue
-                reply = dashboard_reply(self.sim, line)
+                reply = dashboard_server_reply(self.sim, line)
                 sock.sendall((reply + "\n").encode())
                 if line.strip().lower() == "quit":
                     break

@@ -16,6 +16,8 @@ import numpy as np
 from ftacq.kinematics import URModel, dh_transforms, flange_pose
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 
+MAX_SWITCHES = 3
+"""A trapezoid changes its acceleration at most three times (end of acceleration, of cruise, of deceleration)."""
 IK_TOLERANCE_M = 1e-12
 """Newton iterations stop when the pose error (m / rad) is below this."""
 IK_MAX_ITERATIONS = 8
@@ -94,12 +96,16 @@ class Trapezoid:
             return 0.0
         return -self.acceleration
 
-    def next_switch_s(self, t: float) -> float:
-        """Return the time from t to the next change of acceleration (inf when none is left)."""
+    def switches(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Return (times from t to each later change of acceleration (3,), the acceleration after each (3,)),
+        padded with inf and 0 when fewer are left."""
+        times, after = np.full(MAX_SWITCHES, np.inf), np.zeros(MAX_SWITCHES)
+        k = 0
         for boundary in (self._t_acc, self._t_acc + self._t_cruise, self.duration_s):
-            if boundary > t:
-                return boundary - t
-        return math.inf
+            if boundary > t and (k == 0 or boundary - t > times[k - 1]):
+                times[k], after[k] = boundary - t, self.acceleration_at(boundary)
+                k += 1
+        return times, after
 
     def speed_at(self, t: float) -> float:
         """Return ds/dt at t."""
@@ -162,9 +168,9 @@ class Motion:
         """Return (q, qd) at t, or None when the path leaves the reachable workspace."""
         raise NotImplementedError
 
-    def acceleration(self, t: float) -> tuple[np.ndarray, float, np.ndarray] | None:
-        """Return (q̈ at t (rad/s²), time to the next change of q̈ (s), q̈ after that change), or None when the
-        motion has no closed form for it (moveL: the caller differentiates q̇)."""
+    def acceleration(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Return (q̈ at t (rad/s²), times to the later changes of q̈ (3,) s, q̈ after each (3, 6)), or None when
+        the motion has no closed form for it (moveL: the caller differentiates q̇)."""
         return None
 
     def stopping(self, t: float, deceleration: float) -> "Motion":
@@ -195,9 +201,8 @@ class JointMove(Motion):
         return self.at_distance(self.profile.position(t), self.profile.speed_at(t))
 
     def acceleration(self, t: float):
-        switch = self.profile.next_switch_s(t)
-        after = self.profile.acceleration_at(t + switch) if math.isfinite(switch) else 0.0
-        return self.direction * self.profile.acceleration_at(t), switch, self.direction * after
+        times, after = self.profile.switches(t)
+        return self.direction * self.profile.acceleration_at(t), times, np.outer(after, self.direction)
 
 
 class LinearMove(Motion):
@@ -260,9 +265,8 @@ class _Stopping(Motion):
     def acceleration(self, t: float):
         if not isinstance(self.base, JointMove):
             return None
-        switch = self.profile.next_switch_s(t)
-        after = self.profile.acceleration_at(t + switch) if math.isfinite(switch) else 0.0
-        return self.base.direction * self.profile.acceleration_at(t), switch, self.base.direction * after
+        times, after = self.profile.switches(t)
+        return self.base.direction * self.profile.acceleration_at(t), times, np.outer(after, self.base.direction)
 
 
 def within_joint_limits(model: URModel, q: np.ndarray) -> bool:

@@ -129,8 +129,8 @@ class URSimulator:
             raise ValueError(f"initial joint angles {self.q.tolist()} are outside the {model.name} joint limits")
         self.qd = np.zeros(6)
         self.qdd = np.zeros(6)
-        self.qdd_switch_in_s = math.inf  # motion time until q̈ changes next, and q̈ after that
-        self.qdd_next = np.zeros(6)
+        self.qdd_switch_in_s = np.full(3, np.inf)  # motion time until each later change of q̈, and q̈ after each
+        self.qdd_next = np.zeros((3, 6))
         self.tcp_offset = np.zeros(6)
         self.payload_kg, self.payload_cog, self.payload_inertia = 0.0, np.zeros(3), np.zeros(6)
         self.gravity_m_s2 = {"floor": (0.0, 0.0, 9.82), "wall": (9.82, 0.0, 0.0), "ceiling": (0.0, 0.0, -9.82)}[mount]
@@ -279,7 +279,7 @@ class URSimulator:
         self._event("script_started", offset=off)
 
     def stop_program(self, reason: str) -> None:
-        """Stop the running program (dashboard ``stop``, pendant stop, script end)."""
+        """Stop the running program (UR Dashboard Server ``stop``, pendant stop, script end)."""
         with self.lock:
             if self.runtime_state == RUNTIME_PLAYING:
                 self._event("program_stopped", reason=reason)
@@ -397,7 +397,7 @@ class URSimulator:
         self._path_queue.clear()
 
     def _at_rest(self) -> None:
-        self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros(6), math.inf
+        self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros((3, 6)), np.full(3, np.inf)
 
     def motion_time_scale(self) -> float:
         """Motion seconds per clock second now (the time scale times the speed slider; 0 = instant moves)."""
@@ -436,7 +436,7 @@ class URSimulator:
         acceleration = motion.acceleration(t)
         if acceleration is None:  # moveL: no closed form; differentiate q̇
             self.qdd = (self.qd - qd_before) / dt_motion if dt_motion > 0 else np.zeros(6)
-            self.qdd_switch_in_s, self.qdd_next = math.inf, self.qdd
+            self.qdd_switch_in_s, self.qdd_next = np.full(3, np.inf), np.zeros((3, 6))
         else:
             self.qdd, self.qdd_switch_in_s, self.qdd_next = acceleration
         if fired is not None:
@@ -663,7 +663,7 @@ class URSimulator:
     def joint_state(self, now: float) -> JointState:
         """The joint state at ``now`` for the simulated sensor (see :class:`tests.fakes.world.JointState`)."""
         return JointState(now, self.motion_time_scale(), self.q.copy(), self.qd.copy(), self.qdd.copy(),
-                          self.qdd_switch_in_s, self.qdd_next.copy())
+                          self.qdd_switch_in_s.copy(), self.qdd_next.copy())
 
     def snapshot(self, now: float, dt: float) -> dict:
         flange, tcp = self._poses()

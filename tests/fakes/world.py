@@ -40,9 +40,11 @@ from ftacq.kinematics import URModel
 from ftacq.so3 import rotation_from_rotvec, rotation_zyx_deg
 from tests.fakes.rigid_body import flange_motion, tool_wrench_on_sensor
 
-MAX_EXTRAPOLATION_S = 0.05
-"""The sensor extrapolates the controller's last published state at most this far (motion time, s): a controller
-that stopped publishing (killed) leaves the arm where it last was, not drifting."""
+TIMELINE_SLACK_S, TIMELINE_GAP_S = 0.01, 1.0
+"""A stream's next chunk continues the sample timeline when drawn at most this early or this late (s)."""
+MAX_EXTRAPOLATION_S = 2.0
+"""The sensor follows the controller's last published move at most this far (motion time, s): through a stall of
+the controller process (a loaded machine) the arm goes on along its profile, as a real one would."""
 
 
 def gravity_base_from_tilt(mass_kg: float, alpha_deg: float, beta_deg: float) -> np.ndarray:
@@ -158,7 +160,9 @@ class JointState:
     Attributes:
         stamp_s: ``time.monotonic()`` of the tick. time_scale: motion seconds per clock second (0 = instant moves).
         q, qd, qdd: joint positions (rad), speeds (rad/s), accelerations (rad/s²) of the motion profile.
-        switch_in_s: motion time from the tick to the next change of q̈ (inf when none), qdd_next: q̈ after it.
+        switch_in_s (3,): motion time from the tick to each later change of q̈ (inf when none); qdd_next (3, 6):
+            q̈ after each. A trapezoidal move has at most three, so the sensor follows the move exactly even while
+            the controller process is descheduled.
     """
 
     stamp_s: float
@@ -166,8 +170,8 @@ class JointState:
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
-    switch_in_s: float = np.inf
-    qdd_next: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    switch_in_s: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
+    qdd_next: np.ndarray = field(default_factory=lambda: np.zeros((3, 6)))
 
     @property
     def at_rest(self) -> bool:
@@ -175,15 +179,28 @@ class JointState:
 
     def at(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Return (q, q̇, q̈), each (S, 6), at clock times ``times_s`` (S,): exact for the piecewise constant q̈
-        of the controller's profiles (one change of q̈ allowed; at most :data:`MAX_EXTRAPOLATION_S` ahead)."""
-        tau = np.clip((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, 0.0, MAX_EXTRAPOLATION_S)
-        tau = tau[:, None]
-        first = np.minimum(tau, self.switch_in_s)
-        second = tau - first
-        qd_switch = self.qd + self.qdd * first
-        q = self.q + self.qd * first + 0.5 * self.qdd * first ** 2 + qd_switch * second + 0.5 * self.qdd_next * second ** 2
-        qd = qd_switch + self.qdd_next * second
-        qdd = np.where(tau < self.switch_in_s, self.qdd, self.qdd_next)
+        of the controller's profiles (ahead of the stamp through every change of q̈; behind it within the current
+        phase; at most :data:`MAX_EXTRAPOLATION_S` either way)."""
+        tau = np.clip((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S,
+                      MAX_EXTRAPOLATION_S)[:, None]
+        switches = np.asarray(self.switch_in_s, dtype=float).reshape(-1)
+        after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6)
+        n = tau.shape[0]
+        q = np.broadcast_to(self.q, (n, 6)).copy()
+        qd = np.broadcast_to(self.qd, (n, 6)).copy()
+        qdd = np.broadcast_to(self.qdd, (n, 6)).copy()
+        behind = np.minimum(tau, 0.0)  # before the stamp: the current phase, backwards
+        q += qd * behind + 0.5 * qdd * behind ** 2
+        qd += qdd * behind
+        done = np.zeros_like(tau)
+        for boundary, acceleration in zip(list(switches) + [np.inf], list(after) + [None]):
+            step = np.clip(np.minimum(tau, boundary) - done, 0.0, None)
+            q += qd * step + 0.5 * qdd * step ** 2
+            qd += qdd * step
+            done += step
+            if acceleration is None or not np.isfinite(boundary):
+                break
+            qdd = np.where(tau >= boundary, acceleration, qdd)
         return q, qd, qdd
 
 
@@ -191,11 +208,11 @@ class SharedPose:
     """A flange pose and the joint state shared between processes through shared memory, guarded by a seqlock.
 
     Layout (float64): [sequence, x, y, z, rx, ry, rz, joint_speed_rad_s, stamp_s, time_scale, q (6), q̇ (6),
-    q̈ (6), switch_in_s, q̈ after the switch (6)]. The writer makes the sequence odd while writing; readers retry
+    q̈ (6), switch_in_s (3), q̈ after each switch (3 × 6)]. The writer makes the sequence odd while writing; readers retry
     until they see the same even sequence before and after copying.
     """
 
-    _SLOTS = 35
+    _SLOTS = 49
 
     def __init__(self, name: str | None = None, create: bool = False) -> None:
         if create:
@@ -207,7 +224,7 @@ class SharedPose:
         if create:
             self._array[:] = 0.0
             self._array[1:7] = [0.4, 0.0, 0.4, np.pi, 0.0, 0.0]
-            self._array[28] = np.inf
+            self._array[28:31] = np.inf
 
     @property
     def name(self) -> str:
@@ -221,12 +238,12 @@ class SharedPose:
         self._array[1:7] = pose
         self._array[7] = joint_speed_rad_s
         if state is None:
-            self._array[8:35] = 0.0
-            self._array[28] = np.inf
+            self._array[8:49] = 0.0
+            self._array[28:31] = np.inf
         else:
             self._array[8], self._array[9] = state.stamp_s, state.time_scale
             self._array[10:16], self._array[16:22], self._array[22:28] = state.q, state.qd, state.qdd
-            self._array[28], self._array[29:35] = state.switch_in_s, state.qdd_next
+            self._array[28:31], self._array[31:49] = state.switch_in_s, np.ravel(state.qdd_next)
         self._array[0] = seq + 2.0
 
     def _copy(self) -> np.ndarray:
@@ -245,7 +262,7 @@ class SharedPose:
         v = self._copy()
         state = None
         if v[8] > 0.0:
-            state = JointState(float(v[8]), float(v[9]), v[10:16], v[16:22], v[22:28], float(v[28]), v[29:35])
+            state = JointState(float(v[8]), float(v[9]), v[10:16], v[16:22], v[22:28], v[28:31], v[31:49].reshape(3, 6))
         return v[1:7], float(v[7]), state
 
     def close(self) -> None:
@@ -284,6 +301,20 @@ class SensorPhysics:
         self._bias = np.array(self.truth.force_bias_n + self.truth.torque_bias_nm)
         self._sensor_rotation = self.truth.sensor_rotation
         self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
+        self._next_sample_s: float | None = None
+        self.timeline_restarts = 0
+
+    def _sample_times(self, n: int, now: float) -> np.ndarray:
+        """Times of the ``n`` samples of one call: a stream's chunks (n > 1) continue one regular timeline at
+        ``rate_hz`` (a real sensor samples on its own clock, however late the fake gets to drawing them); a
+        single sample (a poll) or a gap re-anchors the timeline at ``now``."""
+        start = now
+        if n > 1 and self._next_sample_s is not None and -TIMELINE_SLACK_S <= now - self._next_sample_s <= TIMELINE_GAP_S:
+            start = self._next_sample_s
+        elif n > 1:
+            self.timeline_restarts += 1
+        self._next_sample_s = start + n / self.rate_hz
+        return start + np.arange(n) / self.rate_hz
 
     def set_tool(self, mass_kg: float, center_of_mass_m) -> None:
         """Put another tool on the sensor (mass kg, centre of mass m in the sensor frame) without telling anyone:
@@ -323,8 +354,10 @@ class SensorPhysics:
         elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
         return self.tool_wrench(q, qd, qdd) + self.bias_at(elapsed) + self.contact_wrench
 
-    def sample(self, n: int) -> np.ndarray:
-        """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample)."""
+    def sample(self, n: int, start_time_s: float | None = None) -> np.ndarray:
+        """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample,
+        at ``start_time_s`` + k / rate_hz when the caller knows when the first is due, else on the timeline of
+        :meth:`_sample_times`)."""
         reader = getattr(self.pose_source, "read_state", None)
         if reader is not None:
             pose, joint_speed, state = reader()
@@ -332,10 +365,10 @@ class SensorPhysics:
             (pose, joint_speed), state = self.pose_source.read(), None
         now = time.monotonic()
         elapsed = now - self.start_time_s
+        times = self._sample_times(n, now) if start_time_s is None else start_time_s + np.arange(n) / self.rate_hz
         if state is None or self.robot is None or state.at_rest:
             mean = self.noiseless_wrench(pose, elapsed)
         else:
-            times = now + np.arange(n) / self.rate_hz
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
         sigma = self._noise_sigma * (1.0 + self.truth.motion_noise_gain * joint_speed)

@@ -53,6 +53,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--yes", "-y", action="store_true", help="confirm the plan without asking")
     parser.add_argument("--resume", type=Path, metavar="RUN_DIR",
                         help="continue a stopped or failed run: same plan, measured poses are not measured again")
+    parser.add_argument("--dynamic", action="store_true",
+                        help="after the poses, run the excitation stage (a checked, confirmed motion recorded with "
+                             "the robot state) and identify the tool's inertia: the calibration then compensates "
+                             "while the arm moves (docs/dynamics.md)")
     parser.add_argument("--out", type=Path, metavar="DIR",
                         help="parent folder of the run folder (default: output.folder of the config, 'runs')")
     sim = parser.add_argument_group("simulation (--sim)")
@@ -272,7 +276,12 @@ def _run(args: argparse.Namespace) -> int:
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
-        return _finish(args, folder, plan, config, result, cell, options, sensor.info)
+        status = _finish(args, folder, plan, config, result, cell, options, sensor.info)
+        if args.dynamic and status == 0:
+            from ftacq.app.commands.dynamic_stage import run_dynamic_stage
+
+            status = run_dynamic_stage(args, stack, config, settings, robot, sensor, folder, cell, _confirm)
+        return status
 
 
 def _as_dict(sampling) -> dict:
@@ -335,6 +344,13 @@ def _finish(args, folder, plan, config, result, cell, options, sensor_info=None)
             validation=None if result.validation is None else validation_dict(result.validation),
             input=input_record(folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True),
             drift_check=drift_check, verdict=None if verdict is None else verdict.to_dict())
+        from dataclasses import replace
+
+        from ftacq.app.commands.dynamic_stage import sensor_offset_from
+
+        offset, offset_source = sensor_offset_from(config, cell)
+        if not offset_source.startswith("zero"):  # CELL.toml tool.sensor_offset_m (the exports need it too)
+            calibration = replace(calibration, sensor_offset=offset)
         save_calibration(folder.path / CALIBRATION_JSON, calibration)
     try:
         report = write_report(folder.path, result, plan, config.to_dict(), truth=truth,

@@ -26,7 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "ftacq identify poses.csv -o calibration.json --mount ceiling",
                    "ftacq identify poses.csv -o closed-form.json --no-refine  # the paper's closed form only"),
     )
-    parser.add_argument("poses", metavar="POSES.csv", help="pose record CSV (see README: file formats)")
+    parser.add_argument("poses", metavar="POSES.csv", nargs="?",
+                        help="pose record CSV (see docs/formats.md); optional with --motion and --calibration")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
     parser.add_argument(
         "--mount",
@@ -53,12 +54,39 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
     )
+    dynamics = parser.add_argument_group("motion (docs/dynamics.md)")
+    dynamics.add_argument("--motion", metavar="MOTION.csv",
+                          help="a recorded motion (ftacq calibrate --dynamic writes RUN_DIR/motion.csv): also "
+                               "identify the tool's inertia, so the calibration compensates while the arm moves")
+    dynamics.add_argument("--calibration", metavar="CALIBRATION.json",
+                          help="with --motion and no POSES.csv: the static calibration to extend")
+    dynamics.add_argument("--model", help="UR model of the motion (default: the one named in MOTION.csv)")
+    dynamics.add_argument("--sensor-offset", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                          help="sensor origin in the flange frame, m (default: the calibration's, else CELL.toml "
+                               "tool.sensor_offset_m as recorded there, else 0)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Identify, print the report, write the calibration; return the exit status."""
     import numpy as np
+
+    from ftacq.errors import InputError as _InputError
+
+    if args.poses is None and not (args.motion and args.calibration):
+        raise _InputError("give POSES.csv, or --motion MOTION.csv with --calibration CALIBRATION.json")
+    if args.poses is not None and args.calibration:
+        raise _InputError("give POSES.csv or --calibration, not both (the poses identify the static calibration)")
+    if args.poses is None:
+        from ftacq.calfile import load_calibration, save_calibration
+        from ftacq.validation import check_output_file
+
+        check_output_file(args.output, "-o/--output")
+        calibration, report = _dynamic(args, load_calibration(args.calibration))
+        save_calibration(args.output, calibration)
+        sys.stdout.write(report)
+        print(f"wrote {args.output}")
+        return 0
 
     from ftacq.calfile import save_calibration
     from ftacq.errors import IdentificationError, InputError
@@ -103,6 +131,9 @@ def run(args: argparse.Namespace) -> int:
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
                            has_count=record.count is not None))
     report = format_identification_report(result, validation=validation)
+    if args.motion:
+        calibration, motion_report = _dynamic(args, calibration)
+        report += motion_report
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
     print(f"wrote {args.output}")
@@ -134,3 +165,30 @@ def _verdict(result, held_out_record, record):
         findings.insert(1, drift_finding(drift, elapsed, SamplingConfig.drift_warn_force_n,
                                          SamplingConfig.drift_warn_torque_nm, first))
     return judge(findings)
+
+
+def _dynamic(args: argparse.Namespace, calibration):
+    """Identify the inertia from ``args.motion``; return (calibration with inertia, report text)."""
+    import numpy as np
+
+    from ftacq.dynamics import identify_dynamics
+    from ftacq.dynamics.motionfile import read_motion_csv
+    from ftacq.dynamics.report import format_dynamics
+    from ftacq.errors import IdentificationError, InputError
+    from ftacq.kinematics import ur_model
+
+    record, file_model = read_motion_csv(args.motion)
+    model_name = args.model or file_model
+    if not model_name:
+        raise InputError(f"{args.motion}: the file does not name the robot model; give --model (e.g. UR5e)")
+    try:
+        model = ur_model(model_name)
+    except ValueError as error:
+        raise InputError(f"--model {model_name}: {error}") from None
+    offset = args.sensor_offset if args.sensor_offset is not None else calibration.sensor_offset
+    try:
+        result = identify_dynamics(calibration, record, model,
+                                   sensor_offset_m=None if offset is None else np.array(offset, dtype=float))
+    except (IdentificationError, np.linalg.LinAlgError) as error:
+        raise InputError(f"{args.motion}: cannot identify the inertia: {error}") from error
+    return result.calibration, "\n" + format_dynamics(result)

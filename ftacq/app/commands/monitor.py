@@ -221,6 +221,10 @@ def run(args: argparse.Namespace) -> int:
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
         readout = LiveReadout()
         stack.callback(readout.close)
+        if calibration is not None:
+            dynamic = _choose_compensator(calibration, model, robot_host, stack, sensor)
+            if dynamic is not None:  # the drift tracker runs on the static compensation only
+                compensator, checks = dynamic, []
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=compensator, checks=checks,
                               listeners=[dashboard, readout], record_path=args.record, record_header=header)
@@ -230,9 +234,34 @@ def run(args: argparse.Namespace) -> int:
         dashboard.dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
                                      f"{summary.dropped_samples} dropped for the viewer")
     print(format_summary(summary))
-    if compensator is not None:
+    if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
+    if hasattr(compensator, "static_batches") and compensator.static_batches:
+        print(f"dynamic compensation: {compensator.static_batches} of "
+              f"{compensator.static_batches + compensator.dynamic_batches} reads had no robot state around them and "
+              "were compensated statically")
     return 0
+
+
+def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack, sensor):
+    """The dynamic compensator when the calibration has inertia (with its own RTDE state stream), else None (the
+    static one is kept), saying which on stderr."""
+    if not calibration.has_dynamics:
+        print("ftacq monitor: static compensation: this calibration has no inertia, so the wrench is exact only while "
+              "the arm is still (run ftacq calibrate --dynamic to identify the tool's inertia)", file=sys.stderr)
+        return None
+    from drivers.ur_stream import URStateStream
+    from procedures.dynamic_compensation import DynamicCompensator
+    from procedures.excitation import counts_samples
+
+    stream = URStateStream(robot_host)
+    stack.callback(stream.close)
+    stream.start()
+    compensator = DynamicCompensator(calibration, model, stream, counts_samples=counts_samples(sensor))
+    print(f"ftacq monitor: dynamic compensation (tool inertia from the calibration; sensor lag "
+          f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "
+          "trajectory, else a filtered derivative of actual_qd", file=sys.stderr)
+    return compensator
 
 
 def _drift_health(calibration, sensor_info, args: argparse.Namespace):

@@ -79,7 +79,7 @@ def label_anchors(origin: np.ndarray, weight: np.ndarray, contact: np.ndarray,
         weight_anchor = weight_anchor - 0.5 * min_separation_m * side
 
     def clear(anchor: np.ndarray) -> bool:
-        return (np.linalg.norm(anchor - weight_anchor) >= min_separation_m
+        return bool(np.linalg.norm(anchor - weight_anchor) >= min_separation_m
                 and _distance_to_segment(anchor, origin, weight) >= clearance_m
                 and _distance_to_segment(anchor, origin, contact) >= clearance_m)
 

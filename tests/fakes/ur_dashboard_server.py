@@ -1,6 +1,6 @@
-"""Dashboard server replies (UR port 29999) of the simulated controller (docs/protocols-ur.md).
+"""UR Dashboard Server replies (port 29999) of the simulated controller (docs/protocols-ur.md).
 
-One ASCII line in, exactly one line out (``\\n``-terminated, no ``\\r``). :func:`dashboard_reply` is pure logic
+One ASCII line in, exactly one line out (``\\n``-terminated, no ``\\r``). :func:`dashboard_server_reply` is pure logic
 over a :class:`~tests.fakes.ur_simulator.URSimulator`; the socket loop lives in ur_controller.py.
 """
 
@@ -23,7 +23,7 @@ GREETING = "Connected: Universal Robots Dashboard Server"
 RUNTIME_PAUSED = 4
 
 
-def dashboard_model_name(model_name: str) -> str:
+def dashboard_server_model_name(model_name: str) -> str:
     """What ``get robot model`` answers: UR's dashboard drops the e-Series ``e`` (UR5e → ``UR5``)."""
     return model_name[:-1] if model_name.lower().endswith("e") else model_name
 
@@ -34,7 +34,7 @@ def _program_name(sim: URSimulator) -> str:
     return sim.loaded_program or "<unnamed>"
 
 
-def dashboard_reply(sim: URSimulator, line: str) -> str:
+def dashboard_server_reply(sim: URSimulator, line: str) -> str:
     """Return the reply line (without newline) to one dashboard command."""
     command = line.strip()
     lower = command.lower()
@@ -47,7 +47,7 @@ def dashboard_reply(sim: URSimulator, line: str) -> str:
         if lower == "get serial number" and (major, minor) >= (5, 6):
             return sim.serial_number
         if lower == "get robot model":
-            return dashboard_model_name(sim.model.name)
+            return dashboard_server_model_name(sim.model.name)
         if lower == "is in remote control":
             return "true"
         if lower == "robotmode":
@@ -130,4 +130,4 @@ def dashboard_reply(sim: URSimulator, line: str) -> str:
         return f"could not understand: '{command}'"
 
 
-__all__ = ["GREETING", "dashboard_reply", "dashboard_model_name", "RUNTIME_STOPPED", "ROBOT_MODE_RUNNING"]
+__all__ = ["GREETING", "dashboard_server_reply", "dashboard_server_model_name", "RUNTIME_STOPPED", "ROBOT_MODE_RUNNING"]

@@ -1,0 +1,236 @@
+"""Every RTDE state sample of a UR controller, kept: :class:`URStateStream` (receive only, never moves anything).
+
+ur-rtde's receive interface keeps only the newest state, which a Python thread polling it at 500 Hz would miss
+under load. The dynamic model needs all of them (a recorded motion for identification; q, q̇, q̈ around every
+sensor sample for live compensation), so this client speaks RTDE itself (docs/protocols-ur.md, "RTDE framing":
+protocol version 2, one output recipe, data packages) on its own connection and appends every package, stamped
+on arrival with the host's ``time.monotonic()``, to a fixed-size ring of numpy rows.
+
+Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``
+(rad, rad/s, rad/s²).
+The controller's timestamp maps onto the host clock through the lower envelope of (arrival − timestamp)
+(:func:`ftacq.dynamics.timing.device_to_host_clock`): :meth:`URStateStream.window` returns host times free of
+receive jitter. Every call has a deadline; a controller that stops sending is reported by :attr:`stale`.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import struct
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftacq.errors import DeviceConnectionError, DeviceError
+
+log = logging.getLogger(__name__)
+
+RTDE_PORT = 30004
+OUTPUTS = ("timestamp", "actual_q", "actual_qd", "target_qd", "target_qdd")
+_HEADER = struct.Struct(">HB")
+_V, _O, _S, _P, _U, _M = (ord(c) for c in "VOSPUM")
+CONNECT_TIMEOUT_S = 3.0
+RECEIVE_TIMEOUT_S = 1.0
+"""No package for this long: :attr:`URStateStream.stale` (the reader keeps waiting until closed)."""
+JOIN_TIMEOUT_S = 2.0
+DEFAULT_CAPACITY = 1 << 18
+"""Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
+_COLUMNS = 26  # arrival, timestamp, q (6), qd (6), target qd (6), target qdd (6)
+
+
+@dataclass(frozen=True)
+class StateWindow:
+    """Robot samples, oldest first: host times (s, host monotonic clock), q, q̇ (actual), q̇ and q̈ (target) (M, 6)
+    (rad, rad/s, rad/s²). ``arrival_s`` are the raw receive stamps, ``controller_time_s`` the controller's own
+    timestamps."""
+
+    time_s: np.ndarray
+    arrival_s: np.ndarray
+    controller_time_s: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    target_qd: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.time_s.shape[0])
+
+
+class URStateStream:
+    """A receive-only RTDE client keeping every state sample (context manager; :meth:`close` is safe twice).
+
+    Args: host (the controller), frequency_hz (500 on e-Series, 125 on CB3), capacity (rows kept),
+    connect_timeout_s (the handshake's deadline).
+    """
+
+    def __init__(self, host: str, frequency_hz: float = 500.0, capacity: int = DEFAULT_CAPACITY,
+                 connect_timeout_s: float = CONNECT_TIMEOUT_S, port: int = RTDE_PORT) -> None:
+        self.host, self.port, self.frequency_hz = host, port, float(frequency_hz)
+        self.connect_timeout_s = connect_timeout_s
+        self._rows = np.empty((capacity, _COLUMNS))
+        self._count = 0
+        self._lock = threading.Lock()
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._offset = np.inf
+        self._last_arrival = 0.0
+        self.error: str | None = None
+
+    # ------------------------------------------------------------------ protocol
+    def _send(self, package_type: int, payload: bytes = b"") -> None:
+        self._sock.sendall(_HEADER.pack(_HEADER.size + len(payload), package_type) + payload)
+
+    def _recv_exact(self, n: int, sock: socket.socket | None = None) -> bytes:
+        sock = sock or self._sock
+        if sock is None:
+            raise DeviceConnectionError(f"robot controller {self.host} port {self.port} (RTDE): not connected")
+        data = b""
+        while len(data) < n:
+            chunk = sock.recv(n - len(data))
+            if not chunk:
+                raise DeviceConnectionError(f"robot controller {self.host} port {self.port} (RTDE) closed the connection")
+            data += chunk
+        return data
+
+    def _package(self, sock: socket.socket | None = None) -> tuple[int, bytes]:
+        size, package_type = _HEADER.unpack(self._recv_exact(_HEADER.size, sock))
+        return package_type, self._recv_exact(max(size - _HEADER.size, 0), sock)
+
+    def _reply(self, expected: int, deadline: float) -> bytes:
+        while True:
+            if time.monotonic() > deadline:
+                raise DeviceConnectionError(f"robot controller {self.host} port {self.port} (RTDE): no reply to the "
+                                            f"setup within {self.connect_timeout_s:.1f} s")
+            package_type, body = self._package()
+            if package_type == expected:
+                return body
+
+    def start(self) -> "URStateStream":
+        """Connect, set up the output recipe and start streaming (DeviceConnectionError naming host and port)."""
+        deadline = time.monotonic() + self.connect_timeout_s
+        where = f"robot controller {self.host} port {self.port} (RTDE)"
+        try:
+            self._sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout_s)
+            self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._send(_V, struct.pack(">H", 2))
+            if not self._reply(_V, deadline)[:1] == b"\x01":
+                raise DeviceConnectionError(f"{where}: the controller refused RTDE protocol version 2")
+            self._send(_O, struct.pack(">d", self.frequency_hz) + ",".join(OUTPUTS).encode())
+            reply = self._reply(_O, deadline)
+            types = reply[1:].decode(errors="replace").split(",")
+            if len(types) != len(OUTPUTS) or any(t not in ("DOUBLE", "VECTOR6D") for t in types):
+                raise DeviceConnectionError(f"{where}: output recipe refused ({', '.join(types)})")
+            self._send(_S)
+            if not self._reply(_S, deadline)[:1] == b"\x01":
+                raise DeviceConnectionError(f"{where}: the controller refused to start the data stream")
+        except OSError as error:
+            self.close()
+            raise DeviceConnectionError(f"{where}: {error}") from error
+        except DeviceError:
+            self.close()
+            raise
+        self._sock.settimeout(RECEIVE_TIMEOUT_S)
+        self._thread = threading.Thread(target=self._read_loop, name="ftacq-rtde-stream", daemon=True)
+        self._thread.start()
+        return self
+
+    def _read_loop(self) -> None:
+        values = struct.Struct(">" + "d" * (_COLUMNS - 1))
+        package_size = _HEADER.size + 1 + values.size
+        rows, capacity, sock = self._rows, self._rows.shape[0], self._sock
+        buffer = b""
+        while not self._stop.is_set():
+            try:
+                chunk = sock.recv(1 << 16)
+            except socket.timeout:
+                continue
+            except OSError as error:
+                chunk, failure = b"", str(error)
+            else:
+                failure = "the controller closed the connection"
+            if not chunk:
+                if not self._stop.is_set():
+                    self.error = failure
+                    log.warning("RTDE state stream from %s ended: %s", self.host, failure)
+                return
+            arrival = time.monotonic()
+            buffer += chunk
+            offset = 0
+            while len(buffer) - offset >= _HEADER.size:
+                size, package_type = _HEADER.unpack_from(buffer, offset)
+                if size < _HEADER.size or len(buffer) - offset < size:
+                    break
+                if package_type == _U and size == package_size:
+                    row = values.unpack_from(buffer, offset + _HEADER.size + 1)
+                    with self._lock:
+                        slot = rows[self._count % capacity]
+                        slot[0] = arrival
+                        slot[1:] = row
+                        self._count += 1
+                        self._offset = min(self._offset, arrival - row[0])
+                        self._last_arrival = arrival
+                offset += max(size, _HEADER.size)
+            buffer = buffer[offset:]
+
+    # ------------------------------------------------------------------ reading
+    @property
+    def count(self) -> int:
+        """State samples received so far."""
+        return self._count
+
+    @property
+    def stale(self) -> bool:
+        """True when no package arrived for :data:`RECEIVE_TIMEOUT_S` (or the stream ended)."""
+        return self.error is not None or time.monotonic() - self._last_arrival > RECEIVE_TIMEOUT_S
+
+    def window(self, since_s: float | None = None, last: int | None = None) -> StateWindow:
+        """Return the samples kept (or those with host time ≥ ``since_s``, or the ``last`` N), oldest first."""
+        with self._lock:
+            count, offset = self._count, self._offset
+            capacity = self._rows.shape[0]
+            n = min(count, capacity)
+            if last is not None:
+                n = min(n, last)
+            index = np.arange(count - n, count) % capacity
+            rows = self._rows[index]
+        times = rows[:, 1] + (offset if np.isfinite(offset) else 0.0)
+        if since_s is not None:
+            rows, times = rows[times >= since_s], times[times >= since_s]
+        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
+
+    def wait_for_samples(self, count: int, timeout_s: float) -> bool:
+        """Wait until at least ``count`` samples were received in total; False after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while self._count < count:
+            if time.monotonic() > deadline or self.error is not None:
+                return False
+            time.sleep(0.005)
+        return True
+
+    # ------------------------------------------------------------------ life cycle
+    def close(self) -> None:
+        """Stop the reader and close the connection. Safe to call twice."""
+        self._stop.set()
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            sock.close()
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(timeout=JOIN_TIMEOUT_S)
+
+    def __enter__(self) -> "URStateStream":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["URStateStream", "StateWindow", "OUTPUTS"]

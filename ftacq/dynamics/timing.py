@@ -1,0 +1,61 @@
+"""Matching sensor samples to robot samples by time: one host clock, and resampling between 7 kHz and 500 Hz.
+
+How the clocks are aligned (docs/dynamics.md):
+
+- Both streams are put on the host's monotonic clock (``time.monotonic``). Each device counts its own time — the
+  sensor its sample sequence number at a fixed rate, the UR controller its ``timestamp`` — and each sample is
+  stamped on arrival. Arrival = device time + offset + a transport delay that is never negative, so the offset is
+  the *lower envelope* of (arrival − device time): :func:`device_to_host_clock`. This removes the receive jitter
+  (a 1 ms wake-up coalescing of the sensor driver, a descheduled thread) without trusting either clock's epoch.
+- What remains is a constant lag between the two streams (the fastest transport of each, the sensor's filter
+  delay): :func:`ftacq.dynamics.identify.estimate_lag` measures it from the motion itself (the shift that best
+  fits the rigid-body model) and reports it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def device_to_host_clock(device_time_s: np.ndarray, arrival_s: np.ndarray) -> np.ndarray:
+    """Return the samples' times on the host clock: device time + the lower envelope of (arrival − device time).
+
+    ``device_time_s`` is the device's own time of each sample (s: a sequence number over the sample rate, or the
+    controller's timestamp); ``arrival_s`` their host receive stamps. The device's rate is trusted (a 50 ppm
+    crystal drifts 0.05 ms in a second, 3 ms in a minute: record windows of at most a few minutes)."""
+    device = np.asarray(device_time_s, dtype=float)
+    arrival = np.asarray(arrival_s, dtype=float)
+    if device.size == 0:
+        return device.copy()
+    return device + float(np.min(arrival - device))
+
+
+def box_average(time_s: np.ndarray, values: np.ndarray, at_s: np.ndarray, width_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return (mean of ``values`` over [t − width/2, t + width/2) at each t of ``at_s``, count per window).
+
+    ``time_s`` must be sorted. Windows with no sample give NaN. Vectorised (cumulative sums + searchsorted)."""
+    time_s = np.asarray(time_s, dtype=float)
+    values = np.asarray(values, dtype=float).reshape(time_s.shape[0], -1)
+    at_s = np.asarray(at_s, dtype=float)
+    sums = np.vstack([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
+    lo = np.searchsorted(time_s, at_s - 0.5 * width_s, side="left")
+    hi = np.searchsorted(time_s, at_s + 0.5 * width_s, side="left")
+    count = hi - lo
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (sums[hi] - sums[lo]) / count[:, None]
+    mean[count == 0] = np.nan
+    return mean, count
+
+
+def interpolate_rows(at_s: np.ndarray, time_s: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each column of ``values`` (M, k) sampled at sorted ``time_s`` (M,) onto ``at_s`` (N,);
+    held constant beyond the ends (the newest robot state is used for sensor samples newer than it)."""
+    time_s = np.asarray(time_s, dtype=float)
+    values = np.asarray(values, dtype=float).reshape(time_s.shape[0], -1)
+    at_s = np.asarray(at_s, dtype=float)
+    if time_s.shape[0] == 1:
+        return np.repeat(values, at_s.shape[0], axis=0)
+    index = np.clip(np.searchsorted(time_s, at_s, side="right") - 1, 0, time_s.shape[0] - 2)
+    span = time_s[index + 1] - time_s[index]
+    fraction = np.clip((at_s - time_s[index]) / np.where(span > 0, span, 1.0), 0.0, 1.0)[:, None]
+    return values[index] + fraction * (values[index + 1] - values[index])

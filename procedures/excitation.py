@@ -1,0 +1,233 @@
+"""The excitation stage: a short motion that makes the tool's inertia visible, planned and checked like the poses,
+recorded with the robot's state, then identified (:mod:`ftacq.dynamics.identify`).
+
+Plan: a chain of moveJs from the start configuration to random joint targets around it and back — small
+amplitudes on the base, shoulder and elbow (the tool stays near where the poses were), large ones on the three
+wrist joints (they turn the tool about every axis: that is what identifies the inertia) — each at the CELL.toml
+joint speed and acceleration. Every segment is checked as the calibration's moves are
+(:func:`procedures.plan.check_path`: joint limits and collisions along the whole path, tool cylinder and table
+included); a target whose segment is not clear is drawn again. The plan states its duration; the robot moves only
+after the operator confirmed it (as for the poses).
+
+Recording: the sensor is read in its own thread, the robot's every RTDE state by :class:`drivers.ur_stream.URStateStream`,
+while this thread issues the moves (each blocking until arrived). Ctrl-C stops the robot and keeps what was
+recorded. Sensor samples are put on the host clock through their sequence numbers
+(:func:`sensor_host_times`), robot samples through the controller's timestamps; the residual lag is measured by
+the identification.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ftacq.dynamics.acceleration import joint_acceleration
+from ftacq.dynamics.identify import MotionRecord
+from ftacq.dynamics.timing import device_to_host_clock
+from ftacq.errors import PlanError
+
+log = logging.getLogger(__name__)
+
+AMPLITUDE_RAD = (0.25, 0.2, 0.25, 1.0, 1.0, 1.5)
+"""Largest excursion of each joint from the start configuration (base … wrist 3), rad."""
+DEFAULT_MOVES = 10
+"""Segments before the return to the start (≈ 2 s each at 1 rad/s, 2 rad/s²)."""
+MAX_DRAWS = 200
+"""Random targets tried per segment before the plan gives up."""
+SENSOR_READ_TIMEOUT_S = 0.5
+STREAM_GAP_S = 0.05
+"""Samples arriving further apart than this (a reconnect, a stall) start a new run of the sensor's clock."""
+MAX_SILENT_READS = 6
+"""Consecutive sensor reads without a sample (3 s) that end the recording as a fault."""
+
+
+def trapezoid_duration_s(distance_rad: float, speed: float, acceleration: float) -> float:
+    """Duration of a rest-to-rest trapezoidal (or triangular) move of the leading joint, s."""
+    if distance_rad <= 0:
+        return 0.0
+    if distance_rad >= speed * speed / acceleration:
+        return distance_rad / speed + speed / acceleration
+    return 2.0 * np.sqrt(distance_rad / acceleration)
+
+
+@dataclass(frozen=True)
+class ExcitationPlan:
+    """A checked excitation: moveJ joint targets (K, 6) rad from ``start_q_rad`` (the last one is the start again),
+    at ``speed_rad_s`` and ``acceleration_rad_s2``; ``estimated_duration_s`` on a real robot."""
+
+    start_q_rad: np.ndarray
+    targets_rad: np.ndarray
+    speed_rad_s: float
+    acceleration_rad_s2: float
+    estimated_duration_s: float
+    seed: int = 0
+
+    def to_json(self) -> dict:
+        return {"start_q_rad": self.start_q_rad.tolist(), "targets_rad": self.targets_rad.tolist(),
+                "speed_rad_s": self.speed_rad_s, "acceleration_rad_s2": self.acceleration_rad_s2,
+                "estimated_duration_s": self.estimated_duration_s, "seed": self.seed}
+
+
+def plan_excitation(settings, start_q_rad: np.ndarray, moves: int = DEFAULT_MOVES, seed: int = 0,
+                    amplitude_rad: tuple[float, ...] = AMPLITUDE_RAD) -> ExcitationPlan:
+    """Plan and check an excitation from ``start_q_rad`` with the plan settings' joint speed and acceleration.
+
+    Raises PlanError when no clear segment is found (a cramped cell: reduce the amplitudes or move the start)."""
+    from procedures.plan import check_path
+
+    rng = np.random.default_rng(seed)
+    start = np.asarray(start_q_rad, dtype=float).reshape(6)
+    amplitude = np.asarray(amplitude_rad, dtype=float)
+    speed, acceleration = float(settings.joint_speed_rad_s), float(settings.joint_acceleration_rad_s2)
+    targets, q, problems = [], start, []
+    for index in range(moves + 1):
+        for _ in range(MAX_DRAWS):
+            if index == moves:
+                candidate = start
+            else:  # a random excursion of every joint, each with a random sign
+                candidate = start + amplitude * rng.uniform(0.4, 1.0, 6) * rng.choice((-1.0, 1.0), 6)
+            problems = check_path(settings, q, candidate)
+            if not problems or index == moves:
+                break
+        if problems:
+            raise PlanError(f"excitation segment {index + 1}: no clear path found ({problems[0]}); move the robot to "
+                            "a freer start configuration or reduce the excitation")
+        targets.append(candidate)
+        q = candidate
+    targets_array = np.array(targets)
+    path = np.vstack([start, targets_array])
+    duration = sum(trapezoid_duration_s(float(np.max(np.abs(b - a))), speed, acceleration)
+                   for a, b in zip(path[:-1], path[1:]))
+    return ExcitationPlan(start, targets_array, speed, acceleration, float(duration), seed)
+
+
+def format_excitation(plan: ExcitationPlan) -> str:
+    """A few lines for the operator: what will move, how fast, how long."""
+    span = np.ptp(np.vstack([plan.start_q_rad, plan.targets_rad]), axis=0)
+    return (f"Excitation plan: {len(plan.targets_rad)} moveJ segments around the current configuration, "
+            f"joint speed {plan.speed_rad_s:g} rad/s, acceleration {plan.acceleration_rad_s2:g} rad/s²\n"
+            f"  joint ranges (rad): " + " ".join(f"{v:.2f}" for v in span) + "\n"
+            f"  every segment checked for joint limits and collisions along its path: clear\n"
+            f"  estimated duration: {plan.estimated_duration_s:.1f} s (ends where it started)")
+
+
+def counts_samples(sensor) -> bool:
+    """True when the sensor's sequence numbers count its own samples at a fixed rate (Net F/T RDT); a polled
+    sensor (CAN) numbers its polls, whose times are the arrival stamps."""
+    return getattr(getattr(sensor, "info", None), "transport", "") == "netft"
+
+
+def sensor_host_times(arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray:
+    """Sample times on the host clock from the device's sequence numbers (its own, regular clock) and the
+    arrival stamps: the rate from a line through (sequence, arrival), the offset from the lower envelope
+    (:func:`ftacq.dynamics.timing.device_to_host_clock`). Falls back to the arrival stamps when the sequence does
+    not count samples (a polled sensor)."""
+    arrival = np.asarray(arrival_s, dtype=float)
+    sequence = np.asarray(sequence, dtype=float)
+    if arrival.size < 3:
+        return arrival.copy()
+    # a restarted count or a silence (a reconnect, a stalled stream) starts a new run with its own offset
+    breaks = np.nonzero((np.diff(sequence) <= 0) | (np.diff(arrival) > STREAM_GAP_S))[0] + 1
+    runs = np.split(np.arange(arrival.size), breaks)
+    longest = max(runs, key=len)
+    if longest.size < 3:
+        return arrival.copy()
+    period = np.polyfit(sequence[longest] - sequence[longest[0]], arrival[longest] - arrival[longest[0]], 1)[0]
+    if not (period > 0 and np.isfinite(period)):
+        return arrival.copy()
+    out = np.empty_like(arrival)
+    for run in runs:
+        local = (sequence[run] - sequence[run[0]]) * period
+        out[run] = device_to_host_clock(local, arrival[run] - arrival[run[0]]) + arrival[run[0]]
+    return out
+
+
+@dataclass
+class _SensorRecorder:
+    """Reads the sensor in a thread until stopped, keeping every batch."""
+
+    sensor: object
+    batches: list = field(default_factory=list)
+    error: BaseException | None = None
+
+    def __post_init__(self) -> None:
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ftacq-excitation-sensor", daemon=True)
+
+    def _run(self) -> None:
+        from ftacq.errors import DeviceTimeoutError
+
+        silent = 0
+        try:
+            while not self._stop.is_set():
+                try:
+                    batch = self.sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)
+                except DeviceTimeoutError:
+                    silent += 1  # a late stream (the driver reconnects): the identification sees a gap
+                    if silent >= MAX_SILENT_READS:
+                        raise
+                    continue
+                silent = 0
+                if len(batch):
+                    self.batches.append(batch)
+        except BaseException as error:  # noqa: BLE001 - reported by the caller after the robot stopped
+            self.error = error
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+def record_excitation(plan: ExcitationPlan, robot, sensor, stream, move_timeout_s: float = 60.0,
+                      on_move=None) -> MotionRecord:
+    """Run the plan (moveJ after moveJ) while recording sensor and robot; return the record (host clock).
+
+    ``stream`` is a started :class:`drivers.ur_stream.URStateStream`. ``on_move(i, n)`` is called before each
+    segment (progress). Ctrl-C or a fault stops the robot; the recording made so far is attached to the raised
+    exception as ``error.motion_record``."""
+    from procedures.plan import check_path  # noqa: F401 - the plan was checked; moves below follow it exactly
+
+    sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)  # drop what was buffered before the stage
+    first_robot = stream.count
+    recorder = _SensorRecorder(sensor)
+    recorder.start()
+    try:
+        for index, target in enumerate(plan.targets_rad):
+            if on_move is not None:
+                on_move(index, len(plan.targets_rad))
+            if recorder.error is not None:
+                raise recorder.error
+            robot.move_joints(target, plan.speed_rad_s, plan.acceleration_rad_s2, timeout_s=move_timeout_s)
+        stream.wait_for_samples(stream.count + 5, timeout_s=1.0)  # a few samples at rest after the last move
+    except BaseException as error:
+        try:
+            robot.stop()
+        finally:
+            recorder.stop()
+            error.motion_record = _assemble(recorder.batches, stream, first_robot,  # type: ignore[attr-defined]
+                                            counts_samples(sensor))
+        raise
+    recorder.stop()
+    if recorder.error is not None:
+        raise recorder.error
+    return _assemble(recorder.batches, stream, first_robot, counts_samples(sensor))
+
+
+def _assemble(batches: list, stream, first_robot: int, regular: bool = True) -> MotionRecord:
+    if batches:
+        arrival = np.concatenate([b.time_s for b in batches])
+        sequence = np.concatenate([b.sequence for b in batches])
+        wrench = np.concatenate([b.wrench for b in batches])
+    else:
+        arrival, sequence, wrench = np.empty(0), np.empty(0), np.empty((0, 6))
+    window = stream.window(last=max(stream.count - first_robot, 0))
+    qdd, _ = joint_acceleration(window.time_s, window.qd, window.target_qd, window.qdd)
+    times = sensor_host_times(arrival, sequence) if regular else arrival
+    return MotionRecord(times, wrench, window.time_s, window.q, window.qd, qdd,
+                        metadata={"robot_samples": len(window), "sensor_samples": int(arrival.size)})

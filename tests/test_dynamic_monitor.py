@@ -1,0 +1,47 @@
+"""``ftacq monitor`` compensates dynamically when the calibration has inertia, statically (and says so) when not;
+the live compensator's sensor clock."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ftacq.app.cli import main as ftacq_main
+from ftacq.calfile import save_calibration
+from procedures.dynamic_compensation import SensorClock
+from tests.fakes.world import CellTruth
+
+pytest.importorskip("rtde_control")
+
+
+@pytest.mark.parametrize("with_inertia", [True, False])
+def test_monitor_chooses_the_model_by_the_calibration(tmp_path, capsys, with_inertia):
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m))
+    if with_inertia:
+        calibration = replace(calibration, inertia=truth.inertia)
+    path = tmp_path / "calibration.json"
+    save_calibration(path, calibration)
+    assert ftacq_main(["monitor", "--sim", "--sim-still", "--calibration", str(path), "--seconds", "1.5"]) == 0
+    err = capsys.readouterr().err
+    if with_inertia:
+        assert "dynamic compensation (tool inertia from the calibration" in err
+    else:
+        assert "static compensation: this calibration has no inertia" in err
+
+
+def test_sensor_clock_removes_arrival_jitter_and_restarts_after_a_stall():
+    rng = np.random.default_rng(1)
+    clock = SensorClock()
+    sequence = np.arange(20000)
+    true = 50.0 + sequence / 7000.0
+    arrival = true + 0.0003 + rng.exponential(0.001, sequence.size)
+    arrival[12000:] += 0.2  # a stall: the rest arrives 0.2 s later (and a real reconnect restarts the count)
+    sequence = sequence.copy()
+    sequence[12000:] -= 12000
+    out = np.concatenate([clock.host_times(arrival[i:i + 70], sequence[i:i + 70]) for i in range(0, 20000, 70)])
+    settled = slice(2000, 11900)  # the read that straddles the stall keeps its arrival stamps
+    assert np.abs(out[settled] - (true[settled] + 0.0003)).max() < 2e-4
+    assert np.abs(out[14100:] - (true[14100:] + 0.2003)).max() < 2e-4
