@@ -160,8 +160,12 @@ class URRobot:
     """
 
     def __init__(self, host: str, limits: MotionLimits, model: str | URModel | None = None,
-                 connect_timeout_s: float = PROBE_TIMEOUT_S, frequency_hz: float | None = None) -> None:
+                 connect_timeout_s: float = PROBE_TIMEOUT_S, frequency_hz: float | None = None,
+                 leave_external_ft_input: bool = False) -> None:
         self.host = host
+        self.leave_external_ft_input = leave_external_ft_input
+        """Open the control interface with FLAG_NO_EXT_FT, so that another client (drivers/ur_ft_input.py) may
+        own the RTDE input ``external_force_torque`` (ur-rtde's recipe 23 holds it otherwise)."""
         self.limits = validate_limits(limits)
         self.connect_timeout_s = connect_timeout_s
         self._reader = URStateReader(host, frequency_hz, model, connect_timeout_s)
@@ -200,7 +204,9 @@ class URRobot:
                         "(pass model=, e.g. 'UR5e')", self.host, self.info.model_reply)
         self._reader.start()
         try:
-            self._control = rtde_control.RTDEControlInterface(self.host)
+            interface = rtde_control.RTDEControlInterface
+            flags = interface.FLAG_UPLOAD_SCRIPT | (interface.FLAG_NO_EXT_FT if self.leave_external_ft_input else 0)
+            self._control = interface(self.host, -1.0, flags)
         except RuntimeError as error:
             self._reader.close()
             raise DeviceConnectionError(
@@ -483,6 +489,18 @@ class URRobot:
                            timeout_s=min(CALL_TIMEOUT_S, 5.0))
         except (RuntimeError, DeviceConnectionError, DeviceTimeoutError) as error:
             log.warning("robot %s: stop failed: %s", self.host, error)
+
+    # ------------------------------------------------------------------ external F/T input and payload
+    def enable_external_ft_input(self, enable: bool, function: str = "ft_rtde_input_enable", sensor_mass_kg: float = 0.0,
+                                 sensor_measuring_offset_m=(0.0, 0.0, 0.0), sensor_cog_m=(0.0, 0.0, 0.0)) -> None:
+        """Call URScript ``ft_rtde_input_enable`` (or the deprecated ``enable_external_ft_sensor``) through ur-rtde
+        (``ftRtdeInputEnable`` / ``enableExternalFtSensor``). ur-rtde's script calls ``ft_rtde_input_enable`` only
+        on 5.9 and newer: pick the function with :func:`ftacq.bridge_convention.enable_function_for`."""
+        method = {"ft_rtde_input_enable": "ftRtdeInputEnable",
+                  "enable_external_ft_sensor": "enableExternalFtSensor"}[function]
+        if not self._call(method, bool(enable), float(sensor_mass_kg), [float(v) for v in sensor_measuring_offset_m],
+                          [float(v) for v in sensor_cog_m]):
+            raise RobotError(f"robot {self.host}: the controller refused {function}({enable})")
 
     # ------------------------------------------------------------------ recovery
     def set_payload(self, mass_kg: float, cog_m, inertia_kg_m2=None) -> str:

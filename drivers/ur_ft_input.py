@@ -31,9 +31,11 @@ from ftacq.errors import DeviceConnectionError, DeviceError, DeviceTimeoutError
 RTDE_PORT = 30004
 PROTOCOL_VERSION = 2
 INPUT_NAME = "external_force_torque"
-OUTPUTS = ("timestamp", "actual_q", "actual_qd", "actual_TCP_force", "runtime_state", "safety_status_bits")
+OUTPUTS = ("timestamp", "actual_q", "actual_qd", "actual_TCP_force", "runtime_state", "safety_status_bits",
+           "actual_TCP_pose")
 """Output recipe: controller time (s), joint angles (rad) and speeds (rad/s), TCP wrench (N, N·m), program state,
-safety bits. All in every controller version that has ``external_force_torque`` (RTDE guide)."""
+safety bits, TCP pose (m, rotation vector). All in every controller version that has ``external_force_torque``
+(RTDE guide)."""
 CONNECT_TIMEOUT_S = 2.0
 REPLY_TIMEOUT_S = 2.0
 CYCLE_TIMEOUT_S = 0.1
@@ -54,7 +56,8 @@ class ExternalInputInUseError(DeviceError):
 @dataclass(frozen=True)
 class ControllerCycle:
     """One output package: controller time (s), q (rad), q̇ (rad/s), actual_TCP_force (N, N·m, base axes about
-    the TCP), runtime_state, safety_status_bits, and the host monotonic time it arrived (s)."""
+    the TCP), runtime_state, safety_status_bits, actual_TCP_pose [x, y, z (m), rx, ry, rz (rad)] and the host
+    monotonic time it arrived (s)."""
 
     timestamp_s: float
     q: np.ndarray
@@ -63,6 +66,7 @@ class ControllerCycle:
     runtime_state: int
     safety_status_bits: int
     received_s: float
+    tcp_pose: np.ndarray
 
 
 class URForceTorqueInput:
@@ -219,7 +223,8 @@ class URForceTorqueInput:
         values = codec.unpack(body)
         return ControllerCycle(timestamp_s=values[1], q=np.array(values[2:8]), qd=np.array(values[8:14]),
                                tcp_force=np.array(values[14:20]), runtime_state=int(values[20]),
-                               safety_status_bits=int(values[21]), received_s=received_s)
+                               safety_status_bits=int(values[21]), received_s=received_s,
+                               tcp_pose=np.array(values[22:28]))
 
     def write(self, wrench) -> None:
         """Send one ``external_force_torque`` value [Fx, Fy, Fz (N), Tx, Ty, Tz (N·m)]."""

@@ -89,10 +89,11 @@ class FeedPlan:
         return np.asarray(sensor_wrench, dtype=float) @ self.sensor_to_fed.T
 
     def urscript(self) -> str:
-        """The two URScript lines a PolyScope program runs before relying on the input."""
+        """The two URScript lines a PolyScope program runs before relying on the input (``set_payload`` exists on
+        every version; newer ones also accept ``set_target_payload`` with the same first two arguments)."""
         def vec(v: np.ndarray) -> str:
             return "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
-        return (f"set_target_payload({self.payload_kg:.6g}, {vec(self.payload_cog_m)})\n"
+        return (f"set_payload({self.payload_kg:.6g}, {vec(self.payload_cog_m)})\n"
                 f"{self.function}(True, {self.sensor_mass_kg:.6g}, {vec(self.sensor_measuring_offset_m)}, "
                 f"{vec(self.sensor_cog_m)})")
 

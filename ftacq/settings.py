@@ -293,8 +293,8 @@ class SensorConfig:
 
 @cell_section("tool")
 class ToolConfig:
-    """``[tool]``: a cylinder along the flange z axis enclosing the sensor and the tool (collision checks), and the
-    tool's name."""
+    """``[tool]``: a cylinder along the flange z axis enclosing the sensor and the tool (collision checks); where the
+    sensor measures and what it cannot weigh (ftacq bridge)."""
 
     radius_m: float = setting(0.05, "radius of a cylinder along the flange z axis enclosing sensor and tool",
                               unit="m", low=0.0, high=0.5, edit=True)
@@ -302,8 +302,11 @@ class ToolConfig:
                               edit=True)
     sensor_offset_m: tuple[float, float, float] | None = setting(
         None, "sensor origin in the flange frame [x, y, z], from the adapter drawing (compensation while the arm "
-        "moves, the UR payload export; absent = at the flange)", kind="vec3", unit="m", low=-0.5, high=0.5,
-        optional=True, example=[0.0, 0.0, 0.035])
+        "moves, the UR payload export, the measuring point ftacq bridge declares; absent = at the flange)",
+        kind="vec3", unit="m", low=-0.5, high=0.5, optional=True, example=[0.0, 0.0, 0.035])
+    sensor_body_mass_kg: float = setting(0.0, "mass between the flange and the sensor's measuring plane (adapter and "
+                                         "sensor body, which the sensor cannot weigh); part of the payload ftacq "
+                                         "bridge sets", unit="kg", low=0.0, high=20.0)
     name: str | None = setting(None, "the tool's name, recorded in calibration.json (provenance; see "
                                "docs/drift-and-tare.md)", kind="str", optional=True, example="gripper-A")
 

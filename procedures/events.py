@@ -187,6 +187,19 @@ class BiasDrift:
     warning: bool
 
 
-StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | BiasDrift
+
+@dataclass(frozen=True)
+class FedWrenches:
+    """What ``ftacq bridge`` wrote to the controller's external F/T input since the previous event: ``time_s`` (N,)
+    when each value was written, ``fed`` (N, 6) [N, N·m] in the frame the controller expects (tool-flange axes,
+    about the measuring point: docs/bridge.md); ``cycles`` controller cycles passed, ``written`` of them fed."""
+
+    time_s: np.ndarray
+    fed: np.ndarray
+    cycles: int
+    written: int
+
+
+StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | BiasDrift | FedWrenches
 Event = ProcedureEvent | StreamEvent
 Listener = Callable[[Event], None]

@@ -142,5 +142,5 @@ def test_bad_feed_is_a_config_error():
 def test_urscript_lines_carry_the_plan():
     calibration, p_s, _ = random_cell(np.random.default_rng(2))
     text = plan_feed(calibration, "raw", p_s, sensor_body_kg=0.3).urscript()
-    assert text.splitlines()[0].startswith("set_target_payload(")
+    assert text.splitlines()[0].startswith("set_payload(")
     assert text.splitlines()[1].startswith("ft_rtde_input_enable(True, 0.3, [")

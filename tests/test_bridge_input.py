@@ -4,7 +4,6 @@ what the simulated controller received (tests/fakes/ur_external_ft.py), not on w
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -13,23 +12,12 @@ from drivers.ur_ft_input import ExternalInputInUseError, URForceTorqueInput
 from ftacq.bridge_convention import FT_RTDE_INPUT_ENABLE, FeedPlan, controller_tcp_force
 from ftacq.kinematics import flange_pose, ur_model
 from ftacq.so3 import rotation_from_rotvec
+from tests.conftest import wait_until
 from tests.fakes.ur_process import URControllerProcess
 
 rtde_control = pytest.importorskip("rtde_control")
 Control = rtde_control.RTDEControlInterface
 HOME_Q = [0.3, -1.2, 1.4, -1.7, -1.5708, 0.4]
-WAIT_S = 5.0
-
-
-def wait_until(predicate, timeout_s: float = WAIT_S, what: str = "condition"):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.005)
 
 
 @pytest.fixture(scope="module")

@@ -34,6 +34,7 @@ COMMAND_MODULES = (
     "ftacq.app.commands.monitor",
     "ftacq.app.commands.tare",
     "ftacq.app.commands.export",
+    "ftacq.app.commands.bridge",
 )
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 0, 1, 2, 130, 141

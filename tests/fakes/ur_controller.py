@@ -27,6 +27,9 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
 - ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
   on the UR Dashboard Server, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
 - ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
+- ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
+  the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
+  period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
 """
 
 from __future__ import annotations
@@ -322,6 +325,9 @@ class ControllerServer:
                 self.rtde_connections.remove(connection)
             for name in [n for n, owner in self.input_owners.items() if owner is connection]:
                 del self.input_owners[name]
+            owned = "external_force_torque" in self.input_owners
+        with self.sim.lock:
+            self.sim.external_ft.owned = owned
         self.update_stream_period()
         self.update_tool_motion_outputs()
 
@@ -343,7 +349,10 @@ class ControllerServer:
                 for name in names:
                     if name in rp.INPUT_TYPES:
                         self.input_owners[name] = connection
-            return taken
+            owned = "external_force_torque" in self.input_owners
+        with self.sim.lock:
+            self.sim.external_ft.owned = owned
+        return taken
 
     def update_stream_period(self) -> None:
         with self.lock:
@@ -370,7 +379,9 @@ class ControllerServer:
                         connection.send_data(snap)
                         if self.input_owners.get("external_force_torque") is connection:
                             with self.sim.lock:
-                                self.sim.external_ft.count_cycle(now, snap["fields"]["timestamp"])
+                                if self.sim.external_ft.count_cycle(now, snap["fields"]["timestamp"],
+                                                                    connection.period_s):
+                                    self.sim.external_ft_watchdog_pause()
                         connection.last_sent_seq = snap["seq"]
                         connection.next_send_s += connection.period_s
                         if connection.next_send_s < now:
@@ -479,7 +490,8 @@ class ControllerServer:
                 return {"events": list(sim.events)}
         if command == "external_ft":
             with sim.lock:
-                return {"external_ft": sim.external_ft.summary()}
+                return {"external_ft": {**sim.external_ft.summary(), "payload": float(sim.payload_kg),
+                                        "payload_cog": sim.payload_cog.tolist()}}
         if command == "external_ft_records":
             with sim.lock:
                 return sim.external_ft.records()
@@ -522,6 +534,14 @@ class ControllerServer:
                     if len(values) != 6:
                         raise ValueError("set q needs 6 joint angles (rad)")
                     sim.q = np.array(values)
+                elif what == "external_ft_watchdog":
+                    if not values or values[0] <= 0:
+                        raise ValueError("set external_ft_watchdog needs a period > 0 (s)")
+                    sim.external_ft.watchdog_period_s = values[0]
+                elif what == "external_ft_axes":
+                    if len(values) != 6 or any(abs(v) != 1.0 for v in values):
+                        raise ValueError("set external_ft_axes needs 6 signs (1 or -1)")
+                    sim.external_ft.axis_signs = np.array(values)
                 elif what == "tcp_offset":
                     if len(values) != 6:
                         raise ValueError("set tcp_offset needs x y z rx ry rz")

@@ -14,7 +14,8 @@ Modelled on UR's documentation as summarised in docs/bridge.md ("What the contro
   the controller removes the gravity of (payload − sensor) at its own centre of gravity.
 - The deprecated ``enable_external_ft_sensor`` computes the lever-arm torques with the opposite sign (script
   manual; the forum measurement in docs/bridge.md shows the payload's moment added instead of removed).
-- A default RTDE watchdog of 10 Hz is armed while enabled: no new input for 0.1 s pauses the program.
+- A default RTDE watchdog of 10 Hz is armed while enabled: no new input for 0.1 s pauses the program (counted in
+  controller cycles of the owning connection, so a stall of this simulator itself does not trip it).
 
 Every received input is recorded with its arrival time (CLOCK_MONOTONIC, comparable across processes on one
 host) and the controller time; every controller cycle while enabled is counted as fed (a new value arrived
@@ -61,12 +62,19 @@ class ExternalFTInput:
         self.measuring_offset_m = np.zeros(3)
         self.sensor_cog_m = np.zeros(3)
         self.wrench = np.zeros(6)
+        self.axis_signs = np.ones(6)
+        """Test knob: a controller that reads the input with other signs (``set external_ft_axes``)."""
         self.last_arrival_s: float | None = None
         self.enable_calls: list[dict] = []
         self.received = _Growing(8)  # arrival monotonic s, controller time s, 6 values
         self.cycles = _Growing(3)  # controller time s, fed (0/1), age of the held value s (nan: none yet)
         self.watchdog_trips: list[float] = []
         self._new_since_cycle = False
+        self._unfed_s = 0.0
+        self.owned = False
+        """An RTDE connection owns ``external_force_torque`` (set by the server)."""
+        self.watchdog_period_s = WATCHDOG_PERIOD_S
+        """As a program's ``rtde_set_watchdog`` would change it (``set external_ft_watchdog S``)."""
 
     # ------------------------------------------------------------------ inputs
     def enable(self, function: str, enable: bool, sensor_mass_kg: float, measuring_offset_m, sensor_cog_m,
@@ -80,6 +88,7 @@ class ExternalFTInput:
         self.measuring_offset_m = np.array(measuring_offset_m, dtype=float)
         self.sensor_cog_m = np.array(sensor_cog_m, dtype=float)
         self._new_since_cycle = False
+        self._unfed_s = 0.0
         if enable:
             self.last_arrival_s = max(self.last_arrival_s or now_s, now_s)  # the watchdog counts from the enable
 
@@ -91,24 +100,33 @@ class ExternalFTInput:
         self.received.append([arrival_s, controller_time_s, *self.wrench])
 
     # ------------------------------------------------------------------ cycle
-    def count_cycle(self, now_s: float, controller_time_s: float) -> None:
+    def count_cycle(self, now_s: float, controller_time_s: float, period_s: float) -> bool:
         """One controller cycle as the feeding client sees it (an output package was just sent to the connection
-        that owns ``external_force_torque``): fed when a new value arrived since the previous one."""
+        that owns ``external_force_torque``): fed when a new value arrived since the previous one. Returns True
+        (and disables) when the cycles without a new value add up to :data:`WATCHDOG_PERIOD_S`: the caller pauses
+        the program. Counted in cycles, so a stall of this simulator process itself is not the client's fault."""
         if not self.enabled:
             self._new_since_cycle = False
-            return
+            return False
         age = now_s - self.last_arrival_s if self.last_arrival_s is not None else float("nan")
-        self.cycles.append([controller_time_s, 1.0 if self._new_since_cycle else 0.0, age])
+        fed = self._new_since_cycle
+        self.cycles.append([controller_time_s, 1.0 if fed else 0.0, age])
         self._new_since_cycle = False
+        self._unfed_s = 0.0 if fed else self._unfed_s + period_s
+        return self._unfed_s > self.watchdog_period_s + 1e-9 and self._trip(controller_time_s)
 
     def watchdog(self, now_s: float, controller_time_s: float) -> bool:
-        """True (and disabled) when enabled and no value arrived for :data:`WATCHDOG_PERIOD_S`: the caller pauses
-        the program."""
-        if self.enabled and self.last_arrival_s is not None and now_s - self.last_arrival_s > WATCHDOG_PERIOD_S:
-            self.watchdog_trips.append(controller_time_s)
-            self.enabled = False
-            return True
+        """Without an RTDE connection owning the input: True (and disabled) when enabled and no value arrived for
+        :data:`WATCHDOG_PERIOD_S` (wall time): the caller pauses the program."""
+        if self.enabled and not self.owned and self.last_arrival_s is not None \
+                and now_s - self.last_arrival_s > self.watchdog_period_s:
+            return self._trip(controller_time_s)
         return False
+
+    def _trip(self, controller_time_s: float) -> bool:
+        self.watchdog_trips.append(controller_time_s)
+        self.enabled = False
+        return True
 
     # ------------------------------------------------------------------ output
     def tcp_force(self, base_R_flange: np.ndarray, flange_p_tcp_m: np.ndarray, payload_kg: float,
@@ -121,8 +139,9 @@ class ExternalFTInput:
         # torque of the seen load about the measuring point: Σ m (c − p) × g = (m c − m p) × g
         torque_g = np.cross(seen_moment - seen_kg * self.measuring_offset_m, flange_g)
         lever_sign = -1.0 if self.function == "enable_external_ft_sensor" else 1.0
-        force = self.wrench[:3] - force_g
-        torque = self.wrench[3:] - lever_sign * torque_g
+        wrench = self.wrench * self.axis_signs
+        force = wrench[:3] - force_g
+        torque = wrench[3:] - lever_sign * torque_g
         # move the reference point from the measuring point p to the TCP t: τ_t = τ_p + (p − t) × f
         torque = torque + lever_sign * (_skew(self.measuring_offset_m - flange_p_tcp_m) @ force)
         return tuple((base_R_flange @ force).tolist() + (base_R_flange @ torque).tolist())

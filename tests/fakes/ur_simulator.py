@@ -631,11 +631,15 @@ class URSimulator:
             self._advance_motion(now, dt)
             self._run_script(now)
             if self.external_ft.watchdog(now, self.controller_time_s(now)):
-                self._event("external_ft_watchdog", reason="no external_force_torque input for 0.1 s")
-                if self.runtime_state == RUNTIME_PLAYING:
-                    self._halt_motion()
-                    self.runtime_state = RUNTIME_PAUSED
+                self.external_ft_watchdog_pause()
             return self.snapshot(now, dt)
+
+    def external_ft_watchdog_pause(self) -> None:
+        """UR's default watchdog while the external F/T input is enabled: the program pauses (called locked)."""
+        self._event("external_ft_watchdog", reason="no external_force_torque input for 0.1 s")
+        if self.runtime_state == RUNTIME_PLAYING:
+            self._halt_motion()
+            self.runtime_state = RUNTIME_PAUSED
 
     def _poses(self) -> tuple[np.ndarray, np.ndarray]:
         """(flange pose, TCP pose) of the current q, cached while q and the TCP offset do not change."""

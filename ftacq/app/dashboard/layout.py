@@ -47,6 +47,9 @@ RAW_TORQUE = "wrench/raw/torque"
 COMPENSATED_FORCE = "wrench/compensated/force"
 COMPENSATED_TORQUE = "wrench/compensated/torque"
 WRENCH_PATHS = (RAW_FORCE, RAW_TORQUE, COMPENSATED_FORCE, COMPENSATED_TORQUE)
+FED_FORCE = "wrench/fed/force"
+FED_TORQUE = "wrench/fed/torque"
+"""What ftacq bridge wrote to the controller (tool-flange axes, about the sensor's measuring point)."""
 
 WORLD = "world"
 BASE_AXES = "world/base"
@@ -156,6 +159,8 @@ def blueprint() -> rrb.Blueprint:
                     rrb.TextLogView(origin=LOG, name="log"),
                     rrb.TimeSeriesView(origin=HEALTH, name="sensor health"),
                     rrb.TimeSeriesView(origin=BIAS_DRIFT, name="bias drift since the calibration [N, N·m]"),
+                    plot(FED_FORCE, "fed to the controller: force [N]"),
+                    plot(FED_TORQUE, "fed to the controller: torque [N·m]"),
                     rrb.TimeSeriesView(origin=JOINT_ANGLES, name="joints [rad]"),
                     rrb.TimeSeriesView(origin=MEASURED, name="averaged wrench per pose"),
                     rrb.BarChartView(origin=RESIDUAL_FORCE_NORM, name="|force residual| per pose [N]"),

@@ -167,6 +167,8 @@ class DashboardListener:
             dash.log_health(event.time_s, event.health, dropped=event.dropped)
         elif isinstance(event, events.BiasDrift):
             dash.log_bias_drift(event.time_s, event.offset, event.sigma)
+        elif isinstance(event, events.FedWrenches):
+            dash.log_fed(event.time_s, event.fed)
         elif isinstance(event, events.Notice):
             dash.log_text(event.text, level=event.level, time_s=event.time_s,
                           path=LOG_PATHS.get(event.source, f"{LOG}/{event.source}"))

@@ -23,9 +23,9 @@ import rerun as rr
 
 from ftacq.app.dashboard.arm import label_anchors, link_frames, link_shapes
 from ftacq.app.dashboard.layout import (
-    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, BIAS_DRIFT_FORCE, BIAS_DRIFT_TORQUE,
-    CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
-    FLANGE, FLANGE_AXES, FORCE_ARROW_SCALE_M_PER_N, FORCE_AXES, FRAME_AXIS_LENGTH_M, GRAVITY, GRAVITY_COLOR, HEALTH_COUNT_COLORS,
+    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, BIAS_DRIFT_FORCE, BIAS_DRIFT_TORQUE, CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
+    FED_FORCE, FED_TORQUE, FLANGE, FLANGE_AXES, FORCE_ARROW_SCALE_M_PER_N, FORCE_AXES, FRAME_AXIS_LENGTH_M, GRAVITY,
+    GRAVITY_COLOR, HEALTH_COUNT_COLORS,
     HEALTH_COUNT_NAMES, HEALTH_COUNTS, HEALTH_RATE, HEALTH_STATUS, JOINT_ANGLES, JOINT_COLOR, JOINT_COLORS,
     JOINT_NAMES, LABEL_COLORS, LABEL_RADIUS_M, LABELS, LINK_COLOR, LINK_FRAMES, LINK_SHAPES, MEASURED_FORCE, MEASURED_TORQUE,
     MONITOR_LOG, PLAN, PLAN_AXIS_LENGTH_M, POSE_TIMELINE, RESIDUAL_FORCE, RESIDUAL_FORCE_NORM, RESIDUAL_TORQUE,
@@ -82,7 +82,7 @@ class Dashboard:
         self._send(path, time_s, rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)), pose_index)
 
     def _log_static_styles(self) -> None:
-        for path in WRENCH_PATHS:
+        for path in (*WRENCH_PATHS, FED_FORCE, FED_TORQUE):
             names = FORCE_AXES if path.endswith("force") else TORQUE_AXES
             self._static(path, rr.SeriesLines(colors=AXIS_COLORS, names=names))
         for path in (MEASURED_FORCE, MEASURED_TORQUE, RESIDUAL_FORCE, RESIDUAL_TORQUE):
@@ -155,6 +155,17 @@ class Dashboard:
                 self._at(time_s[-1], CONTACT_FORCE, rr.Arrows3D(
                     vectors=[self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N], colors=[CONTACT_COLOR],
                     radii=[ARROW_RADIUS_M]))
+
+    def log_fed(self, time_s: np.ndarray, fed: np.ndarray) -> None:
+        """Log what ftacq bridge wrote to the controller: ``time_s`` (N,) s (host monotonic clock), ``fed`` (N, 6)
+        [N, N·m] in the frame the controller expects (docs/bridge.md)."""
+        time_s = np.asarray(time_s, dtype=np.float64)
+        if time_s.shape[0] == 0:
+            return
+        fed = np.asarray(fed, dtype=np.float64)
+        with self._lock:
+            self._scalars(FED_FORCE, time_s, fed[:, :3])
+            self._scalars(FED_TORQUE, time_s, fed[:, 3:])
 
     def log_arm(self, time_s: np.ndarray, flange_pose: np.ndarray, q_rad: np.ndarray | None = None) -> None:
         """Log N states of the arm as columns: ``time_s`` (N,) s (sensor clock), ``flange_pose`` (N, 6)

@@ -1,0 +1,348 @@
+"""The controller bridge: the sensor at full rate → compensation → low-pass filter → one wrench per controller cycle
+into the UR controller's external F/T input, under a watchdog (docs/bridge.md).
+
+Two threads::
+
+    "ftacq-bridge-feed"   per controller cycle (the controller's output package is the clock):
+                          take the sensor's new samples → bias-removed or compensated (static model; the flange
+                          orientation from this cycle's actual_q) → Butterworth low-pass (scipy sosfilt, state
+                          carried across batches) → the newest filtered value through the feed convention → checks
+                          → write external_force_torque
+    caller's thread       enables the input (payload, enable call), waits for the end (--seconds, Ctrl-C, a
+                          watchdog trip), publishes what is fed to the listeners, disables the input
+
+Decimation: the filter runs on every sensor sample (7 kHz); each controller cycle takes its newest output, so the
+cut-off (:data:`CUTOFF_FRACTION` of the controller rate) is the anti-alias filter. The stated delay is the
+filter's low-frequency group delay plus the time from the newest sample to the write (measured, per cycle).
+
+Watchdog (feed thread, every cycle): the newest sample is older than ``max_staleness_s`` (sensor silent or the
+bridge starved), a sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` /
+``jump_torque_nm`` in one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
+written (the last written value was fresh and checked), the caller's thread disables the input and says why; if
+the disable cannot arrive within 0.1 s the controller's own watchdog pauses the program. Ctrl-C disables first
+(while still feeding fresh values), then stops feeding.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from scipy import signal
+
+from drivers.sensor import ForceTorqueSensor, WrenchBatch
+from ftacq.bridge_convention import FeedPlan
+from ftacq.calibration import Calibration
+from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
+from ftacq.kinematics import URModel, forward_kinematics
+from procedures.events import FedWrenches, Listener, Notice
+
+log = logging.getLogger(__name__)
+
+CUTOFF_FRACTION = 0.2
+"""Low-pass cut-off as a fraction of the controller rate (100 Hz at 500 Hz, 25 Hz at 125 Hz)."""
+FILTER_ORDER = 2
+MAX_STALENESS_S = 0.05
+"""The newest sensor sample must be at most this old when its value is written (half UR's own 0.1 s watchdog)."""
+JUMP_FORCE_N, JUMP_TORQUE_NM = 50.0, 5.0
+"""Largest change of the fed force (norm, N) / torque (norm, N·m) from one controller cycle to the next."""
+CYCLE_TIMEOUT_S = 0.1
+PUBLISH_PERIOD_S = 0.1
+"""The caller's thread hands the fed values to the listeners this often (batched)."""
+START_TIMEOUT_S = 2.0
+"""The first sensor samples and controller cycles must arrive within this."""
+LOG_COLUMNS = ("controller_time_s", "cycle_received_s", "written_s", "newest_sample_s", "samples", "fed_fx_n",
+               "fed_fy_n", "fed_fz_n", "fed_tx_nm", "fed_ty_nm", "fed_tz_nm")
+"""One row per controller cycle in :attr:`BridgeSummary.log` (monotonic host times; ``written_s`` is when the
+value was checked and sent, NaN when nothing was written)."""
+
+
+class ControllerInput(Protocol):
+    """What the bridge needs of drivers/ur_ft_input.URForceTorqueInput."""
+
+    frequency_hz: float
+
+    def next_cycle(self, timeout_s: float = ...): ...
+    def write(self, wrench) -> None: ...
+
+
+class InputSwitch(Protocol):
+    """What the bridge needs of drivers/ur.URRobot: the payload and the enable call."""
+
+    def set_payload(self, mass_kg: float, cog_m) -> object: ...
+    def enable_external_ft_input(self, enable: bool, function: str = ..., sensor_mass_kg: float = ...,
+                                 sensor_measuring_offset_m=..., sensor_cog_m=...) -> None: ...
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """Tunables of one bridge run (SI units)."""
+
+    cutoff_hz: float | None = None
+    filter_order: int = FILTER_ORDER
+    max_staleness_s: float = MAX_STALENESS_S
+    jump_force_n: float = JUMP_FORCE_N
+    jump_torque_nm: float = JUMP_TORQUE_NM
+    cycle_timeout_s: float = CYCLE_TIMEOUT_S
+
+
+@dataclass
+class BridgeSummary:
+    """What a bridge run did. ``log`` holds one row per controller cycle (:data:`LOG_COLUMNS`)."""
+
+    cycles: int = 0
+    written: int = 0
+    samples: int = 0
+    duration_s: float = 0.0
+    trip: str | None = None
+    interrupted: bool = False
+    disabled: bool = False
+    filter_delay_s: float = 0.0
+    cutoff_hz: float = 0.0
+    sensor_rate_hz: float = 0.0
+    controller_rate_hz: float = 0.0
+    log: np.ndarray = field(default_factory=lambda: np.empty((0, len(LOG_COLUMNS))))
+
+    def staleness_s(self) -> np.ndarray:
+        """Age of the newest sensor sample when each value was written, s."""
+        rows = self.log[np.isfinite(self.log[:, 2])]
+        return rows[:, 2] - rows[:, 3]
+
+
+class WrenchFilter:
+    """Butterworth low-pass over (N, 6) batches; the state is carried from batch to batch (scipy sosfilt)."""
+
+    def __init__(self, cutoff_hz: float, sample_rate_hz: float, order: int = FILTER_ORDER) -> None:
+        if not 0 < cutoff_hz < 0.5 * sample_rate_hz:
+            raise FtacqError(f"low-pass cut-off {cutoff_hz:g} Hz: must be between 0 and half the sensor rate "
+                             f"({0.5 * sample_rate_hz:g} Hz)")
+        self.sos = signal.butter(order, cutoff_hz, fs=sample_rate_hz, output="sos")
+        self._zi_unit = signal.sosfilt_zi(self.sos)[:, :, None]  # (sections, 2, 1): steady state for a unit step
+        self.zi: np.ndarray | None = None
+        _, delay = signal.group_delay((*signal.sos2tf(self.sos),), w=[1.0], fs=sample_rate_hz)
+        self.delay_s = float(delay[0]) / sample_rate_hz
+        """Group delay at 1 Hz, s (the delay of slow changes)."""
+
+    def __call__(self, wrench: np.ndarray) -> np.ndarray:
+        if self.zi is None:  # start in steady state on the first sample: no start-up transient
+            self.zi = self._zi_unit * wrench[0][None, None, :]
+        out, self.zi = signal.sosfilt(self.sos, wrench, axis=0, zi=self.zi)
+        return out
+
+
+def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
+    """Every sample the driver holds, without waiting (None when there is none)."""
+    try:
+        return sensor.read(timeout_s=0.0)
+    except DeviceTimeoutError:
+        return None
+
+
+class _Log:
+    """Growing (rows, 11) float log, one row per controller cycle (preallocated in chunks)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.data = np.full((max(capacity, 1024), len(LOG_COLUMNS)), np.nan)
+        self.count = 0
+        self.complete = 0
+        """Rows before this one are filled in (the publisher reads only those)."""
+
+    def row(self) -> np.ndarray:
+        if self.count == len(self.data):
+            self.data = np.concatenate([self.data, np.full_like(self.data, np.nan)])
+        row = self.data[self.count]
+        self.count += 1
+        return row
+
+
+class Bridge:
+    """Feed ``sensor`` into the controller's external F/T input (see the module docstring).
+
+    Args:
+        sensor: a started sensor. controller_input: a started drivers.ur_ft_input.URForceTorqueInput (owns the
+        input; its output stream is the cycle clock and carries actual_q). switch: the enable call and the payload
+        (drivers.ur.URRobot opened with ``leave_external_ft_input=True``), or None when a PolyScope program enables
+        the input itself. plan: ftacq.bridge_convention.FeedPlan. calibration: for the bias (raw) or the
+        compensation (compensated). model: the arm's kinematics (flange orientation from actual_q).
+        listeners: :data:`procedures.events.Listener` s: they get :class:`~procedures.events.FedWrenches` about ten
+        times a second and a :class:`~procedures.events.Notice` (source "bridge") when the feed starts and stops
+        (level ERROR for a watchdog trip). They must not block (wrap a viewer in a BackgroundListener).
+    """
+
+    def __init__(self, sensor: ForceTorqueSensor, controller_input: ControllerInput, switch: InputSwitch | None,
+                 plan: FeedPlan, calibration: Calibration, model: URModel, settings: BridgeSettings = BridgeSettings(),
+                 listeners: tuple[Listener, ...] = (), sensor_rate_hz: float | None = None) -> None:
+        self.sensor, self.input, self.switch = sensor, controller_input, switch
+        self.plan, self.calibration, self.model, self.settings = plan, calibration, model, settings
+        self.listeners = tuple(listeners)
+        self.controller_rate_hz = float(controller_input.frequency_hz)
+        self.sensor_rate_hz = float(sensor_rate_hz or sensor.info.rate_hz)
+        self.cutoff_hz = settings.cutoff_hz or CUTOFF_FRACTION * self.controller_rate_hz
+        self.filter = WrenchFilter(self.cutoff_hz, self.sensor_rate_hz, settings.filter_order)
+        self._bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+        self._stop_feeding = threading.Event()
+        self._done = threading.Event()
+        self._trip: str | None = None
+        self._log = _Log(0)
+        self._samples = 0
+        self._written = 0
+        self._thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ feed thread
+    def _sensor_frame(self, batch: WrenchBatch, q: np.ndarray) -> np.ndarray:
+        if self.plan.feed == "raw":
+            return batch.wrench - self._bias
+        base_R_flange = forward_kinematics(self.model, q)[:3, :3]
+        return self.calibration.compensate(batch.wrench, base_R_flange.T)
+
+    def _feed(self) -> None:
+        settings = self.settings
+        held: np.ndarray | None = None
+        newest_s = -np.inf
+        previous: np.ndarray | None = None
+        try:
+            while not self._stop_feeding.is_set():
+                self._log.complete = self._log.count
+                try:
+                    cycle = self.input.next_cycle(timeout_s=settings.cycle_timeout_s)
+                except DeviceError as error:
+                    self._trip_now(f"the controller's cycle stopped ({error})")
+                    return
+                row = self._log.row()
+                row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
+                try:
+                    batch = _take(self.sensor)
+                except DeviceError as error:
+                    self._trip_now(f"sensor error: {error}")
+                    return
+                if batch is not None and len(batch):
+                    if np.any(batch.saturated):
+                        self._trip_now(f"the sensor reports saturation or an error status "
+                                       f"({int(np.count_nonzero(batch.saturated))} of {len(batch)} samples)")
+                        return
+                    filtered = self.filter(self._sensor_frame(batch, cycle.q))
+                    held, newest_s = filtered[-1], float(batch.time_s[-1])
+                    self._samples += len(batch)
+                    row[4] = len(batch)
+                row[3] = newest_s
+                if held is None:
+                    continue  # nothing measured yet: nothing to feed (the input is not enabled before the first)
+                now_s = time.monotonic()
+                age_s = now_s - newest_s
+                if age_s > settings.max_staleness_s:
+                    self._trip_now(f"the sensor went silent: newest sample {age_s * 1000:.0f} ms old (limit "
+                                   f"{settings.max_staleness_s * 1000:.0f} ms)")
+                    return
+                fed = self.plan.fed_wrench(held)
+                if previous is not None:
+                    jump_f = float(np.linalg.norm(fed[:3] - previous[:3]))
+                    jump_t = float(np.linalg.norm(fed[3:] - previous[3:]))
+                    if jump_f > settings.jump_force_n or jump_t > settings.jump_torque_nm:
+                        self._trip_now(f"the fed wrench jumped by {jump_f:.1f} N / {jump_t:.2f} N·m in one "
+                                       f"controller cycle (limits {settings.jump_force_n:g} N / "
+                                       f"{settings.jump_torque_nm:g} N·m)")
+                        return
+                self.input.write(fed)
+                row[2] = now_s  # the age checked is the age logged
+                row[5:] = fed
+                previous = fed
+                self._written += 1
+        except Exception as error:  # noqa: BLE001 - any failure stops the feed and is reported as a trip
+            self._trip_now(f"bridge failure: {type(error).__name__}: {error}")
+        finally:
+            self._log.complete = self._log.count
+            self._done.set()
+
+    def _trip_now(self, reason: str) -> None:
+        if self._trip is None:
+            self._trip = reason
+        self._stop_feeding.set()
+
+    # ------------------------------------------------------------------ caller's thread
+    def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> BridgeSummary:
+        """Feed until ``duration_s``, ``stop``, Ctrl-C or a watchdog trip; the input is disabled on every path."""
+        stop = stop or threading.Event()
+        expected = int((duration_s or 60.0) * self.controller_rate_hz * 1.2) + 1024
+        self._log = _Log(expected)
+        summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
+                                sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz)
+        start_s = time.monotonic()
+        self._thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
+        self._thread.start()
+        enabled = False
+        published = 0
+        try:
+            self._wait_first_write(start_s)
+            if self.switch is not None and self._trip is None:
+                self.switch.set_payload(self.plan.payload_kg, self.plan.payload_cog_m)
+                self.switch.enable_external_ft_input(True, self.plan.function, self.plan.sensor_mass_kg,
+                                                     self.plan.sensor_measuring_offset_m, self.plan.sensor_cog_m)
+                enabled = True
+                self._notify(Notice(f"feeding: {self.plan.function} enabled, feed {self.plan.feed}", source="bridge"))
+            deadline_s = None if duration_s is None else start_s + duration_s
+            while not stop.is_set() and not self._done.is_set():
+                wait_s = PUBLISH_PERIOD_S
+                if deadline_s is not None:
+                    wait_s = min(wait_s, deadline_s - time.monotonic())
+                    if wait_s <= 0:
+                        break
+                self._done.wait(wait_s)
+                published = self._publish(published)
+        except KeyboardInterrupt:
+            summary.interrupted = True
+        finally:
+            # disable while still feeding fresh values (a trip has stopped the feed already), then stop feeding
+            if enabled:
+                summary.disabled = self._disable()
+            self._stop_feeding.set()
+            if self._thread is not None:
+                self._thread.join(2 * self.settings.cycle_timeout_s + 1.0)
+            self._publish(published)
+            summary.duration_s = time.monotonic() - start_s
+            summary.trip = self._trip
+            summary.cycles, summary.written, summary.samples = self._log.count, self._written, self._samples
+            summary.log = self._log.data[:self._log.count].copy()
+            if self._trip:
+                text = f"watchdog: {self._trip}; feed stopped, input {'disabled' if summary.disabled else 'NOT disabled'}"
+            else:
+                text = f"feed stopped ({'Ctrl-C' if summary.interrupted else 'done'}), input " \
+                       f"{'disabled' if summary.disabled else 'left as it was'}"
+            self._notify(Notice(text, level="ERROR" if self._trip else "INFO", source="bridge"))
+        return summary
+
+    def _wait_first_write(self, start_s: float) -> None:
+        while self._written == 0 and self._trip is None:
+            if time.monotonic() - start_s > START_TIMEOUT_S:
+                self._trip_now(f"no sensor sample and controller cycle within {START_TIMEOUT_S:g} s of the start")
+                return
+            self._done.wait(0.005)
+
+    def _disable(self) -> bool:
+        try:
+            self.switch.enable_external_ft_input(False, self.plan.function)
+            return True
+        except (FtacqError, RuntimeError) as error:
+            log.error("could not disable the external F/T input: %s (the controller pauses the program 0.1 s "
+                      "after the input stops)", error)
+            return False
+
+    def _publish(self, published: int) -> int:
+        count = self._log.complete
+        if count <= published or not self.listeners:
+            return count
+        rows = self._log.data[published:count]
+        rows = rows[np.isfinite(rows[:, 2])]
+        self._notify(FedWrenches(time_s=rows[:, 2].copy(), fed=rows[:, 5:].copy(), cycles=count - published,
+                                 written=len(rows)))
+        return count
+
+    def _notify(self, event: object) -> None:
+        for listener in self.listeners:
+            try:
+                listener(event)
+            except Exception:  # noqa: BLE001 - a broken viewer never stops the feed
+                log.warning("bridge listener %r failed", listener, exc_info=True)
