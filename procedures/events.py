@@ -187,7 +187,6 @@ class BiasDrift:
     warning: bool
 
 
-
 @dataclass(frozen=True)
 class FedWrenches:
     """What ``ftacq bridge`` wrote to the controller's external F/T input since the previous event: ``time_s`` (N,)
