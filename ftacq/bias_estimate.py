@@ -114,15 +114,16 @@ def model_jacobian(calibration: Calibration, flange_R_base: np.ndarray,
     return jacobian(ModelParameters.from_calibration(calibration), rotations)[:, :, _columns(names)]
 
 
-def compensation_sigma(calibration: Calibration, flange_R_base: np.ndarray) -> np.ndarray:
+def compensation_sigma(calibration: Calibration, flange_R_base: np.ndarray, include_biases: bool = True) -> np.ndarray:
     """Return the 1σ (6,) [N, N·m] of the compensated wrench at rest at one orientation that the calibration's
-    own uncertainty predicts: every parameter's 1σ (biases included) through the model, plus τ and σ_θ.
+    own uncertainty predicts: every parameter's 1σ (the biases' only if ``include_biases``) through the model,
+    plus τ and σ_θ.
 
     Parameters are taken as independent (the file stores no correlations), which overstates the error where the
     identification's correlations cancel: a conservative figure, used for thresholds.
     """
     rotations = np.asarray(flange_R_base, dtype=float).reshape(-1, 3, 3)[:1]
-    names = MODEL_PARAMETERS + ("force_bias", "torque_bias")
+    names = MODEL_PARAMETERS + (("force_bias", "torque_bias") if include_biases else ())
     j = model_jacobian(calibration, rotations, names)[0]
     covariance = j @ _parameter_covariance(calibration, names) @ j.T
     covariance += pose_noise_covariance(calibration, rotations, np.zeros((1, 6)))[0]

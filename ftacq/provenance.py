@@ -173,6 +173,42 @@ def sensor_mismatch(recorded: Mapping[str, Any] | None, info: Any) -> list[str]:
     return problems
 
 
+def require_same_sensor(calibration: Any, info: Any, force: bool, command: str) -> str:
+    """Refuse a calibration made with another sensor (InputError naming both values) unless ``force``; return a
+    note to print ('' when the match was checked and holds)."""
+    from ftacq.errors import InputError
+
+    recorded = (getattr(calibration, "metadata", {}) or {}).get("sensor")
+    problems = sensor_mismatch(recorded, info)
+    if problems and not force:
+        raise InputError("the calibration does not belong to the sensor connected: " + "; ".join(problems)
+                         + f". Calibrate this sensor, or pass --force to {command} anyway")
+    if problems:
+        return "WARNING (--force): the calibration does not belong to this sensor: " + "; ".join(problems)
+    reason = unchecked_reason(recorded, info)
+    return f"note: sensor match not checked: {reason}" if reason else ""
+
+
+def biases_measured_utc(calibration: Any) -> str | None:
+    """Return when the calibration's current biases were measured (last bias-history entry, else created_utc)."""
+    metadata = getattr(calibration, "metadata", {}) or {}
+    history = metadata.get("bias_history") or []
+    return (history[-1].get("time") if history else None) or metadata.get("created_utc")
+
+
+def age_s(utc_iso: str | None) -> float | None:
+    """Return seconds since an ISO 8601 UTC time (None when unknown or unparsable)."""
+    if not utc_iso:
+        return None
+    try:
+        then = _dt.datetime.fromisoformat(str(utc_iso))
+    except ValueError:
+        return None
+    if then.tzinfo is None:
+        then = then.replace(tzinfo=_dt.timezone.utc)
+    return max((_dt.datetime.now(_dt.timezone.utc) - then).total_seconds(), 0.0)
+
+
 def unchecked_reason(recorded: Mapping[str, Any] | None, info: Any) -> str:
     """Return why the match could not be checked fully ('' when serial numbers were compared)."""
     if not recorded:
@@ -183,4 +219,4 @@ def unchecked_reason(recorded: Mapping[str, Any] | None, info: Any) -> str:
 
 
 __all__ = ["SENSOR_KEYS", "sensor_record", "tool_record", "bias_entry", "calibration_bias_entry", "bias_history",
-           "with_bias_entry", "last_tare", "with_provenance", "sensor_mismatch", "unchecked_reason", "utc_now_iso"]
+           "with_bias_entry", "last_tare", "with_provenance", "require_same_sensor", "biases_measured_utc", "age_s", "sensor_mismatch", "unchecked_reason", "utc_now_iso"]

@@ -307,6 +307,8 @@ class ToolConfig:
     sensor_body_mass_kg: float = setting(0.0, "mass between the flange and the sensor's measuring plane (adapter and "
                                          "sensor body, which the sensor cannot weigh); part of the payload ftacq "
                                          "bridge sets", unit="kg", low=0.0, high=20.0)
+    name: str | None = setting(None, "the tool's name, recorded in calibration.json (provenance; see "
+                               "docs/drift-and-tare.md)", kind="str", optional=True, example="gripper-A")
 
 
 @cell_section("poses")

@@ -170,6 +170,24 @@ class Notice:
 
 
 @dataclass(frozen=True)
+class BiasDrift:
+    """The live drift tracker's estimate at ``time_s`` (sample clock, s): the biases' offset from the calibration
+    file (6,) [N, N·m] and its 1σ, the drift rate (6,) [N/h, N·m/h], whether ``--auto-tare`` applies it, the rest
+    windows used and refused (contact, innovation gate), and whether the at-rest warning stands
+    (:mod:`procedures.bias_health`)."""
+
+    time_s: float
+    offset: np.ndarray
+    sigma: np.ndarray
+    rate_per_h: np.ndarray
+    applied: bool
+    accepted: int
+    rejected_contact: int
+    rejected_gate: int
+    warning: bool
+
+
+@dataclass(frozen=True)
 class FedWrenches:
     """What ``ftacq bridge`` wrote to the controller's external F/T input since the previous event: ``time_s`` (N,)
     when each value was written, ``fed`` (N, 6) [N, N·m] in the frame the controller expects (tool-flange axes,
@@ -181,6 +199,6 @@ class FedWrenches:
     written: int
 
 
-StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | FedWrenches
+StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | BiasDrift | FedWrenches
 Event = ProcedureEvent | StreamEvent
 Listener = Callable[[Event], None]

@@ -90,8 +90,9 @@ class GravityCompensator:
 class HealthCheck(Protocol):
     """Looks at every read in the acquisition thread (keep it to a few numpy operations per batch)."""
 
-    def check(self, samples: events.WrenchSamples) -> Sequence[events.Notice]:
-        """Return notices to publish (usually none); WARN and ERROR ones are kept in the run's summary."""
+    def check(self, samples: events.WrenchSamples) -> Sequence[events.StreamEvent]:
+        """Return events to publish (usually none): notices (WARN and ERROR ones are kept in the run's summary)
+        or the check's own stream events."""
 
 
 # ------------------------------------------------------------------------------------------------ summary
@@ -344,8 +345,11 @@ class LiveMonitor:
 
     def _run_checks(self, samples: events.WrenchSamples, summary: MonitorSummary) -> None:
         for check in self.checks:
-            for notice in check.check(samples):
-                self._notify(notice, summary)
+            for event in check.check(samples):
+                if isinstance(event, events.Notice):
+                    self._notify(event, summary)
+                else:  # a check's own stream event (e.g. events.BiasDrift)
+                    self._publisher(event)
 
     def _publish_periodic(self, samples: events.WrenchSamples, summary: MonitorSummary) -> None:
         """Publish the arm (``robot_rate_hz``) and the stream's health (``status_rate_hz``) on the sensor clock."""

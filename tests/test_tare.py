@@ -131,7 +131,8 @@ def test_n_pose_tare_moves_through_the_checked_plan_and_recovers_the_biases(shif
 def write_config(tmp_path, cell) -> str:
     path = tmp_path / "CELL.toml"
     path.write_text(f'[robot]\nhost = "{cell.robot_host}"\n[sensor]\nurl = "{cell.sensor_url}"\n'
-                    "[sampling]\nsettle_time_s = 0.0\nsettle_window_s = 0.02\naverage_time_s = 0.1\n")
+                    "[sampling]\nsettle_time_s = 0.0\nsettle_window_s = 0.02\naverage_time_s = 0.1\n"
+                    '[tool]\nname = "gripper-A"\n')
     return str(path)
 
 
@@ -178,6 +179,7 @@ def test_cli_tares_a_version_1_file_into_version_2_with_provenance(shifted_cell,
     written = json.loads(out.read_text())
     assert written["version"] == 2
     assert written["sensor"]["serial"] == "FT12345" and written["sensor"]["transport"] == "netft"
+    assert written["tool"] == {"name": "gripper-A"}  # CELL.toml tool.name
     assert [e["method"] for e in written["bias_history"]] == ["calibration (unknown method)", "tare, 1 pose"]
     assert written["bias_history"][0]["force_bias"] == list(calibration.force_bias)
     assert written["sensor_rotation"] == document["sensor_rotation"]

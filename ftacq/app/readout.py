@@ -38,6 +38,16 @@ class LiveReadout:
             self._count += len(event)
         elif isinstance(event, events.SensorStatus):
             self._print(event)
+        elif isinstance(event, events.Notice) and event.source == "health":
+            self.notice(f"{event.level.lower()}: {event.text}" if event.level != "INFO" else event.text)
+
+    def notice(self, text: str) -> None:
+        """Print a health line on its own (ending the in-place readout line first)."""
+        if self.in_place and self._width:
+            self.stream.write("\n")
+            self._width = 0
+        self.stream.write(f"ftacq monitor: {text}\n")
+        self.stream.flush()
 
     def _print(self, status: events.SensorStatus) -> None:
         if self._last_time_s is None:  # the first status starts the first window

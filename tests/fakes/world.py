@@ -7,6 +7,9 @@ One :class:`CellTruth` (sensor rotation and offset, biases, the tool as a rigid 
     T = center_of_mass × (sensor_R_flange @ flange_R_base @ gravity_base) + torque_bias + drift(t)
         + contact_torque + noise
 
+with drift(t) linear plus a thermal-like exponential step (:meth:`SensorPhysics.bias_at`); the tool can be swapped
+behind the software's back (:meth:`SensorPhysics.set_tool`).
+
 While the arm moves, and when the pose source also gives the joint state (q, q̇, q̈: :class:`SharedPose`) and the
 physics knows the arm's model, the gravity wrench is replaced by the full wrench of the rigid tool
 (:mod:`tests.fakes.rigid_body`: F = m (g − a_c), T = c × F − (I_c α + ω × I_c ω)), which is the same at rest.
@@ -63,6 +66,8 @@ class CellTruth:
         base_tilt_deg: (α, β) of the robot base against gravity (0, 0 = level floor; see gravity_base_from_tilt).
         force_noise_n, torque_noise_nm: per-channel 1σ white noise of one sample.
         drift_n_per_s, drift_nm_per_s: slow linear bias drift per channel (thermal).
+        thermal_step_n, thermal_step_nm: a thermal-like exponential step of the biases, per channel: the bias moves
+            by step × (1 − exp(−(t − thermal_step_at_s) / thermal_time_constant_s)) after thermal_step_at_s.
         motion_noise_gain: extra noise factor per rad/s of joint speed while the arm moves.
     """
 
@@ -80,6 +85,10 @@ class CellTruth:
     torque_noise_nm: tuple[float, float, float] = (0.002, 0.002, 0.0015)
     drift_n_per_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     drift_nm_per_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal_step_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal_step_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thermal_step_at_s: float = 0.0
+    thermal_time_constant_s: float = 600.0
     motion_noise_gain: float = 2.0
 
     @property
@@ -313,13 +322,21 @@ class SensorPhysics:
         gravity_base = gravity_base_from_tilt(float(mass_kg), *self.truth.base_tilt_deg)
         self._tool = (float(mass_kg), gravity_base, np.array(center_of_mass_m, dtype=float).reshape(3))  # atomic
 
+    def bias_at(self, elapsed_s):
+        """Return the true biases [N, N·m] ``elapsed_s`` seconds after start (a float: (6,); an (S, 1) array:
+        (S, 6)): linear drift plus the thermal step."""
+        t = self.truth
+        step = np.array(t.thermal_step_n + t.thermal_step_nm)
+        since = np.maximum(np.asarray(elapsed_s, dtype=float) - t.thermal_step_at_s, 0.0)
+        return self._bias + self._drift * elapsed_s + step * -np.expm1(-since / t.thermal_time_constant_s)
+
     def noiseless_wrench(self, pose: np.ndarray, elapsed_s: float = 0.0) -> np.ndarray:
         """Return the wrench (6,) without noise at a flange pose, at rest, ``elapsed_s`` seconds after start (drift)."""
         _mass, gravity_base, com = self._tool
         base_R_flange = rotation_from_rotvec(np.asarray(pose)[3:6])
         gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
         torque = np.cross(com, gravity_sensor)
-        return np.concatenate([gravity_sensor, torque]) + self._bias + self._drift * elapsed_s + self.contact_wrench
+        return np.concatenate([gravity_sensor, torque]) + self.bias_at(elapsed_s) + self.contact_wrench
 
     def tool_wrench(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Return the wrench (S, 6) of the moving tool alone (gravity and inertia; no bias, drift, contact, noise)."""
@@ -335,7 +352,7 @@ class SensorPhysics:
                                 elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:
         """Return the wrench (S, 6) without noise for joint states (S, 6) at ``elapsed_s`` after start (drift)."""
         elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
-        return self.tool_wrench(q, qd, qdd) + self._bias + self._drift * elapsed + self.contact_wrench
+        return self.tool_wrench(q, qd, qdd) + self.bias_at(elapsed) + self.contact_wrench
 
     def sample(self, n: int, start_time_s: float | None = None) -> np.ndarray:
         """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample,

@@ -1,9 +1,11 @@
 """``ftacq monitor``: stream raw and gravity-compensated wrenches, the arm and sensor health to Rerun.
 
     ftacq monitor --config CELL.toml --calibration CALIBRATION.json [viewer flags] [--seconds S] [--record FILE.csv]
-    ftacq monitor --sim [viewer flags] [--seconds S]
+    ftacq monitor --sim [viewer flags] [--seconds S] [--sim-drift N_PER_H] [--sim-swap-tool S] [--auto-tare]
 
-The monitor only reads the robot (its state, at the reader's own rate); it never moves it.
+The monitor only reads the robot (its state, at the reader's own rate); it never moves it. With a calibration it
+checks that the calibration belongs to the sensor (refused unless --force) and runs the live drift tracker and the
+at-rest check (procedures/bias_health.py); --auto-tare applies the tracked bias offset.
 """
 
 from __future__ import annotations
@@ -25,22 +27,33 @@ SIM_JOG_RATE_HZ = 30.0
 SIM_JOG_AMPLITUDE_RAD = np.array([0.35, 0.15, 0.2, 0.7, 0.7, 1.2])
 """Peak joint excursions (rad) of the simulated technician's jog around the start configuration."""
 SIM_JOG_PERIOD_S = np.array([23.0, 17.0, 19.0, 11.0, 7.0, 13.0])
-SIM_CONTACT_EVERY_S = 8.0
+SIM_PHASE_S = 8.0
+"""The simulated technician jogs for this long, then holds the arm still for as long (the drift tracker learns only
+while the arm is still)."""
+SIM_CONTACT_START_S = 3.0
 SIM_CONTACT_DURATION_S = 2.0
 SIM_CONTACT_WRENCH = np.array([0.0, 6.0, -15.0, 0.3, 0.0, 0.0])
-"""The simulated push on the tool (sensor frame, N and N·m) every SIM_CONTACT_EVERY_S seconds."""
+"""The simulated push on the tool (sensor frame, N and N·m), SIM_CONTACT_START_S into every still phase, held
+SIM_CONTACT_DURATION_S with a hand's 5 % tremble at 4 Hz."""
+SIM_SWAPPED_TOOL = (1.0, (0.01, -0.005, 0.05))
+"""--sim-swap-tool puts this tool (kg, centre of mass in the sensor frame, m) on the simulated sensor."""
 
 
 class SimulatedTechnician:
-    """Jogs the simulated arm and pushes on the tool, through the simulator's own back door (``--sim`` only).
+    """Jogs the simulated arm, holds it still, pushes on the tool, and (``swap_after_s``) swaps the tool, through
+    the simulator's own back door (``--sim`` only).
 
     On a real cell the technician jogs the arm from the pendant; the monitor itself never moves the robot.
     Owns the thread "ftacq-sim-technician" (started by :meth:`start`, joined by :meth:`close`).
     """
 
-    def __init__(self, cell, period_s: float = 1.0 / SIM_JOG_RATE_HZ) -> None:
+    def __init__(self, cell, period_s: float = 1.0 / SIM_JOG_RATE_HZ, jog: bool = True,
+                 swap_after_s: float | None = None) -> None:
         self.cell = cell
         self.period_s = period_s
+        self.jog = jog
+        self.swap_after_s = swap_after_s
+        self.swapped = False
         self.error: BaseException | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ftacq-sim-technician")
@@ -59,14 +72,27 @@ class SimulatedTechnician:
         q_start = np.asarray(self.cell.initial_q, dtype=float)
         start_s = time.monotonic()
         next_s = start_s
+        jog_s = 0.0
         while not self._stop.wait(max(0.0, next_s - time.monotonic())):
             next_s += self.period_s
             t = time.monotonic() - start_s
             try:
-                self.cell.controller.set_joint_positions(
-                    q_start + SIM_JOG_AMPLITUDE_RAD * np.sin(2 * np.pi * t / SIM_JOG_PERIOD_S))
-                pushing = (t % SIM_CONTACT_EVERY_S) > SIM_CONTACT_EVERY_S - SIM_CONTACT_DURATION_S
-                self.cell.set_contact(SIM_CONTACT_WRENCH if pushing else np.zeros(6))
+                if self.swap_after_s is not None and not self.swapped and t >= self.swap_after_s:
+                    self.cell.swap_tool(*SIM_SWAPPED_TOOL)
+                    self.swapped = True
+                if not self.jog:
+                    continue
+                phase_s = t % (2 * SIM_PHASE_S)
+                if phase_s < SIM_PHASE_S:  # jogging
+                    jog_s += self.period_s
+                    self.cell.controller.set_joint_positions(
+                        q_start + SIM_JOG_AMPLITUDE_RAD * np.sin(2 * np.pi * jog_s / SIM_JOG_PERIOD_S))
+                    self.cell.set_contact(np.zeros(6))
+                else:  # holding still; a hand pushes on the tool for a while
+                    hold_s = phase_s - SIM_PHASE_S
+                    pushing = SIM_CONTACT_START_S <= hold_s < SIM_CONTACT_START_S + SIM_CONTACT_DURATION_S
+                    tremble = 1.0 + 0.05 * np.sin(2 * np.pi * 4.0 * t)
+                    self.cell.set_contact(SIM_CONTACT_WRENCH * tremble if pushing else np.zeros(6))
             except Exception as error:  # noqa: BLE001 - the demo stops jogging; the monitor goes on
                 self.error = error
                 return
@@ -98,6 +124,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seconds", type=float, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--sim-still", action="store_true", help="with --sim: leave the simulated arm still")
+    parser.add_argument("--sim-drift", type=float, default=0.0, metavar="N_PER_H",
+                        help="with --sim: the simulated sensor's force biases drift by this much per hour (N/h; "
+                             "torque 1/50 of it in N·m/h)")
+    parser.add_argument("--sim-swap-tool", type=float, metavar="S",
+                        help="with --sim: after S seconds put another tool on the simulated sensor without telling "
+                             "the software (the at-rest warning should follow at the next stillness)")
+    parser.add_argument("--auto-tare", action="store_true",
+                        help="subtract the live drift tracker's bias estimate from the compensated stream (off by "
+                             "default: the tracker then only reports; see docs/drift-and-tare.md)")
+    parser.add_argument("--force", action="store_true",
+                        help="monitor even when the calibration was made with another sensor (serial, units or "
+                             "counts per unit differ)")
     parser.add_argument("--record", type=Path, metavar="FILE.csv",
                         help="also write every sample (raw, flange pose, compensated) to this CSV")
     add_sink_args(parser)
@@ -112,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.app.readout import LiveReadout, format_summary
     from ftacq.kinematics import ur_model
-    from procedures.monitor import GravityCompensator, LiveMonitor
+    from procedures.monitor import LiveMonitor
 
     from ftacq.validation import check_number, check_output_file
 
@@ -132,7 +170,12 @@ def run(args: argparse.Namespace) -> int:
         if args.sim:
             from ftacq.app.simcell import simulated_cell
 
-            cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
+            from ftacq.app.simcell import simulated_truth
+
+            drift_n_per_s = args.sim_drift / 3600.0
+            truth = simulated_truth(drift_n_per_s=(drift_n_per_s, -drift_n_per_s, drift_n_per_s),
+                                    drift_nm_per_s=(drift_n_per_s / 50, -drift_n_per_s / 50, drift_n_per_s / 50))
+            cell = stack.enter_context(simulated_cell(truth=truth, sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
             robot_host, sensor_url = cell.robot_host, cell.sensor_url
             model_name = getattr(cell, "model_name", DEFAULT_SIM_MODEL)
             if calibration is None:
@@ -157,9 +200,15 @@ def run(args: argparse.Namespace) -> int:
         robot = URStateReader(robot_host, model=model)
         stack.callback(robot.close)
         robot.start()
-        if args.sim and not args.sim_still:
-            stack.callback(SimulatedTechnician(cell).start().close)
+        if args.sim and (not args.sim_still or args.sim_swap_tool is not None):
+            stack.callback(SimulatedTechnician(cell, jog=not args.sim_still,
+                                               swap_after_s=args.sim_swap_tool).start().close)
         sensor.start()
+        compensator, checks = None, []
+        if calibration is not None:
+            compensator, checks, health_text = _drift_health(calibration, sensor.info, args)
+            print(f"ftacq monitor: {health_text}", file=sys.stderr)
+            dashboard.dashboard.log_text(health_text)
 
         dashboard.dashboard.log_text(
             f"ftacq {__version__} monitor: {source}, sensor {sensor_url}, robot {robot_host} ({model.name}), "
@@ -172,10 +221,12 @@ def run(args: argparse.Namespace) -> int:
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
         readout = LiveReadout()
         stack.callback(readout.close)
-        compensator = GravityCompensator(calibration) if calibration is not None else None
         if calibration is not None:
-            compensator = _choose_compensator(calibration, model, robot_host, stack, sensor) or compensator
-        monitor = LiveMonitor(sensor, robot=robot, compensator=compensator,
+            dynamic = _choose_compensator(calibration, model, robot_host, stack, sensor)
+            if dynamic is not None:  # the drift tracker runs on the static compensation only
+                compensator, checks = dynamic, []
+        monitor = LiveMonitor(sensor, robot=robot,
+                              compensator=compensator, checks=checks,
                               listeners=[dashboard, readout], record_path=args.record, record_header=header)
         summary = monitor.run(duration_s=args.seconds)
         readout.close()
@@ -183,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
         dashboard.dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
                                      f"{summary.dropped_samples} dropped for the viewer")
     print(format_summary(summary))
+    if compensator is not None and hasattr(compensator, "health"):
+        print(format_drift(compensator))
     if hasattr(compensator, "static_batches") and compensator.static_batches:
         print(f"dynamic compensation: {compensator.static_batches} of "
               f"{compensator.static_batches + compensator.dynamic_batches} reads had no robot state around them and "
@@ -209,3 +262,42 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
           f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "
           "trajectory, else a filtered derivative of actual_qd", file=sys.stderr)
     return compensator
+
+
+def _drift_health(calibration, sensor_info, args: argparse.Namespace):
+    """Check the calibration belongs to the sensor (refused unless --force) and build the drift tracker's
+    compensator and health check; return (compensator, checks, a line saying when the biases were measured)."""
+    from ftacq.drift import MAX_PRIOR_AGE_S, BiasHealth
+    from ftacq.provenance import age_s, biases_measured_utc, require_same_sensor
+    from procedures.bias_health import DriftCheck, DriftCompensator
+
+    note = require_same_sensor(calibration, sensor_info, args.force, "ftacq monitor")
+    if note:
+        print(f"ftacq monitor: {note}", file=sys.stderr)
+    measured = biases_measured_utc(calibration)
+    age = age_s(measured)
+    health = BiasHealth(calibration, age_s=MAX_PRIOR_AGE_S if age is None else age, auto_tare=args.auto_tare)
+    compensator = DriftCompensator(health)
+    history = calibration.metadata.get("bias_history") or []
+    method = history[-1].get("method", "calibration") if history else "calibration"
+    text = (f"biases from {method}, measured {measured or 'at an unknown time'}"
+            + (f" ({age / 3600.0:.1f} h ago)" if age is not None else " (the first rest windows set the offset)")
+            + f"; drift tracker on, {'applied (--auto-tare)' if args.auto_tare else 'reporting only'}")
+    return compensator, [DriftCheck(compensator)], text
+
+
+def format_drift(compensator) -> str:
+    """Return the tracker's last word: offset since the file ± 1σ, rate, windows used and refused."""
+    tracker = compensator.health.tracker
+    if not tracker.accepted:
+        return (f"drift tracker: no estimate: {tracker.rejected_contact} rest windows refused as contact, "
+                f"{tracker.rejected_gate} by the gate" if tracker.rejected_contact + tracker.rejected_gate else
+                "drift tracker: no estimate: the arm was never still long enough (0.5 s settle + 0.5 s windows)")
+    offset, sigma = tracker.offset(tracker.time_s), tracker.sigma(tracker.time_s)
+    return ("drift tracker: biases moved since the calibration file by F ["
+            + ", ".join(f"{o:+.4f}±{s:.4f}" for o, s in zip(offset[:3], sigma[:3])) + "] N, T ["
+            + ", ".join(f"{o:+.5f}±{s:.5f}" for o, s in zip(offset[3:], sigma[3:])) + "] N·m; rate F ["
+            + ", ".join(f"{r:+.3f}" for r in tracker.rate_per_h[:3]) + f"] N/h; rest windows used {tracker.accepted},"
+            f" refused as contact {tracker.rejected_contact}, by the gate {tracker.rejected_gate}"
+            + ("; applied (--auto-tare)" if compensator.health.auto_tare else
+               "; not applied (use --auto-tare, or `ftacq tare`)"))

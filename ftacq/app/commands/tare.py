@@ -72,21 +72,6 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
-def check_sensor(calibration, info, force: bool, what: str = "ftacq tare") -> str:
-    """Refuse (InputError) a calibration made with another sensor unless ``force``; return a note ('' if none)."""
-    from ftacq.provenance import sensor_mismatch, unchecked_reason
-
-    recorded = calibration.metadata.get("sensor")
-    problems = sensor_mismatch(recorded, info)
-    if problems and not force:
-        raise InputError("the calibration does not belong to the sensor connected: " + "; ".join(problems)
-                         + f". Calibrate this sensor, or pass --force to {what} anyway")
-    if problems:
-        return "WARNING (--force): the calibration does not belong to this sensor: " + "; ".join(problems)
-    reason = unchecked_reason(recorded, info)
-    return f"note: sensor match not checked: {reason}" if reason else ""
-
-
 def _run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -97,7 +82,7 @@ def _run(args: argparse.Namespace) -> int:
     from ftacq.app.config import CellConfig, load_config
     from ftacq.bias_estimate import apply_estimate
     from ftacq.calfile import load_calibration, save_calibration
-    from ftacq.provenance import sensor_record, tool_record
+    from ftacq.provenance import require_same_sensor, sensor_record, tool_record
     from procedures.calibration_procedure import ProcedureOptions
     from procedures.settle import SettleSettings
     from procedures.tare import TareProcedure, tare_here, tare_plan_settings
@@ -169,7 +154,7 @@ def _run(args: argparse.Namespace) -> int:
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
         sensor.start()
-        note = check_sensor(calibration, sensor.info, args.force)
+        note = require_same_sensor(calibration, sensor.info, args.force, "ftacq tare")
         if note:
             print(note, file=sys.stderr, flush=True)
         sampled = config.replace_section("sampling", **_as_dict(sampling))

@@ -83,6 +83,10 @@ RESIDUAL_FORCE_NORM = "calibration/residual_norm/force"
 RESIDUAL_TORQUE_NORM = "calibration/residual_norm/torque"
 VALIDATION_FORCE_NORM = "calibration/validation_norm/force"
 
+BIAS_DRIFT = "bias_drift"
+BIAS_DRIFT_FORCE = "bias_drift/force"
+BIAS_DRIFT_TORQUE = "bias_drift/torque"
+"""The live tracker's bias offset from the calibration file (N, N·m) with ±1σ bands (ftacq monitor)."""
 LOG = "log"
 MONITOR_LOG = "log/monitor"
 CALIBRATION_LOG = "log/calibration"
@@ -154,6 +158,7 @@ def blueprint() -> rrb.Blueprint:
                 rrb.Tabs(
                     rrb.TextLogView(origin=LOG, name="log"),
                     rrb.TimeSeriesView(origin=HEALTH, name="sensor health"),
+                    rrb.TimeSeriesView(origin=BIAS_DRIFT, name="bias drift since the calibration [N, N·m]"),
                     plot(FED_FORCE, "fed to the controller: force [N]"),
                     plot(FED_TORQUE, "fed to the controller: torque [N·m]"),
                     rrb.TimeSeriesView(origin=JOINT_ANGLES, name="joints [rad]"),

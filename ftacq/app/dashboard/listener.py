@@ -165,6 +165,8 @@ class DashboardListener:
         elif isinstance(event, events.SensorStatus):
             self._send_arm()
             dash.log_health(event.time_s, event.health, dropped=event.dropped)
+        elif isinstance(event, events.BiasDrift):
+            dash.log_bias_drift(event.time_s, event.offset, event.sigma)
         elif isinstance(event, events.FedWrenches):
             dash.log_fed(event.time_s, event.fed)
         elif isinstance(event, events.Notice):

@@ -23,7 +23,7 @@ import rerun as rr
 
 from ftacq.app.dashboard.arm import label_anchors, link_frames, link_shapes
 from ftacq.app.dashboard.layout import (
-    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
+    ARROW_RADIUS_M, AXIS_COLORS, BASE_AXES, BIAS_DRIFT_FORCE, BIAS_DRIFT_TORQUE, CONTACT_COLOR, CONTACT_FORCE, CURRENT_POSE, CURRENT_POSE_COLOR,
     FED_FORCE, FED_TORQUE, FLANGE, FLANGE_AXES, FORCE_ARROW_SCALE_M_PER_N, FORCE_AXES, FRAME_AXIS_LENGTH_M, GRAVITY,
     GRAVITY_COLOR, HEALTH_COUNT_COLORS,
     HEALTH_COUNT_NAMES, HEALTH_COUNTS, HEALTH_RATE, HEALTH_STATUS, JOINT_ANGLES, JOINT_COLOR, JOINT_COLORS,
@@ -88,6 +88,10 @@ class Dashboard:
         for path in (MEASURED_FORCE, MEASURED_TORQUE, RESIDUAL_FORCE, RESIDUAL_TORQUE):
             names = FORCE_AXES if path.endswith("force") else TORQUE_AXES
             self._static(path, rr.SeriesPoints(colors=AXIS_COLORS, names=names, marker_sizes=[3.0] * 3))
+        for path, axes in ((BIAS_DRIFT_FORCE, FORCE_AXES), (BIAS_DRIFT_TORQUE, TORQUE_AXES)):
+            faint = [tuple(int(c + (255 - c) * 0.6) for c in color) for color in AXIS_COLORS]
+            self._static(path, rr.SeriesLines(colors=list(AXIS_COLORS) + faint + faint,
+                                              names=list(axes) + [f"{a} +1σ" for a in axes] + [f"{a} −1σ" for a in axes]))
         self._static(HEALTH_RATE, rr.SeriesLines(colors=[(38, 103, 230)], names=["rate [Hz]"]))
         self._static(HEALTH_COUNTS, rr.SeriesLines(colors=HEALTH_COUNT_COLORS, names=HEALTH_COUNT_NAMES))
         self._static(HEALTH_STATUS, rr.SeriesLines(colors=[(60, 60, 70)], names=["status word"]))
@@ -216,6 +220,15 @@ class Dashboard:
             self._scalars(HEALTH_RATE, t, np.array([[health.rate_hz]]))
             self._scalars(HEALTH_COUNTS, t, counts)
             self._scalars(HEALTH_STATUS, t, np.array([[float(health.last_status)]]))
+
+    def log_bias_drift(self, time_s: float, offset: np.ndarray, sigma: np.ndarray) -> None:
+        """Log the drift tracker's bias offset from the calibration file (6,) [N, N·m] with ±1σ at ``time_s``."""
+        offset, sigma = np.asarray(offset, dtype=float), np.asarray(sigma, dtype=float)
+        with self._lock:
+            t = np.array([time_s])
+            for path, part in ((BIAS_DRIFT_FORCE, slice(0, 3)), (BIAS_DRIFT_TORQUE, slice(3, 6))):
+                o, s = offset[part], sigma[part]
+                self._scalars(path, t, np.concatenate([o, o + s, o - s])[None, :])
 
     def log_text(self, text: str, *, level: str = "INFO", time_s: float | None = None, path: str = MONITOR_LOG) -> None:
         """Append a line to the text log (``path`` under ``log/``) at ``time_s`` (s, sensor clock; default now)."""

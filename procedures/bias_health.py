@@ -1,0 +1,123 @@
+"""Live calibration health for a compensated stream: stillness from the robot, the drift tracker, --auto-tare.
+
+:class:`DriftCompensator` compensates each batch with the calibration as on file, hands the residual to a
+:class:`ftacq.drift.BiasHealth` together with the arm's stillness (:class:`StillDetector`) and orientation, and
+returns the residual minus the tracker's correction when ``auto_tare`` is on (unchanged otherwise). The notices
+it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.events.BiasDrift` snapshot (for the dashboard's bias
+drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
+acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window.
+
+Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over the last ``window_s`` of the
+robot states read with the batches (the monitor reads the latest actual_q with each sensor batch); saturated
+samples are never used.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ftacq.drift import BiasHealth, HealthNotice
+from ftacq.so3 import rotation_from_rotvec
+from procedures.events import BiasDrift, Notice
+
+STILL_TOLERANCE_RAD = 2e-4
+"""Largest joint excursion (rad, about 0.01°) over the still window that still counts as still (encoder jitter)."""
+STILL_WINDOW_S = 0.25
+"""Joint angles must stay within STILL_TOLERANCE_RAD for this long, s."""
+DRIFT_EVENT_PERIOD_S = 1.0
+"""A BiasDrift snapshot is published at most this often, s (sample clock)."""
+
+
+class StillDetector:
+    """Decides from the joint angles whether the arm is still (module docstring)."""
+
+    def __init__(self, tolerance_rad: float = STILL_TOLERANCE_RAD, window_s: float = STILL_WINDOW_S) -> None:
+        self.tolerance_rad = float(tolerance_rad)
+        self.window_s = float(window_s)
+        self._history: collections.deque = collections.deque()
+
+    def update(self, time_s: float, joint_positions_rad: np.ndarray | None) -> bool:
+        """Add the joint angles read at ``time_s`` (s); return True when the arm has been still for ``window_s``."""
+        if joint_positions_rad is None:
+            self._history.clear()
+            return False
+        q = np.asarray(joint_positions_rad, dtype=float)
+        self._history.append((float(time_s), q))
+        while len(self._history) > 2 and self._history[1][0] <= time_s - self.window_s:
+            self._history.popleft()
+        if self._history[0][0] > time_s - self.window_s:
+            return False  # not enough history yet
+        angles = np.array([item[1] for item in self._history])
+        return bool(np.all(angles.max(axis=0) - angles.min(axis=0) <= self.tolerance_rad))
+
+
+@dataclass
+class DriftCompensator:
+    """Compensation with the calibration on file, feeding the drift tracker (the monitor's Compensator seam).
+
+    Args:
+        health: the :class:`ftacq.drift.BiasHealth` (its calibration is the one compensated with; its
+            ``auto_tare`` decides whether the correction is subtracted).
+        still: the :class:`StillDetector`.
+    """
+
+    health: BiasHealth
+    still: StillDetector = field(default_factory=StillDetector)
+    notices: list[HealthNotice] = field(default_factory=list)
+
+    @property
+    def calibration(self):
+        return self.health.tracker.calibration
+
+    def compensate(self, batch, robot) -> np.ndarray | None:
+        """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one)."""
+        if robot is None:
+            return None
+        flange_R_base = rotation_from_rotvec(np.asarray(robot.flange_pose, dtype=float)[3:6]).T
+        residual = self.calibration.compensate(batch.wrench, flange_R_base)
+        time_s = np.asarray(batch.time_s, dtype=float)
+        still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
+        good = ~np.asarray(batch.saturated, dtype=bool)
+        if still and not good.all():
+            self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window
+        elif good.any():
+            self.notices += self.health.feed(time_s[good], residual[good], still, flange_R_base)
+        if self.health.auto_tare:
+            residual -= self.health.correction(float(time_s[-1]))
+        return residual
+
+    def snapshot(self, time_s: float) -> BiasDrift:
+        """Return the tracker's estimate now."""
+        tracker = self.health.tracker
+        return BiasDrift(time_s=time_s, offset=tracker.offset(time_s), sigma=tracker.sigma(time_s),
+                         rate_per_h=tracker.rate_per_h, applied=self.health.auto_tare, accepted=tracker.accepted,
+                         rejected_contact=tracker.rejected_contact, rejected_gate=tracker.rejected_gate,
+                         warning=self.health.check.warning)
+
+
+class DriftCheck:
+    """The monitor's health check for the drift tracker: the compensator's notices (as
+    :class:`procedures.events.Notice`, source "health"), and a :class:`procedures.events.BiasDrift` snapshot every
+    ``period_s`` of sample time."""
+
+    def __init__(self, compensator: DriftCompensator, period_s: float = DRIFT_EVENT_PERIOD_S) -> None:
+        self.compensator = compensator
+        self.period_s = float(period_s)
+        self._last_s = -np.inf
+
+    def check(self, samples) -> list:
+        """Return the notices caused since the last call, plus a BiasDrift snapshot when one is due."""
+        out: list = [Notice(n.text, level=n.level, source="health", time_s=n.time_s)
+                     for n in self.compensator.notices]
+        self.compensator.notices.clear()
+        now_s = float(samples.batch.time_s[-1])
+        if now_s - self._last_s >= self.period_s and self.compensator.health.observations:
+            out.append(self.compensator.snapshot(now_s))
+            self._last_s = now_s
+        return out
+
+
+__all__ = ["StillDetector", "DriftCompensator", "DriftCheck", "STILL_TOLERANCE_RAD", "STILL_WINDOW_S"]

@@ -1,0 +1,195 @@
+"""The live drift tracker (ftacq/drift.py) fed with simulated batches: it follows a slow drift, never absorbs a push
+held while the arm is still (steady or trembling), and flags a swapped tool soon after the arm stops."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from ftacq.drift import BiasHealth, DriftSettings, RestWindows, summarise_window
+from ftacq.identification import identify
+from ftacq.so3 import rotation_from_rotvec
+from tests.fakes.pose_records import example_record
+from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
+
+RATE_HZ = 2000.0
+BATCH_S = 0.05
+POSE = np.array([0.4, 0.0, 0.4, np.pi, 0.0, 0.0])
+FLANGE_R_BASE = rotation_from_rotvec(POSE[3:6]).T
+
+
+@pytest.fixture(scope="module")
+def calibration():
+    return identify(example_record(seed=2), mount="floor").calibration
+
+
+class Feeder:
+    """Samples SensorPhysics at RATE_HZ in batches along a simulated clock and feeds a BiasHealth."""
+
+    def __init__(self, calibration, truth: CellTruth, seed: int = 0, auto_tare: bool = True) -> None:
+        self.physics = SensorPhysics(truth, SettablePose(POSE), seed=seed)
+        self.rng = np.random.default_rng(seed + 1)
+        self.calibration = calibration
+        self.health = BiasHealth(calibration, DriftSettings(), auto_tare=auto_tare)
+        self.t = 0.0
+        self.notices = []
+
+    def still(self, seconds: float, contact=None, pose=POSE) -> None:
+        n = int(RATE_HZ * BATCH_S)
+        flange_R_base = rotation_from_rotvec(pose[3:6]).T
+        end = self.t + seconds
+        while self.t < end - 1e-9:
+            t = self.t + np.arange(n) / RATE_HZ
+            wrench = self.physics.noiseless_wrench(pose, self.t) + self.rng.standard_normal((n, 6)) \
+                * self.physics._noise_sigma
+            if contact is not None:
+                wrench = wrench + contact(t)
+            residual = self.calibration.compensate(wrench, flange_R_base)
+            self.notices += self.health.feed(t, residual, True, flange_R_base)
+            self.t += BATCH_S
+
+    def move(self, seconds: float) -> None:
+        self.health.feed(np.array([self.t]), np.zeros((1, 6)), False)
+        self.t += seconds
+
+
+def test_rest_windows_start_after_settling_and_motion_discards_the_open_one() -> None:
+    windows = RestWindows(window_s=0.5, settle_s=0.5)
+    t = np.arange(0, 0.9, 0.001)
+    assert windows.feed(t, np.zeros((len(t), 6)), True) == []  # 0.4 s of data after settling: not a window yet
+    assert windows.feed(np.array([1.0]), np.zeros((1, 6)), False) == []
+    t = 2.0 + np.arange(0, 1.6, 0.001)
+    done = windows.feed(t, np.ones((len(t), 6)), True)
+    assert len(done) == 2 and done[0].start_s == pytest.approx(2.5) and done[0].count == 500
+    np.testing.assert_allclose(done[0].mean, 1.0)
+
+
+def test_in_window_slope_is_measured_in_standard_errors() -> None:
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 0.5, 1e-3)
+    flat = summarise_window(t, rng.normal(scale=0.05, size=(len(t), 6)), None)
+    ramp = summarise_window(t, rng.normal(scale=0.05, size=(len(t), 6)) + np.outer(t, [2.0, 0, 0, 0, 0, 0]), None)
+    assert np.all(np.abs(flat.slope_t) < 5)
+    assert ramp.slope_t[0] > 20
+
+
+def test_tracker_follows_a_slow_drift(calibration) -> None:
+    drift = np.array([0.5, -0.5, 0.5, 0.01, -0.01, 0.01]) / 3600.0
+    truth = replace(CellTruth(), drift_n_per_s=tuple(drift[:3]), drift_nm_per_s=tuple(drift[3:]))
+    feeder = Feeder(calibration, truth)
+    for _ in range(40):  # 40 × (20 s still + 10 s moving) = 20 min
+        feeder.still(20.0)
+        feeder.move(10.0)
+    true_offset = feeder.physics.bias_at(feeder.t) - feeder.physics.bias_at(0.0)
+    estimate = feeder.health.tracker.offset(feeder.t)
+    assert np.abs(true_offset[:3]).min() > 0.15  # 0.5 N/h over 20 min: a drift the tracker must follow
+    np.testing.assert_allclose(estimate[:3], true_offset[:3], atol=0.01)
+    assert not any(n.level == "WARN" for n in feeder.notices)
+
+
+@pytest.mark.parametrize("tremble", [False, True])
+def test_a_push_while_still_is_not_absorbed(calibration, tremble) -> None:
+    """A push of 4 N held 3 s on the still arm (steady, or trembling as a hand does) leaves the bias estimate where
+    it was; the tracker keeps working after it."""
+    feeder = Feeder(calibration, CellTruth(), seed=3)
+    for _ in range(6):
+        feeder.still(15.0)
+        feeder.move(5.0)
+    feeder.still(3.0)
+    before = feeder.health.tracker.offset(feeder.t)
+    accepted_before = feeder.health.tracker.accepted
+    push = np.array([3.0, -2.0, 1.5, 0.05, 0.02, -0.04])
+    start = feeder.t
+
+    def contact(t):
+        envelope = np.clip(np.minimum((t - (start + 0.2)) / 0.15, (start + 3.2 - t) / 0.15), 0.0, 1.0)
+        wobble = 1.0 + (0.05 * np.sin(2 * np.pi * 5.0 * t) if tremble else 0.0)
+        return (envelope * wobble)[:, None] * push
+
+    feeder.still(4.0, contact)
+    after = feeder.health.tracker.offset(feeder.t)
+    assert np.all(np.abs(after - before) <= 0.002 * np.array([1, 1, 1, 0.05, 0.05, 0.05]) + 1e-4), after - before
+    rejected = feeder.health.tracker.rejected_contact + feeder.health.tracker.rejected_gate
+    assert rejected >= 5  # the push's windows were seen and refused
+    feeder.still(5.0)
+    assert feeder.health.tracker.accepted > accepted_before  # and the tracker goes on after the push
+    if tremble:  # a trembling hand is contact, not "at rest": no at-rest warning
+        assert not any(n.level == "WARN" for n in feeder.notices)
+
+
+def test_a_swapped_tool_is_flagged_within_5_s_of_stillness(calibration) -> None:
+    feeder = Feeder(calibration, CellTruth(), seed=5)
+    for _ in range(4):
+        feeder.still(10.0)
+        feeder.move(5.0)
+    feeder.physics.set_tool(1.0, (0.01, 0.0, 0.05))  # during the move, without telling the software
+    still_from = feeder.t
+    feeder.still(10.0)
+    warnings = [n for n in feeder.notices if n.level == "WARN"]
+    assert warnings, "the swapped tool was not flagged"
+    assert warnings[0].time_s - still_from <= 5.0
+    assert "not drift" in warnings[0].text and "tool" in warnings[0].text
+    assert feeder.health.tracker.rejected_gate > 0  # and it was not absorbed as a bias
+
+
+# ------------------------------------------------------------------------------------ the monitor's seam
+
+class _Batch:
+    def __init__(self, time_s, wrench):
+        self.time_s, self.wrench = time_s, wrench
+        self.saturated = np.zeros(len(time_s), dtype=bool)
+
+
+class _Robot:
+    def __init__(self, time_s, q):
+        self.time_s, self.joint_positions_rad, self.flange_pose = time_s, q, POSE
+
+
+class _Samples:
+    def __init__(self, batch):
+        self.batch = batch
+
+
+def test_still_detector_needs_the_joints_still_for_its_window() -> None:
+    from procedures.bias_health import StillDetector
+
+    detector = StillDetector(tolerance_rad=2e-4, window_s=0.25)
+    q = np.zeros(6)
+    assert not detector.update(0.0, q)
+    assert not detector.update(0.1, q + 1e-5)
+    assert detector.update(0.3, q - 1e-5)
+    assert not detector.update(0.4, q + [0, 0, 0, 0, 0, 1e-3])  # the wrist turned
+    assert not detector.update(0.6, q + [0, 0, 0, 0, 0, 1e-3])  # still inside the window of the motion
+    assert detector.update(0.7, q + [0, 0, 0, 0, 0, 1e-3])
+    assert not detector.update(0.8, None)  # no robot state: not known to be still
+
+
+def test_drift_compensator_applies_the_tracked_offset_only_with_auto_tare(calibration) -> None:
+    """With --auto-tare the compensated stream at rest loses a bias offset the tracker found; without it the
+    stream is the calibration's compensation, unchanged, and the tracker still reports the offset."""
+    from procedures.bias_health import DriftCheck, DriftCompensator
+    from procedures.events import BiasDrift
+
+    offset = np.array([0.03, -0.02, 0.025, 0.001, -0.0005, 0.0008])  # drifted since the file, within the gate
+    truth = replace(CellTruth(), force_bias_n=tuple(np.add(CellTruth().force_bias_n, offset[:3])),
+                    torque_bias_nm=tuple(np.add(CellTruth().torque_bias_nm, offset[3:])))
+    physics = SensorPhysics(truth, SettablePose(POSE), seed=9)
+    rng = np.random.default_rng(9)
+    results = {}
+    for auto_tare in (False, True):
+        compensator = DriftCompensator(BiasHealth(calibration, DriftSettings(), age_s=3600.0, auto_tare=auto_tare))
+        check = DriftCheck(compensator, period_s=1.0)
+        drift_events, out = [], []
+        for k in range(200):  # 10 s still at 2 kHz in 0.05 s batches
+            t = k * BATCH_S + np.arange(int(RATE_HZ * BATCH_S)) / RATE_HZ
+            wrench = physics.noiseless_wrench(POSE) + rng.standard_normal((len(t), 6)) * physics._noise_sigma
+            batch = _Batch(t, wrench)
+            out.append(compensator.compensate(batch, _Robot(t[-1], np.zeros(6))))
+            drift_events += [e for e in check.check(_Samples(batch)) if isinstance(e, BiasDrift)]
+        results[auto_tare] = np.concatenate(out[-40:]).mean(axis=0)
+        assert drift_events and drift_events[-1].applied == auto_tare
+        np.testing.assert_allclose(drift_events[-1].offset[:3], offset[:3], atol=0.003)
+    np.testing.assert_allclose(results[False][:3], offset[:3], atol=0.003)  # untouched: the drift shows
+    np.testing.assert_allclose(results[True][:3], 0.0, atol=0.003)  # auto-tare removed it
