@@ -7,11 +7,10 @@ A run that stopped or failed before identification gets a FAIL that says so (and
 
 from __future__ import annotations
 
-import numpy as np
 
 from ftacq.posesets import PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.verdict import Verdict, drift_finding, identification_findings, judge, poses_finding
-from procedures.measured import DRIFT_SUFFIX
+from procedures.measured import DRIFT_SUFFIX, pose_record
 
 
 def wanted_counts(settings) -> dict[str, int]:
@@ -23,16 +22,8 @@ def wanted_counts(settings) -> dict[str, int]:
 
 def held_out_record(measured: dict, plan):
     """Return the measured V poses, in plan order, as a :class:`ftacq.posefile.PoseRecord` (None if none)."""
-    from ftacq.posefile import PoseRecord
-
-    rows = [measured[label] for label, s in zip(plan.labels, plan.set_names)
-            if s == VALIDATION_SET and label in measured]
-    if not rows:
-        return None
-    std = None if any(r.std is None for r in rows) else np.array([r.std for r in rows])
-    return PoseRecord(pose=np.array([r.pose for r in rows]), wrench=np.array([r.mean for r in rows]), std=std,
-                      count=np.array([max(r.count, 1) for r in rows], dtype=float),
-                      labels=tuple(r.label for r in rows), sets=tuple(r.set_name for r in rows))
+    return pose_record([measured[label] for label, s in zip(plan.labels, plan.set_names)
+                        if s == VALIDATION_SET and label in measured])
 
 
 def run_verdict(result, plan, options) -> Verdict:

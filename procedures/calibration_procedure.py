@@ -35,7 +35,7 @@ from ftacq.errors import FtacqError, MotionLimitError, PlanError, RobotError
 from ftacq.posesets import DRIFT_SET, IDENTIFICATION_SETS, VALIDATION_SET
 from ftacq.settings import from_setting, values_from
 from procedures import events
-from procedures.measured import MeasuredPose, drift_label
+from procedures.measured import MeasuredPose, drift_label, pose_record
 from procedures.settle import SettleSettings, StopRequested, average_at_pose, wait_until_settled
 from procedures.tap import SensorTap
 
@@ -411,15 +411,8 @@ class CalibrationProcedure:
         return self._record_of([i for i, s in enumerate(self.plan.set_names) if s in IDENTIFICATION_SETS])
 
     def _record_of(self, indices: list[int]):
-        from ftacq.posefile import PoseRecord
-
-        rows = [self.measured[self.plan.labels[i]] for i in indices if self.plan.labels[i] in self.measured]
-        if not rows:
-            return None
-        std = None if any(r.std is None for r in rows) else np.array([r.std for r in rows])
-        return PoseRecord(pose=np.array([r.pose for r in rows]), wrench=np.array([r.mean for r in rows]), std=std,
-                          count=np.array([max(r.count, 1) for r in rows], dtype=float),
-                          labels=tuple(r.label for r in rows), sets=tuple(r.set_name for r in rows))
+        return pose_record([self.measured[self.plan.labels[i]] for i in indices
+                            if self.plan.labels[i] in self.measured])
 
     def _identify(self) -> None:
         from ftacq.errors import IdentificationError

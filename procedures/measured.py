@@ -38,3 +38,15 @@ class MeasuredPose:
 
 
 __all__ = ["MeasuredPose", "drift_label", "DRIFT_SUFFIX"]
+
+
+def pose_record(rows: list[MeasuredPose]):
+    """Return measured poses as one :class:`ftacq.posefile.PoseRecord` (in the order given), or None for none."""
+    from ftacq.posefile import PoseRecord
+
+    if not rows:
+        return None
+    std = None if any(r.std is None for r in rows) else np.array([r.std for r in rows])
+    return PoseRecord(pose=np.array([r.pose for r in rows]), wrench=np.array([r.mean for r in rows]), std=std,
+                      count=np.array([max(r.count, 1) for r in rows], dtype=float),
+                      labels=tuple(r.label for r in rows), sets=tuple(r.set_name for r in rows))
