@@ -18,6 +18,9 @@ Knobs (thread-safe, usable while a driver polls): ``status`` (u16 status word), 
 ``clear_saturation``, ``silent``, ``drop_reply_frames``, ``gage_offset``, ``power_cycle``,
 ``watchdog_reset``. Observables:
 ``received`` (every frame the board saw), ``requests(op)``, ``active_calibration_index``, ``reset_count``.
+
+Over 600 lines: the board's request/reply codec and its gage physics in one file, because every opcode reads the
+same calibration state; the codec is the next candidate to move apart.
 """
 
 from __future__ import annotations

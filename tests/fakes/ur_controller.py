@@ -30,6 +30,9 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
 - ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
   the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
   period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
+
+Over 600 lines: the RTDE, UR Dashboard Server, script and control-port servers of one process; each could be its
+own module (next split), the state they serve lives in ur_simulator.py.
 """
 
 from __future__ import annotations

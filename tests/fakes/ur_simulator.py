@@ -1,6 +1,10 @@
 """State machine of the simulated UR controller: modes, registers, the ur_rtde control-script handshake,
 motion, fault injection and the record of executed motion commands. No sockets here (see ur_controller.py).
 
+Over 600 lines because the control script's registers, modes and motion share one lock and one tick; the
+external F/T input (ur_external_ft.py) and motion profiles (ur_motion.py) are already apart. Next split: payload
+and gravity commands into their own module.
+
 All public methods take ``self.lock``; the network threads call them, the tick thread calls :meth:`step`.
 The control script is emulated as docs/protocols-ur.md ("ur-rtde's control program") describes: ``input_int_register_(0+off)``
 carries the command id, ``output_int_register_(0+off)`` is 1 (ready) / 2 (done), results go to
