@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from drivers.netft.protocol import RECORD_DTYPE
 from drivers.netft.sequence import EXPECT_RESTART_RECORDS, REORDER_WINDOW_S, SequenceTracker
@@ -112,6 +113,22 @@ def test_restart_after_our_resend_is_accepted_whatever_its_sequence() -> None:
     assert c.duplicate == 0 and c.restarts == 0
     assert c.lost == ft0 + first - 9000 - 1 and c.gaps == 1
     assert abs(c.longest_gap_s - first * PERIOD_S - 0.25) < 1e-9
+
+
+@pytest.mark.parametrize("first", [1, 2, 40])
+def test_restart_after_a_silence_that_began_after_the_first_record_counts_every_record_lost(first) -> None:
+    """Only one record came before the link went quiet, so no ft_sequence step was seen yet: the nominal one
+    (internal rate / RDT rate) tells the restarted stream from a continuation and counts what was lost (the box
+    produced 300 records into the dead link, then ``first`` - 1 more after our re-sent start)."""
+    step = 7  # 1000 Hz
+    feed = Feed(SequenceTracker(rate_hz=1000.0))
+    feed.push(records([1], ft=[5 * step]), 1.0)
+    feed.tracker.expect_start(feed.index, 1.3)
+    ft_first = 5 * step + (300 + first) * step
+    feed.push(records(range(first, first + 20), ft=range(ft_first, ft_first + 20 * step, step)), 1.3 + first / 1000)
+    assert feed.rdt == [1] + list(range(first, first + 20))
+    c = feed.counters
+    assert (c.lost, c.gaps, c.restarts, c.duplicate) == (300 + first - 1, 1, 0, 0)
 
 
 def test_restart_whose_first_record_is_above_the_last_is_still_a_new_stream() -> None:

@@ -33,11 +33,13 @@ from drivers.netft.discovery import (
     BoxAddress,
     Scaling,
     discover,
+    to_float,
 )
 from drivers.netft.protocol import (
     DEFAULT_HTTP_PORT,
     DEFAULT_RDT_PORT,
     DEFAULT_TCP_PORT,
+    INTERNAL_RATE_HZ,
     RDT_BIAS,
     RDT_RESET_LATCH,
     RDT_START,
@@ -219,8 +221,10 @@ class NetFTSensor(SensorBase):
         self._error_mask, self._saturation_mask = STATUS_MAPS[self.status_map]
         rate = found.rate_hz
         self.timeout_s = self.requested_timeout_s or max(DEFAULT_TIMEOUT_S, 10.0 / rate if rate > 0 else 1.0)
-        self._tracker.rate_hz = rate
         api, calibration_page = found.api, found.calibration_page
+        self._tracker.rate_hz = rate
+        internal_rate = to_float(api.get("runrate"))
+        self._tracker.internal_rate_hz = internal_rate if internal_rate and internal_rate > 0 else INTERNAL_RATE_HZ
         self.info = SensorInfo(
             transport="netft",
             serial=api.get("cfgcalsn") or calibration_page.get("calsn", ""),

@@ -33,6 +33,9 @@ TCP_CALINFO_FORMAT = ">HBBII6H"
 UINT32_MASK = 0xFFFF_FFFF
 HALF_RANGE = 1 << 31
 """Sequence differences (mod 2³²) at or above this are backward steps."""
+INTERNAL_RATE_HZ = 7000.0
+"""The box's internal sample rate (``runrate`` in netftapi2.xml), Hz: ``ft_sequence`` counts at this rate, so at
+``comrdtrate`` = 7000/n Hz it advances by n per record."""
 
 # Status maps: error bits (flag the sample, never average it) and saturation bits.
 NETFT_ERROR_MASK = UINT32_MASK & ~STATUS_HEALTHY_MASK

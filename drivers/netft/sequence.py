@@ -21,6 +21,9 @@ counter, which runs on across streams (+n per record at 7000/n Hz) and restarts 
   (``elapsed × rate × 1.25 + 16``). The records the box produced meanwhile (from ``ft_sequence``) count as lost.
   A power-cycled box (``ft_sequence`` back near zero) answering our start is also our restart, counted in
   ``restarts``. A box that never restarts its sequence on a start is recognised after 256 continuing records.
+- **The ``ft_sequence`` step per record** is learnt from consecutive records; until two have been delivered (a link
+  that went quiet right after the first record) it is the nominal one, internal rate / RDT rate, so that a
+  restart is still told from a continuation and its losses still counted from ``ft_sequence``.
 - **Restart we did not ask for**: ``rdt_sequence`` back to a small value (≤ 16, from more than 128 ahead) or backwards with
   ``ft_sequence`` forwards (someone else sent a start): a ``restart``, accepted.
 - **Bias**: after :meth:`expect_start` with ``bias=True`` the records of the old stream (sent before the box
@@ -37,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.netft.protocol import HALF_RANGE, RECORD_DTYPE, UINT32_MASK
+from drivers.netft.protocol import HALF_RANGE, INTERNAL_RATE_HZ, RECORD_DTYPE, UINT32_MASK
 
 REORDER_WINDOW_S = 0.005
 """How long records past a gap are held back waiting for the missing ones, seconds (35 records at 7 kHz)."""
@@ -75,12 +78,16 @@ class SequenceTracker:
 
     Args:
         reorder_window_s: hold time for records past a gap, seconds (0: deliver at once, count gaps lost).
-        rate_hz: the box's streaming rate (0: unknown; the restart plausibility check is then skipped).
+        rate_hz: the box's streaming rate (0: unknown; the restart plausibility check is then skipped, and the
+            ``ft_sequence`` step is only learnt from the records).
+        internal_rate_hz: the box's internal sample rate, Hz (``ft_sequence`` counts at it).
     """
 
-    def __init__(self, reorder_window_s: float = REORDER_WINDOW_S, rate_hz: float = 0.0) -> None:
+    def __init__(self, reorder_window_s: float = REORDER_WINDOW_S, rate_hz: float = 0.0,
+                 internal_rate_hz: float = INTERNAL_RATE_HZ) -> None:
         self.reorder_window_s = float(reorder_window_s)
         self.rate_hz = float(rate_hz)
+        self.internal_rate_hz = float(internal_rate_hz)
         self.counters = SequenceCounters()
         self.bias_restarted = False
         """Set when the stream restarted after a bias start; the driver clears it after discarding older data."""
@@ -116,6 +123,16 @@ class SequenceTracker:
         if not len(self._held):
             return None
         return float(self._held_times.min()) + self.reorder_window_s
+
+    @property
+    def ft_step(self) -> int:
+        """``ft_sequence`` increment per record: the one learnt from consecutive records, else the nominal
+        round(internal rate / rate) (0: unknown)."""
+        if self._ft_step > 0:
+            return self._ft_step
+        if self.rate_hz > 0 and self.internal_rate_hz > 0:
+            return max(int(round(self.internal_rate_hz / self.rate_hz)), 0)
+        return 0
 
     @property
     def held(self) -> int:
@@ -202,7 +219,7 @@ class SequenceTracker:
             dr = (r - self._head_rdt) & UINT32_MASK
             df = (f - self._head_ft) & UINT32_MASK
             forward = 1 <= dr < HALF_RANGE
-            step = self._ft_step
+            step = self.ft_step
             ours_pending = self._active_since is not None
             if forward:
                 same_stream = df < HALF_RANGE and (not ours_pending or step == 0 or df <= dr * step)
@@ -242,8 +259,8 @@ class SequenceTracker:
                 self._bias_pending = False
             if not ours or not ft_forward:
                 counters.restarts += 1  # not our doing, or the box power-cycled
-            if ft_forward and self._ft_step > 0:
-                lost = ((f - self._last_ft) & UINT32_MASK) // self._ft_step - 1 - self._stale_run
+            if ft_forward and step > 0:
+                lost = ((f - self._last_ft) & UINT32_MASK) // step - 1 - self._stale_run
             else:
                 lost = r - 1
             self._new_stream(r, f, t, lost=max(lost, 0))
@@ -265,7 +282,7 @@ class SequenceTracker:
             self._count_gap(lost, t - self._last_time)
         self._missing.clear()
         self._last_rdt = (r - 1) & UINT32_MASK
-        self._last_ft = (f - self._ft_step) & UINT32_MASK
+        self._last_ft = (f - self.ft_step) & UINT32_MASK
         if self._last_time == 0.0:
             self._last_time = t
         self._head_rdt, self._head_ft = r, f
