@@ -15,7 +15,12 @@ Acquisition never waits for a listener: events go through a :class:`procedures.d
 whose bounded queue drops (and counts) samples when a viewer is slow: frames on screen are lost, never samples.
 The optional CSV recorder gets every batch. The robot's state is read by its own reader at its own rate
 (:class:`drivers.ur.URStateReader`); the monitor only asks it for the latest joint angles and flange pose.
-Ctrl-C (KeyboardInterrupt in the acquisition thread) ends the run cleanly: threads joined, file finished.
+Ctrl-C ends the run cleanly: threads joined, file finished. Run from the main thread, :meth:`LiveMonitor.run` turns
+the first SIGINT into its stop event, so the loop ends between two reads and every batch the driver handed over is
+both published and recorded (a KeyboardInterrupt can strike between any two bytecodes: between publishing a batch
+and recording it, the viewer and the record would disagree); a second Ctrl-C interrupts at once. A
+KeyboardInterrupt raised in the acquisition thread otherwise (another thread, a custom SIGINT handler) still ends
+the run cleanly.
 
 Two seams, for what is added to the monitor without touching its loop:
 
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
@@ -164,6 +170,24 @@ word and saturation flag. The pose and wrench columns are named as in a pose rec
 _STOP = object()
 
 
+def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event) -> bool:
+    """Make the first SIGINT set ``interrupted`` and ``stop`` (and put Python's default handler back, so that a
+    second one raises KeyboardInterrupt at once). Only from the main thread and while SIGINT has Python's default
+    handler (an ignored SIGINT stays ignored, a custom handler is kept); return whether it was installed."""
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return False
+
+    def handler(signum: int, frame: object) -> None:
+        interrupted.set()
+        stop.set()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    signal.signal(signal.SIGINT, handler)
+    return True
+
+
 class _Recorder:
     """Owns the "ftacq-record" thread: writes every batch to a CSV (atomically renamed into place at the end)."""
 
@@ -252,9 +276,11 @@ class LiveMonitor:
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> MonitorSummary:
         """Stream until ``duration_s`` seconds have passed, ``stop`` is set, or Ctrl-C; return the summary.
 
-        Sensor errors propagate after the threads are closed (the CSV keeps what was recorded).
+        Sensor errors propagate after the threads are closed (the CSV keeps what was recorded). From the main
+        thread, Ctrl-C stops the loop between two reads (see the module docstring).
         """
         stop = stop or threading.Event()
+        interrupted = threading.Event()
         summary = MonitorSummary(record_path=self.record_path)
         publisher = BackgroundListener(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
         recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
@@ -265,6 +291,7 @@ class LiveMonitor:
         self._robot_connected = True
         start_s = time.monotonic()
         deadline_s = None if duration_s is None else start_s + duration_s
+        sigint_caught = _stop_on_sigint(stop, interrupted)
         try:
             next_read_s = start_s
             while not stop.is_set():
@@ -294,6 +321,9 @@ class LiveMonitor:
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:
+            if sigint_caught and signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+                signal.signal(signal.SIGINT, signal.default_int_handler)
+            summary.interrupted = summary.interrupted or interrupted.is_set()
             summary.duration_s = time.monotonic() - start_s
             try:
                 health = self.sensor.health()

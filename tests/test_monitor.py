@@ -4,6 +4,7 @@ tests run the real Net F/T driver against the loopback fake and ``ftacq monitor`
 
 from __future__ import annotations
 
+import re
 import threading
 import uuid
 from contextlib import closing as contextlib_closing
@@ -196,6 +197,42 @@ def test_ctrl_c_stops_cleanly_and_keeps_the_record(tmp_path):
     assert not list(tmp_path.glob(".run.csv.*"))  # no temporary file left behind
 
 
+def test_ctrl_c_keeps_the_batch_being_read_and_the_viewer_agrees_with_the_record(tmp_path):
+    """A real SIGINT while the driver hands out a batch: the run stops between two reads, so that batch is
+    published and recorded like the others (a KeyboardInterrupt raised there would lose it) and a second Ctrl-C
+    would interrupt at once (Python's handler is back)."""
+    import signal
+
+    robot = FixedRobotState(Q_HOME_RAD)
+    batches = physics_batches(robot.pose, 10)
+
+    class CtrlCSensor(ScriptedSensor):
+        def read(self, timeout_s=1.0):
+            batch = super().read(timeout_s)
+            if len(self.delivered) == 6:
+                signal.raise_signal(signal.SIGINT)  # handled before read() returns, as a Ctrl-C would be
+                assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+            return batch
+
+    published: list[events.WrenchSamples] = []
+    sensor = CtrlCSensor(batches)
+    monitor = LiveMonitor(sensor, robot=robot, compensator=GravityCompensator(CellTruth().calibration()),
+                          listeners=[lambda e: published.append(e) if isinstance(e, events.WrenchSamples) else None],
+                          record_path=tmp_path / "run.csv", batch_period_s=0.0, strict=True)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal, whatever started pytest
+    try:
+        summary = monitor.run()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert summary.interrupted and summary.samples == 6 * BATCH_SAMPLES
+    record = read_record(tmp_path / "run.csv")
+    delivered_times = np.concatenate([b.time_s for b in sensor.delivered])
+    assert record.size == delivered_times.size
+    np.testing.assert_allclose(record["time_s"], delivered_times, atol=1e-6)  # the CSV keeps 9 decimals
+    np.testing.assert_array_equal(np.concatenate([e.batch.time_s for e in published]), delivered_times)
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # Integration: the simulated cell (simulated UR controller + Net F/T fake on loopback), real drivers
 # ----------------------------------------------------------------------------------------------------------------
@@ -284,8 +321,21 @@ def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
     assert time_s.size > 1000
 
 
+CLI_WITH_DEFAULT_SIGINT = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                           "runpy.run_module('ftacq.app.cli', run_name='__main__', alter_sys=True)")
+"""``python -c`` this, then the ftacq arguments: the CLI with Python's Ctrl-C handler, as in a terminal, even when
+the suite itself was started with SIGINT ignored (a background job of a non-interactive shell), which a child
+would otherwise inherit."""
+READOUT_LINE = re.compile(r"^\s*\d+ Hz  \|F\|")
+"""A line of the live readout: printed once the monitor has streamed at least 0.5 s of samples."""
+DROPPED_FOR_THE_VIEWER = re.compile(r"(\d+) dropped for the viewer")
+
+
 def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
-    """SIGINT to a live `ftacq monitor --sim`: exit 0, the .rrd and the record are complete and agree."""
+    """SIGINT to a live `ftacq monitor --sim`: exit 0, the .rrd and the record are complete and agree.
+
+    SIGINT goes once the live readout printed its first line (samples are flowing through the listeners, so
+    thousands were recorded), never after a fixed time; every wait has a generous deadline."""
     import os
     import signal
     import subprocess
@@ -293,29 +343,50 @@ def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
 
     rrd_path, record_path = tmp_path / "live.rrd", tmp_path / "live.csv"
     process = subprocess.Popen(
-        [sys.executable, "-m", "ftacq.app.cli", "monitor", "--sim", "--sim-still", "--save", str(rrd_path),
+        [sys.executable, "-c", CLI_WITH_DEFAULT_SIGINT, "monitor", "--sim", "--sim-still", "--save", str(rrd_path),
          "--record", str(record_path)],
-        cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        def recording_or_exited() -> bool:
-            try:
-                return process.poll() is not None or any(
-                    partial.stat().st_size > 10_000 for partial in tmp_path.glob(f".{record_path.name}.*"))
-            except FileNotFoundError:  # renamed between the listing and the stat
-                return False
+    lines: list[str] = []
+    streaming = threading.Event()
 
-        wait_until(recording_or_exited, "samples being recorded", timeout_s=60.0)
-        assert process.poll() is None, process.communicate()
+    def read_output() -> None:
+        for line in process.stdout:
+            lines.append(line)
+            if READOUT_LINE.match(line):
+                streaming.set()
+        streaming.set()  # the output ended: the process exited (checked below)
+
+    def rows_recorded() -> int:
+        """Data rows in the record being written (the temporary file; 0 before it exists or once renamed)."""
+        for partial in tmp_path.glob(f".{record_path.name}.*"):
+            try:
+                text = partial.read_bytes()
+            except FileNotFoundError:  # renamed between the listing and the read
+                return 0
+            return max(0, text.count(b"\n") - text.count(b"# ") - 1)  # minus the header and the column names
+        return 0
+
+    reader = threading.Thread(target=read_output, name="monitor-output", daemon=True)
+    reader.start()
+    try:
+        wait_until(streaming.is_set, "the live readout's first line", timeout_s=120.0)
+        assert process.poll() is None, "".join(lines)
+        rows_before = wait_until(lambda: (rows := rows_recorded()) > 100 and rows, "rows being recorded",
+                                 timeout_s=120.0)
         process.send_signal(signal.SIGINT)
-        out, err = process.communicate(timeout=60.0)
+        process.wait(timeout=120.0)
+        reader.join(timeout=120.0)
     finally:
         if process.poll() is None:
             process.kill()
-            process.communicate()
-    assert process.returncode == 0, err
+            process.wait()
+    out = "".join(lines)
+    assert process.returncode == 0, out
     assert "stopped by Ctrl-C" in out
+    dropped = int(DROPPED_FOR_THE_VIEWER.findall(out)[-1])  # the summary line's figure
     record = read_record(record_path)
     time_s, _ = read_scalars(rrd_path, layout.COMPENSATED_FORCE)
-    assert record.size > 100 and time_s.size == record.size
-    np.testing.assert_allclose(time_s, record["time_s"], atol=1e-6)
+    assert record.size >= rows_before and time_s.size + dropped == record.size, out
+    if dropped == 0:
+        np.testing.assert_allclose(time_s, record["time_s"], atol=1e-6)
