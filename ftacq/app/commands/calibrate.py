@@ -14,12 +14,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import signal
 import sys
 from pathlib import Path
 
 from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.app.helptext import examples
+from ftacq.app.signals import sigterm_as_interrupt
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 from ftacq.mounts import MOUNTS
 
@@ -115,17 +115,6 @@ def _confirm(args: argparse.Namespace) -> None:
         raise AbortedError("plan not confirmed: the robot did not move")
 
 
-def _install_sigterm() -> object:
-    """Turn SIGTERM into KeyboardInterrupt (same clean stop as Ctrl-C); return the previous handler."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        return None
-
-
 def _err(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
@@ -138,12 +127,8 @@ def run(args: argparse.Namespace) -> int:
 
     SIGTERM is handled as Ctrl-C for the whole command, so the simulated cell and the drivers are always closed.
     """
-    previous = _install_sigterm()
-    try:
+    with sigterm_as_interrupt():
         return _run(args)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _run(args: argparse.Namespace) -> int:

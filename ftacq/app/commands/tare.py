@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ftacq.app.signals import sigterm_as_interrupt
 from ftacq.errors import InputError
 
 SIM_BIAS_SHIFT = (0.35, -0.25, 0.6, 0.012, -0.008, 0.005)
@@ -61,15 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``ftacq tare``; return the exit status."""
-    from ftacq.app.commands.calibrate import _install_sigterm
-    import signal
-
-    previous = _install_sigterm()
-    try:
+    with sigterm_as_interrupt():
         return _run(args)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _run(args: argparse.Namespace) -> int:
