@@ -4,12 +4,24 @@ into the UR controller's external F/T input, under a watchdog (docs/bridge.md).
 Two threads::
 
     "ftacq-bridge-feed"   per controller cycle (the controller's output package is the clock):
-                          take the sensor's new samples → bias-removed or compensated (static model; the flange
-                          orientation from this cycle's actual_q) → Butterworth low-pass (scipy sosfilt, state
-                          carried across batches) → the newest filtered value through the feed convention → checks
-                          → write external_force_torque
+                          take the sensor's new samples → bias-removed (raw feed) or compensated: the dynamic
+                          model (gravity and the tool's inertial wrench, ftacq.dynamics, from this cycle's
+                          actual_q, actual_qd and q̈) when the calibration has inertia, else the static model (the
+                          flange orientation from actual_q) → Butterworth low-pass (scipy sosfilt, state carried
+                          across batches) → the newest filtered value through the feed convention → checks → write
+                          external_force_torque
     caller's thread       enables the input (payload, enable call), waits for the end (--seconds, Ctrl-C, a
                           watchdog trip), publishes what is fed to the listeners, disables the input
+
+Timing (docs/bridge.md "Timing"): the value answering one output package must reach the controller before the next
+(2 ms at 500 Hz). The feed thread asks for real-time scheduling (SCHED_FIFO, :data:`REALTIME_PRIORITY`, as ur-rtde's
+own ``rt_priority``; refused without CAP_SYS_NICE or an rtprio limit, then it runs at normal priority and
+:attr:`BridgeSummary.feed_priority` says why); the interpreter's thread switch interval is shortened to
+:data:`SWITCH_INTERVAL_S` while feeding, so the feed thread gets the interpreter within that when its package
+arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`.
+
+q̈ for the dynamic model: target_qdd while the arm tracks the controller's trajectory, else a backward difference of
+actual_qd over the last cycles (ftacq.dynamics.acceleration.joint_acceleration, as the monitor).
 
 Decimation: the filter runs on every sensor sample (7 kHz); each controller cycle takes its newest output, so the
 cut-off (:data:`CUTOFF_FRACTION` of the controller rate) is the anti-alias filter. The stated delay is the
@@ -25,7 +37,10 @@ the disable cannot arrive within 0.1 s the controller's own watchdog pauses the 
 
 from __future__ import annotations
 
+import collections
 import logging
+import os
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,6 +52,11 @@ from scipy import signal
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
+from ftacq.dynamics.acceleration import joint_acceleration
+from ftacq.dynamics.model import SensorDynamics, predict_moving
+from ftacq.dynamics.timing import interpolate_rows
+from procedures.dynamic_compensation import SensorClock
+from procedures.excitation import counts_samples
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
 from procedures.events import FedWrenches, Listener, Notice
@@ -51,6 +71,20 @@ MAX_STALENESS_S = 0.05
 JUMP_FORCE_N, JUMP_TORQUE_NM = 50.0, 5.0
 """Largest change of the fed force (norm, N) / torque (norm, N·m) from one controller cycle to the next."""
 CYCLE_TIMEOUT_S = 0.1
+REALTIME_PRIORITY = 80
+"""SCHED_FIFO priority asked for the feed thread (1-99; 0 keeps normal scheduling). ur-rtde's default is 90 for its
+own threads; the feed stays below them, as it answers what they receive."""
+SWITCH_INTERVAL_S = 0.0002
+"""The interpreter's thread switch interval while feeding, s (Python's default 5 ms is longer than a cycle)."""
+SENSOR_HOLD_S = 0.0003
+"""Longest the sensor driver may hold received samples before they are readable, s (drivers/sensor.py
+``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU)."""
+ACCELERATION_CYCLES = 5
+PREDICTION_CYCLES = 8
+CLOCK_DRIFT_ALLOWANCE = 1e-4
+"""Rate (s/s, 100 ppm) at which the controller-to-host clock offset may rise: more than two clocks drift apart."""
+"""Model predictions kept (one per controller cycle) to interpolate onto the sensor samples' own times."""
+"""Controller cycles kept for the backward difference of actual_qd when the arm does not track its target."""
 PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
@@ -88,6 +122,9 @@ class BridgeSettings:
     jump_force_n: float = JUMP_FORCE_N
     jump_torque_nm: float = JUMP_TORQUE_NM
     cycle_timeout_s: float = CYCLE_TIMEOUT_S
+    realtime_priority: int = REALTIME_PRIORITY
+    switch_interval_s: float = SWITCH_INTERVAL_S
+    sensor_hold_s: float = SENSOR_HOLD_S
 
 
 @dataclass
@@ -105,7 +142,17 @@ class BridgeSummary:
     cutoff_hz: float = 0.0
     sensor_rate_hz: float = 0.0
     controller_rate_hz: float = 0.0
+    compensation: str = ""
+    """"dynamic", "static" or "bias only" (raw feed)."""
+    feed_priority: str = ""
+    """How the feed thread was scheduled, e.g. "SCHED_FIFO 80" or "normal (…why…)"."""
     log: np.ndarray = field(default_factory=lambda: np.empty((0, len(LOG_COLUMNS))))
+
+    def answer_time_s(self) -> np.ndarray:
+        """Time from a controller cycle's package arriving to the value written in answer, s (a value that must
+        reach the controller before its next cycle: longer than one cycle is late)."""
+        rows = self.log[np.isfinite(self.log[:, 2])]
+        return rows[:, 2] - rows[:, 1]
 
     def staleness_s(self) -> np.ndarray:
         """Age of the newest sensor sample when each value was written, s."""
@@ -184,6 +231,23 @@ class Bridge:
         self.cutoff_hz = settings.cutoff_hz or CUTOFF_FRACTION * self.controller_rate_hz
         self.filter = WrenchFilter(self.cutoff_hz, self.sensor_rate_hz, settings.filter_order)
         self._bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+        self.dynamics: SensorDynamics | None = None
+        if plan.feed == "raw":
+            self.compensation = "bias only"
+        elif calibration.has_dynamics:
+            self.compensation = "dynamic"
+            self.dynamics = SensorDynamics.for_calibration(model, calibration)
+        else:
+            self.compensation = "static"
+        self._recent: collections.deque = collections.deque(maxlen=ACCELERATION_CYCLES)
+        self._predictions: collections.deque = collections.deque(maxlen=PREDICTION_CYCLES)
+        self._clock_offset: tuple[float, float] | None = None
+        lag_ms = (calibration.metadata.get("dynamics") or {}).get("lag_ms") if isinstance(
+            calibration.metadata.get("dynamics"), dict) else None
+        self.lag_s = float(lag_ms or 0.0) / 1e3
+        """The sensor's lag behind the robot's state stream, s (measured by ``ftacq identify --motion``)."""
+        self.clock = SensorClock(counts_samples(sensor))
+        self.feed_priority = "normal"
         self._stop_feeding = threading.Event()
         self._done = threading.Event()
         self._trip: str | None = None
@@ -192,15 +256,67 @@ class Bridge:
         self._written = 0
         self._thread: threading.Thread | None = None
 
+    @property
+    def written(self) -> int:
+        """Values written so far (read from any thread)."""
+        return self._written
+
     # ------------------------------------------------------------------ feed thread
-    def _sensor_frame(self, batch: WrenchBatch, q: np.ndarray) -> np.ndarray:
+    def _sensor_frame(self, batch: WrenchBatch, cycle) -> np.ndarray:
         if self.plan.feed == "raw":
             return batch.wrench - self._bias
-        base_R_flange = forward_kinematics(self.model, q)[:3, :3]
+        if self.dynamics is not None:
+            recent = self._recent
+            qdd, _ = joint_acceleration(np.array([r[0] for r in recent]), np.array([r[1] for r in recent]),
+                                        np.array([r[2] for r in recent]), np.array([r[3] for r in recent]))
+            predicted = predict_moving(self.dynamics, self.calibration, cycle.q, cycle.qd, qdd[-1])[0]
+            state_s = self._state_host_time(cycle)
+            history = self._predictions
+            if history and not history[-1][0] < state_s:
+                history.clear()
+            history.append((state_s, predicted))
+            if len(history) < 2:
+                return batch.wrench - predicted
+            # each sample gets the model at its own time (its sequence number on the host clock, less the lag the
+            # identification measured), so an acceleration step is not subtracted from samples taken before it
+            sample_s = self.clock.host_times(batch.time_s, batch.sequence) - self.lag_s
+            return batch.wrench - interpolate_rows(sample_s, np.array([h[0] for h in history]),
+                                                   np.array([h[1] for h in history]))
+        base_R_flange = forward_kinematics(self.model, cycle.q)[:3, :3]
         return self.calibration.compensate(batch.wrench, base_R_flange.T)
+
+    def _state_host_time(self, cycle) -> float:
+        """The host time of the robot state in ``cycle``: its controller timestamp plus the lower envelope of
+        (arrival − timestamp), which may rise by :data:`CLOCK_DRIFT_ALLOWANCE` of the elapsed controller time (so
+        it follows a host clock running faster than the controller's); a package that waited in a queue does not
+        move it."""
+        raw = cycle.received_s - cycle.timestamp_s
+        if self._clock_offset is None:
+            self._clock_offset = (raw, cycle.timestamp_s)
+        else:
+            offset, since = self._clock_offset
+            self._clock_offset = (min(raw, offset + CLOCK_DRIFT_ALLOWANCE * max(cycle.timestamp_s - since, 0.0)),
+                                  cycle.timestamp_s)
+        return cycle.timestamp_s + self._clock_offset[0]
+
+    def _ask_realtime(self) -> None:
+        """SCHED_FIFO for the calling thread (the feed), if allowed; :attr:`feed_priority` says what happened."""
+        priority = self.settings.realtime_priority
+        if priority <= 0:
+            self.feed_priority = "normal (real-time priority not asked)"
+            return
+        if not hasattr(os, "sched_setscheduler"):
+            self.feed_priority = "normal (no SCHED_FIFO on this system)"
+            return
+        try:
+            os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority))
+            self.feed_priority = f"SCHED_FIFO {priority}"
+        except (OSError, ValueError) as error:  # EPERM without CAP_SYS_NICE / rtprio limit
+            self.feed_priority = f"normal (SCHED_FIFO {priority} refused: {getattr(error, 'strerror', None) or error})"
 
     def _feed(self) -> None:
         settings = self.settings
+        self._ask_realtime()
         held: np.ndarray | None = None
         newest_s = -np.inf
         previous: np.ndarray | None = None
@@ -214,6 +330,8 @@ class Bridge:
                     return
                 row = self._log.row()
                 row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
+                if self.dynamics is not None:
+                    self._recent.append((cycle.timestamp_s, cycle.qd, cycle.target_qd, cycle.target_qdd))
                 try:
                     batch = _take(self.sensor)
                 except DeviceError as error:
@@ -224,7 +342,7 @@ class Bridge:
                         self._trip_now(f"the sensor reports saturation or an error status "
                                        f"({int(np.count_nonzero(batch.saturated))} of {len(batch)} samples)")
                         return
-                    filtered = self.filter(self._sensor_frame(batch, cycle.q))
+                    filtered = self.filter(self._sensor_frame(batch, cycle))
                     held, newest_s = filtered[-1], float(batch.time_s[-1])
                     self._samples += len(batch)
                     row[4] = len(batch)
@@ -269,7 +387,11 @@ class Bridge:
         expected = int((duration_s or 60.0) * self.controller_rate_hz * 1.2) + 1024
         self._log = _Log(expected)
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
-                                sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz)
+                                sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,
+                                compensation=self.compensation)
+        self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
+        switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(min(switch_interval_s, self.settings.switch_interval_s))
         start_s = time.monotonic()
         self._thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
         self._thread.start()
@@ -282,7 +404,9 @@ class Bridge:
                 self.switch.enable_external_ft_input(True, self.plan.function, self.plan.sensor_mass_kg,
                                                      self.plan.sensor_measuring_offset_m, self.plan.sensor_cog_m)
                 enabled = True
-                self._notify(Notice(f"feeding: {self.plan.function} enabled, feed {self.plan.feed}", source="bridge"))
+                self._notify(Notice(f"feeding: {self.plan.function} enabled, feed {self.plan.feed} "
+                                    f"({self.compensation} compensation), feed thread {self.feed_priority}",
+                                    source="bridge"))
             deadline_s = None if duration_s is None else start_s + duration_s
             while not stop.is_set() and not self._done.is_set():
                 wait_s = PUBLISH_PERIOD_S
@@ -302,7 +426,9 @@ class Bridge:
             if self._thread is not None:
                 self._thread.join(2 * self.settings.cycle_timeout_s + 1.0)
             self._publish(published)
+            sys.setswitchinterval(switch_interval_s)
             summary.duration_s = time.monotonic() - start_s
+            summary.feed_priority = self.feed_priority
             summary.trip = self._trip
             summary.cycles, summary.written, summary.samples = self._log.count, self._written, self._samples
             summary.log = self._log.data[:self._log.count].copy()

@@ -5,6 +5,7 @@ the watchdog (silent sensor, saturation, Ctrl-C) and ``--check`` (procedures/bri
 from __future__ import annotations
 
 import _thread
+import sys
 import threading
 import time
 
@@ -152,6 +153,24 @@ def test_ctrl_c_disables_the_input_while_still_feeding(cell, robot, parts):
     state = cell.controller.external_ft()
     assert not state["enabled"]
     assert state["watchdog_trips"] == before["watchdog_trips"]  # disabled before the feed stopped
+
+
+def test_feed_runs_at_normal_priority_where_real_time_is_refused(cell, robot, parts, monkeypatch):
+    """Without CAP_SYS_NICE or an rtprio limit SCHED_FIFO is refused: the bridge feeds anyway and says so; the
+    interpreter's switch interval is restored afterwards."""
+    sensor, client, plan = parts
+
+    def refuse(*_args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr("os.sched_setscheduler", refuse)
+    switch_interval_s = sys.getswitchinterval()
+    summary = Bridge(sensor, client, robot, plan, cell.truth.calibration(), UR5E, LOADED).run(duration_s=0.5)
+    assert summary.trip is None and summary.written > 0
+    assert summary.feed_priority == "normal (SCHED_FIFO 80 refused: Operation not permitted)"
+    assert summary.compensation == "static"
+    assert sys.getswitchinterval() == switch_interval_s
+    assert len(summary.answer_time_s()) == summary.written
 
 
 def test_program_mode_only_feeds(cell, robot, parts):

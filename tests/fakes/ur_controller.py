@@ -41,6 +41,7 @@ import argparse
 import errno
 import json
 import os
+import select
 import signal
 import socket
 import struct
@@ -57,6 +58,12 @@ from tests.fakes.ur_simulator import Fault, URSimulator
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 TICK_HZ = 500.0
+READ_POLL_S = 0.5
+"""A connection's thread checks whether the connection was closed this often, s."""
+RECEIVE_CHUNK_BYTES = 65536
+SWITCH_INTERVAL_S = 0.0002
+"""The interpreter's thread switch interval in this process (Python's default is 5 ms): the tick thread and the
+connection threads each get the interpreter within this when they wake, as a real-time controller would serve them."""
 IDLE_TICK_S = 0.01
 """Tick period while no client streams and nothing moves (keeps an idle controller CPU-light)."""
 MAX_STREAM_HZ = 500.0
@@ -84,17 +91,6 @@ def _alive(connection: "RTDEConnection") -> bool:
         return True
     except OSError:
         return False
-
-
-def _recv_exact(sock: socket.socket, n: int) -> bytes | None:
-    chunks, got = [], 0
-    while got < n:
-        chunk = sock.recv(n - got)
-        if not chunk:
-            return None
-        chunks.append(chunk)
-        got += len(chunk)
-    return b"".join(chunks)
 
 
 class _OutputPlan:
@@ -140,6 +136,8 @@ class RTDEConnection:
         self.last_sent_seq = 0
         self.streaming = False
         self.closed = False
+        self.receive_lock = threading.Lock()
+        self.received = bytearray()
         sock.settimeout(None)
         # a send timeout only (a Python socket timeout would also apply to the reader thread's recv)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", int(SEND_TIMEOUT_S), 0))
@@ -174,23 +172,48 @@ class RTDEConnection:
         self.sock.close()
 
     def serve(self) -> None:
+        """The connection's thread: wait for bytes, then :meth:`pump` them (the tick thread pumps too)."""
         try:
             while not self.closed:
-                header = _recv_exact(self.sock, rp.HEADER_SIZE)
-                if header is None:
+                readable, _, _ = select.select([self.sock], [], [], READ_POLL_S)
+                if readable and not self.pump():
                     break
-                size, package_type = rp.HEADER.unpack(header)
-                body = _recv_exact(self.sock, max(size - rp.HEADER_SIZE, 0)) if size > rp.HEADER_SIZE else b""
-                if body is None:
-                    break
-                if self.server.frozen:
-                    continue
-                self._handle(package_type, body)
-        except OSError:
+        except (OSError, ValueError):  # closed under us
             pass
         finally:
             self.close()
             self.server.forget(self)
+
+    def pump(self) -> bool:
+        """Read whatever has arrived (never wait for more) and handle every whole package in order; False once the
+        client has closed. Called by the connection's thread and, for the owner of ``external_force_torque``, by
+        the tick thread at the start of each cycle: a controller reads its inputs at the start of a cycle, so a
+        value that reached the socket before the cycle counts for it even if this process's reader thread has
+        not run yet (a real controller has no interpreter lock)."""
+        with self.receive_lock:
+            while True:
+                try:
+                    chunk = self.sock.recv(RECEIVE_CHUNK_BYTES, socket.MSG_DONTWAIT)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    return False
+                if not chunk:
+                    return False
+                self.received += chunk
+                if len(chunk) < RECEIVE_CHUNK_BYTES:
+                    break
+            buffer = self.received
+            while len(buffer) >= rp.HEADER_SIZE:
+                size, package_type = rp.HEADER.unpack_from(buffer)
+                end = max(size, rp.HEADER_SIZE)
+                if len(buffer) < end:
+                    break
+                body = bytes(buffer[rp.HEADER_SIZE:end])
+                del buffer[:end]
+                if not self.server.frozen:
+                    self._handle(package_type, body)
+        return True
 
     def _handle(self, package_type: int, body: bytes) -> None:
         sim = self.server.sim
@@ -374,17 +397,21 @@ class ControllerServer:
                 self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"], snap["joint_state"])
             if not self.frozen:
                 with self.lock:
-                    # receive-only clients first: a client must never see 'done' on its control connection
-                    # before its other connections have the final state
-                    connections = sorted((c for c in self.rtde_connections if c.streaming), key=lambda c: bool(c.inputs))
+                    # the owner of external_force_torque first (its answer is due before the next cycle), then
+                    # receive-only clients: a client must never see 'done' on its control connection before its
+                    # other connections have the final state
+                    feeder = self.input_owners.get("external_force_torque")
+                    connections = sorted((c for c in self.rtde_connections if c.streaming),
+                                         key=lambda c: (c is not feeder, bool(c.inputs)))
                 for connection in connections:
                     if now >= connection.next_send_s:
-                        connection.send_data(snap)
-                        if self.input_owners.get("external_force_torque") is connection:
+                        if connection is feeder:
+                            connection.pump()  # the inputs that reached the controller before this cycle
                             with self.sim.lock:
                                 if self.sim.external_ft.count_cycle(now, snap["fields"]["timestamp"],
                                                                     connection.period_s):
                                     self.sim.external_ft_watchdog_pause()
+                        connection.send_data(snap)
                         connection.last_sent_seq = snap["seq"]
                         connection.next_send_s += connection.period_s
                         if connection.next_send_s < now:
@@ -632,6 +659,7 @@ def main(argv: list[str] | None = None) -> int:
         return BIND_ERROR_EXIT
     signal.signal(signal.SIGTERM, lambda *_: server.stop_event.set())
     signal.signal(signal.SIGINT, lambda *_: server.stop_event.set())
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     server.start()
     print("READY " + json.dumps(server.ready_info()), flush=True)
     parent = os.getppid()
