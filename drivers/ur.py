@@ -280,16 +280,17 @@ class URRobot:
         program not running, or a reply further than FK_CROSS_CHECK_M / FK_CROSS_CHECK_DEG away).
         """
         q = self.joint_positions()
-        nominal = flange_pose(self.model, q) if self.model is not None else None
+        model = self.model
+        nominal = flange_pose(model, q) if model is not None else None
         controller = self._controller_flange_pose(q)
         if controller is not None:
-            if nominal is None or self._close_poses(controller, nominal):
+            if model is None or nominal is None or self._close_poses(controller, nominal):
                 return controller
             if not self._fk_warned:
                 self._fk_warned = True
                 log.warning("robot %s: the controller's forward kinematics disagrees with the %s model by more than "
                             "%g m / %g deg; using the nominal model (is the model right?)", self.host,
-                            self.model.name, FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG)
+                            model.name, FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG)
         if nominal is None:
             raise RobotError(f"robot controller {self.host}: cannot compute the flange pose (unknown robot model and "
                              "no forward kinematics from the controller); pass model=, e.g. 'UR5e'")

@@ -16,12 +16,16 @@ import contextlib
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.app.helptext import examples
 from ftacq.app.signals import sigterm_as_interrupt
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 from ftacq.mounts import MOUNTS
+
+if TYPE_CHECKING:
+    from procedures.events import Listener
 
 log = logging.getLogger(__name__)
 
@@ -253,7 +257,7 @@ def _run(args: argparse.Namespace) -> int:
         progress = ProgressListener(total, estimate_s / (max(time_scale, 1.0) if args.sim else 1),
                                     done=total - remaining)
         stack.callback(progress.close)
-        listeners = [RunFolderWriter(folder), progress]
+        listeners: list[Listener] = [RunFolderWriter(folder), progress]
         if cell is not None and args.sim_wrong_tool:
             listeners.insert(0, cell.wrong_tool_listener(plan))
         if _wants_dashboard(args):

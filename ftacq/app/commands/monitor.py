@@ -16,10 +16,14 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ftacq.app.helptext import examples
+
+if TYPE_CHECKING:
+    from procedures.dynamic_compensation import DynamicCompensator
 
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
@@ -205,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
                                                swap_after_s=args.sim_swap_tool).start().close)
         sensor.start()
         compensator, checks = None, []
+        dynamic = None  # the dynamic compensator, when the calibration has the tool's inertia
         if calibration is not None:
             compensator, checks, health_text = _drift_health(calibration, sensor.info, args)
             print(f"ftacq monitor: {health_text}", file=sys.stderr)
@@ -236,14 +241,15 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(summary))
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
-    if hasattr(compensator, "static_batches") and compensator.static_batches:
-        print(f"dynamic compensation: {compensator.static_batches} of "
-              f"{compensator.static_batches + compensator.dynamic_batches} reads had no robot state around them and "
+    if dynamic is not None and dynamic.static_batches:
+        print(f"dynamic compensation: {dynamic.static_batches} of "
+              f"{dynamic.static_batches + dynamic.dynamic_batches} reads had no robot state around them and "
               "were compensated statically")
     return 0
 
 
-def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack, sensor):
+def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack,
+                        sensor) -> DynamicCompensator | None:
     """The dynamic compensator when the calibration has inertia (with its own RTDE state stream), else None (the
     static one is kept), saying which on stderr."""
     if not calibration.has_dynamics:

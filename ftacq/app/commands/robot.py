@@ -211,18 +211,19 @@ def run_set_payload(args: argparse.Namespace) -> int:
     if gravity is not None:
         print(f"  gravity         {_fmt(gravity, 4)} m/s² (base frame, away from the earth; from the base tilt)")
     print(f"  URScript: {payload.urscript()}")
-    where = "the simulated controller" if args.sim else f"the controller at {config.robot.host}"
+    # --config and --sim are mutually exclusive and one is required: no config means the simulated controller
+    where = "the simulated controller" if config is None else f"the controller at {config.robot.host}"
     _confirm(args, f"Send this payload{' and gravity' if gravity is not None else ''} to {where}?")
     with contextlib.ExitStack() as stack:
         cell = None
-        if args.sim:
+        if config is None:
             from ftacq.app.simcell import simulated_cell
 
             cell = stack.enter_context(simulated_cell(sensor="netft", time_scale=0.0))
-            host = cell.robot_host
+            host, model = cell.robot_host, None
         else:
-            host = config.robot.host
-        robot = stack.enter_context(URRobot(host, MotionLimits(), model=None if args.sim else config.robot.model))
+            host, model = config.robot.host, config.robot.model
+        robot = stack.enter_context(URRobot(host, MotionLimits(), model=model))
         method = robot.set_payload(payload.mass_kg, payload.cog_flange_m, payload.inertia_flange_kg_m2)
         if gravity is not None:
             robot.set_gravity(gravity)

@@ -113,6 +113,8 @@ def _run(args: argparse.Namespace) -> int:
                                                      mount=config.robot.mount, time_scale=time_scale))
             config = config.replace_section("robot", host=cell.robot_host)
             config = config.replace_section("sensor", url=cell.sensor_url)
+        # checked above: --calibration is required without --sim, and --sim defaults to the simulated cell's
+        assert calibration is not None
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         settings = config.plan_settings()
         limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
