@@ -26,7 +26,9 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
   ``commands``' ``move`` field; default: the next move.
 - ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
   on the UR Dashboard Server, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
-- ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
+- ``jog q0 .. q5 SPEED ACCELERATION`` (a moveJ from the teach pendant: the arm moves with the controller's motion
+  profile, so a simulated sensor sees the tool's inertia; answers ``accepted`` and the move's ``duration_s``) ·
+  ``set time_scale X`` · ``set q q0 .. q5`` (a jump, no motion) · ``set tcp_offset x y z rx ry rz`` · ``quit``
 - ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
   the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
   period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
@@ -597,6 +599,15 @@ class ControllerServer:
                 else:
                     raise ValueError(f"cannot set {what!r}")
             return {}
+        if command == "jog":
+            values = [float(v) for v in words[1:]]
+            if len(values) != 8:
+                raise ValueError("jog needs q0 .. q5 (rad), speed (rad/s) and acceleration (rad/s²)")
+            with sim.lock:
+                accepted = sim._start_move("movej", np.array(values[:6]), values[6], values[7], True, source="pendant")
+                scale = sim.motion_time_scale()
+                duration_s = sim.motion.duration_s / scale if accepted and scale > 0 else 0.0
+            return {"accepted": accepted, "duration_s": duration_s}
         if command == "quit":
             threading.Timer(0.05, self.stop_event.set).start()
             return {}
