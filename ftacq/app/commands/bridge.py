@@ -59,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "technician jogs the arm and pushes on the tool (not with --check)")
     parser.add_argument("--calibration", type=Path, metavar="CAL.json",
                         help="calibration from ftacq calibrate / identify (required with --config; --sim uses the "
-                             "simulated cell's ground truth)")
+                             "simulated cell's ground truth, the tool's inertia included)")
     parser.add_argument("--feed", choices=("compensated", "raw"), default="compensated",
                         help="compensated: ftacq removes the tool's gravity; raw: the controller does, from the "
                              "payload set from the calibration (default %(default)s)")
@@ -104,8 +104,9 @@ def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
         cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
         truth = cell.truth
         offset = np.asarray(getattr(truth, "sensor_offset_m", (0.0, 0.0, 0.0)), dtype=float)
-        return (cell.robot_host, cell.model_name, cell.sensor_url, calibration or truth.calibration(), offset, 0.0,
-                cell)
+        if calibration is None:  # the ground truth, tool inertia included: the jogging arm is compensated dynamically
+            calibration = replace(truth.calibration(), sensor_offset=offset, inertia=truth.inertia)
+        return cell.robot_host, cell.model_name, cell.sensor_url, calibration, offset, 0.0, cell
     from ftacq.app.config import load_config
 
     if calibration is None:
