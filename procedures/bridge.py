@@ -72,8 +72,8 @@ JUMP_FORCE_N, JUMP_TORQUE_NM = 50.0, 5.0
 """Largest change of the fed force (norm, N) / torque (norm, N·m) from one controller cycle to the next."""
 CYCLE_TIMEOUT_S = 0.1
 REALTIME_PRIORITY = 80
-"""SCHED_FIFO priority asked for the feed thread (1-99; 0 keeps normal scheduling). ur-rtde's default is 90 for its
-own threads; the feed stays below them, as it answers what they receive."""
+"""SCHED_FIFO priority asked for the feed thread (1-99; 0 keeps normal scheduling). The thread blocks on the
+controller's socket between cycles, so it takes a core only for its ~0.3 ms of work per cycle."""
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter's thread switch interval while feeding, s (Python's default 5 ms is longer than a cycle)."""
 SENSOR_HOLD_S = 0.0003

@@ -223,3 +223,15 @@ def test_cli_config_without_calibration_is_a_one_line_error(tmp_path, capsys):
     assert main(["bridge", "--config", str(config)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["ftacq: error: ftacq bridge --config needs --calibration CAL.json (the tool the sensor carries)"]
+
+
+@pytest.mark.parametrize("value, why", [("120", "120 is outside 0-99 (0 = normal scheduling)"),
+                                        ("high", "'high' is not a whole number")])
+def test_cli_realtime_priority_out_of_range_is_a_one_line_error(capsys, value, why):
+    from ftacq.app.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["bridge", "--sim", "--realtime-priority", value])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"ftacq bridge: error: argument --realtime-priority: {why}"

@@ -26,7 +26,9 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
   ``commands``' ``move`` field; default: the next move.
 - ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
   on the UR Dashboard Server, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
-- ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
+- ``jog q0 .. q5 SPEED ACCELERATION`` (a moveJ from the teach pendant: the arm moves with the controller's motion
+  profile, so a simulated sensor sees the tool's inertia; answers ``accepted`` and the move's ``duration_s``) ·
+  ``set time_scale X`` · ``set q q0 .. q5`` (a jump, no motion) · ``set tcp_offset x y z rx ry rz`` · ``quit``
 - ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
   the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
   period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
@@ -71,6 +73,20 @@ SEND_TIMEOUT_S = 1.0
 BIND_ERROR_EXIT = 3
 TOOL_MOTION_OUTPUTS = frozenset({"actual_TCP_speed", "target_TCP_speed", "actual_tool_accelerometer"})
 FAULT_KINDS = ("protective_stop", "emergency_stop", "program_stop", "drop", "freeze")
+
+
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_STAMP_SPACE = socket.CMSG_SPACE(16)
+
+
+def _kernel_arrival_s(ancillary) -> float | None:
+    """The kernel's receive stamp (SO_TIMESTAMPNS, CLOCK_REALTIME) of the newest bytes read, on the monotonic clock:
+    when an input reached this controller, however late this process's threads got to it."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 16:
+            seconds, nanoseconds = struct.unpack("qq", data[:16])
+            return time.monotonic() - (time.time() - (seconds + nanoseconds * 1e-9))
+    return None
 
 
 def _listener(host: str, port: int) -> socket.socket:
@@ -139,6 +155,7 @@ class RTDEConnection:
         self.receive_lock = threading.Lock()
         self.received = bytearray()
         sock.settimeout(None)
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)  # the kernel stamps when each input arrived
         # a send timeout only (a Python socket timeout would also apply to the reader thread's recv)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", int(SEND_TIMEOUT_S), 0))
 
@@ -191,15 +208,18 @@ class RTDEConnection:
         value that reached the socket before the cycle counts for it even if this process's reader thread has
         not run yet (a real controller has no interpreter lock)."""
         with self.receive_lock:
+            arrival_s = None
             while True:
                 try:
-                    chunk = self.sock.recv(RECEIVE_CHUNK_BYTES, socket.MSG_DONTWAIT)
+                    chunk, ancillary, _flags, _address = self.sock.recvmsg(RECEIVE_CHUNK_BYTES, _STAMP_SPACE,
+                                                                           socket.MSG_DONTWAIT)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError:
                     return False
                 if not chunk:
                     return False
+                arrival_s = _kernel_arrival_s(ancillary)
                 self.received += chunk
                 if len(chunk) < RECEIVE_CHUNK_BYTES:
                     break
@@ -212,10 +232,10 @@ class RTDEConnection:
                 body = bytes(buffer[rp.HEADER_SIZE:end])
                 del buffer[:end]
                 if not self.server.frozen:
-                    self._handle(package_type, body)
+                    self._handle(package_type, body, arrival_s)
         return True
 
-    def _handle(self, package_type: int, body: bytes) -> None:
+    def _handle(self, package_type: int, body: bytes, arrival_s: float | None = None) -> None:
         sim = self.server.sim
         if package_type == rp.REQUEST_PROTOCOL_VERSION:
             requested = struct.unpack(">H", body[:2])[0] if len(body) >= 2 else 1
@@ -269,7 +289,7 @@ class RTDEConnection:
                     sim._event("short_package", recipe=recipe.recipe_id, bytes=len(body) - 1, expected=recipe.codec.size)
             values = recipe.unpack_partial(body[1:])
             doubles = sum(c for t, c in zip(recipe.types, recipe.counts) if rp.TYPE_FORMATS[t][0] == "d")
-            sim.apply_inputs(values, doubles)
+            sim.apply_inputs(values, doubles, arrival_s)
 
 
 class ControllerServer:
@@ -579,6 +599,15 @@ class ControllerServer:
                 else:
                     raise ValueError(f"cannot set {what!r}")
             return {}
+        if command == "jog":
+            values = [float(v) for v in words[1:]]
+            if len(values) != 8:
+                raise ValueError("jog needs q0 .. q5 (rad), speed (rad/s) and acceleration (rad/s²)")
+            with sim.lock:
+                accepted = sim._start_move("movej", np.array(values[:6]), values[6], values[7], True, source="pendant")
+                scale = sim.motion_time_scale()
+                duration_s = sim.motion.duration_s / scale if accepted and scale > 0 else 0.0
+            return {"accepted": accepted, "duration_s": duration_s}
         if command == "quit":
             threading.Timer(0.05, self.stop_event.set).start()
             return {}

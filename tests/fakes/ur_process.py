@@ -239,6 +239,14 @@ class URControllerProcess:
     def set_joint_positions(self, q) -> None:
         self.control("set q " + " ".join(repr(float(v)) for v in q))
 
+    def jog(self, q, speed_rad_s: float, acceleration_rad_s2: float) -> float:
+        """Move to ``q`` as a moveJ from the teach pendant (the controller's motion profile, not a jump); return the
+        move's duration (s). Raises DeviceError when the controller refuses it (not running, a limit)."""
+        reply = self.control("jog " + " ".join(repr(float(v)) for v in (*q, speed_rad_s, acceleration_rad_s2)))
+        if not reply.get("accepted"):
+            raise DeviceError(f"simulated controller {self.host}: refused the jog to {list(np.round(q, 3))}")
+        return float(reply["duration_s"])
+
     def set_tcp_offset(self, tcp) -> None:
         self.control("set tcp_offset " + " ".join(repr(float(v)) for v in tcp))
 

@@ -28,9 +28,14 @@ if TYPE_CHECKING:
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
 SIM_JOG_RATE_HZ = 30.0
+"""How often the simulated technician looks at the clock (pushes, tool swap, the next jog)."""
 SIM_JOG_AMPLITUDE_RAD = np.array([0.35, 0.15, 0.2, 0.7, 0.7, 1.2])
 """Peak joint excursions (rad) of the simulated technician's jog around the start configuration."""
-SIM_JOG_PERIOD_S = np.array([23.0, 17.0, 19.0, 11.0, 7.0, 13.0])
+SIM_JOG_SPEED_RAD_S, SIM_JOG_ACCELERATION_RAD_S2 = 0.8, 2.0
+"""The simulated technician jogs with moveJ moves from the pendant (the controller's motion profile), so the simulated
+sensor reads the tool's inertial wrench as on a real arm."""
+SIM_JOG_TARGETS = (1.0, -0.6, 0.3, -1.0, 0.6, -0.3)
+"""The jog visits start + f × SIM_JOG_AMPLITUDE_RAD for these f in turn."""
 SIM_PHASE_S = 8.0
 """The simulated technician jogs for this long, then holds the arm still for as long (the drift tracker learns only
 while the arm is still)."""
@@ -76,7 +81,7 @@ class SimulatedTechnician:
         q_start = np.asarray(self.cell.initial_q, dtype=float)
         start_s = time.monotonic()
         next_s = start_s
-        jog_s = 0.0
+        move, move_end_s, q_now = 0, 0.0, q_start
         while not self._stop.wait(max(0.0, next_s - time.monotonic())):
             next_s += self.period_s
             t = time.monotonic() - start_s
@@ -87,11 +92,15 @@ class SimulatedTechnician:
                 if not self.jog:
                     continue
                 phase_s = t % (2 * SIM_PHASE_S)
-                if phase_s < SIM_PHASE_S:  # jogging
-                    jog_s += self.period_s
-                    self.cell.controller.set_joint_positions(
-                        q_start + SIM_JOG_AMPLITUDE_RAD * np.sin(2 * np.pi * jog_s / SIM_JOG_PERIOD_S))
+                if phase_s < SIM_PHASE_S:  # jogging: the next move if the previous one is over and this one fits
                     self.cell.set_contact(np.zeros(6))
+                    if t < move_end_s:
+                        continue
+                    target = q_start + SIM_JOG_TARGETS[move % len(SIM_JOG_TARGETS)] * SIM_JOG_AMPLITUDE_RAD
+                    if phase_s + jog_duration_s(q_now, target) <= SIM_PHASE_S:
+                        move_end_s = t + self.cell.controller.jog(target, SIM_JOG_SPEED_RAD_S,
+                                                                  SIM_JOG_ACCELERATION_RAD_S2)
+                        q_now, move = target, move + 1
                 else:  # holding still; a hand pushes on the tool for a while
                     hold_s = phase_s - SIM_PHASE_S
                     pushing = SIM_CONTACT_START_S <= hold_s < SIM_CONTACT_START_S + SIM_CONTACT_DURATION_S
@@ -100,6 +109,13 @@ class SimulatedTechnician:
             except Exception as error:  # noqa: BLE001 - the demo stops jogging; the monitor goes on
                 self.error = error
                 return
+
+
+def jog_duration_s(q_from: np.ndarray, q_to: np.ndarray) -> float:
+    """Duration (s) of a moveJ with the simulated technician's speed and acceleration (trapezoid or triangle)."""
+    length = float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from))))
+    v, a = SIM_JOG_SPEED_RAD_S, SIM_JOG_ACCELERATION_RAD_S2
+    return length / v + v / a if length >= v * v / a else 2.0 * np.sqrt(length / a)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -226,10 +242,11 @@ def run(args: argparse.Namespace) -> int:
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
         readout = LiveReadout()
         stack.callback(readout.close)
+        dynamic = None
         if calibration is not None:
             dynamic = _choose_compensator(calibration, model, robot_host, stack, sensor)
-            if dynamic is not None:  # the drift tracker runs on the static compensation only
-                compensator, checks = dynamic, []
+            if dynamic is not None:  # the drift tracker's compensation while the arm moves
+                compensator.moving = dynamic
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=compensator, checks=checks,
                               listeners=[dashboard, readout], record_path=args.record, record_header=header)
