@@ -23,7 +23,9 @@ import numpy as np
 from ftacq.app.helptext import examples
 
 if TYPE_CHECKING:
+    from procedures.bias_health import DriftCompensator
     from procedures.dynamic_compensation import DynamicCompensator
+    from procedures.monitor import HealthCheck
 
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
@@ -224,8 +226,8 @@ def run(args: argparse.Namespace) -> int:
             stack.callback(SimulatedTechnician(cell, jog=not args.sim_still,
                                                swap_after_s=args.sim_swap_tool).start().close)
         sensor.start()
-        compensator, checks = None, []
-        dynamic = None  # the dynamic compensator, when the calibration has the tool's inertia
+        compensator: DriftCompensator | None = None
+        checks: list[HealthCheck] = []
         if calibration is not None:
             compensator, checks, health_text = _drift_health(calibration, sensor.info, args)
             print(f"ftacq monitor: {health_text}", file=sys.stderr)
@@ -245,8 +247,8 @@ def run(args: argparse.Namespace) -> int:
         dynamic = None
         if calibration is not None:
             dynamic = _choose_compensator(calibration, model, robot_host, stack, sensor)
-            if dynamic is not None:  # the drift tracker's compensation while the arm moves
-                compensator.moving = dynamic
+            if dynamic is not None and compensator is not None:  # (the drift compensator: built above with it)
+                compensator.moving = dynamic  # the drift tracker's compensation while the arm moves
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=compensator, checks=checks,
                               listeners=[dashboard, readout], record_path=args.record, record_header=header)
@@ -287,7 +289,8 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
     return compensator
 
 
-def _drift_health(calibration, sensor_info, args: argparse.Namespace):
+def _drift_health(calibration, sensor_info,
+                  args: argparse.Namespace) -> tuple[DriftCompensator, list[HealthCheck], str]:
     """Check the calibration belongs to the sensor (refused unless --force) and build the drift tracker's
     compensator and health check; return (compensator, checks, a line saying when the biases were measured)."""
     from ftacq.drift import MAX_PRIOR_AGE_S, BiasHealth
