@@ -171,7 +171,7 @@ def main() -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import plan_feed
     from ftacq.kinematics import ur_model
-    from procedures.bridge import Bridge, BridgeSettings, WrenchFilter
+    from procedures.bridge import ROBOT_STATE_RATE_HZ, Bridge, BridgeSettings, WrenchFilter
     from procedures.plan import home_configuration_rad
     from tests.fakes.ur_process import URControllerProcess
     from tests.fakes.world import CellTruth, SharedPose
@@ -194,7 +194,8 @@ def main() -> int:
         try:
             ready = json.loads(world_process.stdout.readline())
             limits = MotionLimits(joint_speed_rad_s=MOVE_SPEED_RAD_S, joint_acceleration_rad_s2=MOVE_ACCELERATION_RAD_S2)
-            robot = URRobot(controller.host, limits, model="UR5e", leave_external_ft_input=True).start()
+            robot = URRobot(controller.host, limits, model="UR5e", leave_external_ft_input=True,
+                            frequency_hz=ROBOT_STATE_RATE_HZ).start()
             client = URForceTorqueInput(controller.host).start()
             sensor = open_sensor(ready["url"])
             sensor.start()

@@ -85,6 +85,9 @@ CLOCK_DRIFT_ALLOWANCE = 1e-4
 """Rate (s/s, 100 ppm) at which the controller-to-host clock offset may rise: more than two clocks drift apart."""
 """Model predictions kept (one per controller cycle) to interpolate onto the sensor samples' own times."""
 """Controller cycles kept for the backward difference of actual_qd when the arm does not track its target."""
+ROBOT_STATE_RATE_HZ = 125.0
+"""RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
+the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
 PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
