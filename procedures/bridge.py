@@ -164,13 +164,19 @@ class BridgeSummary:
 
 
 class WrenchFilter:
-    """Butterworth low-pass over (N, 6) batches; the state is carried from batch to batch (scipy sosfilt)."""
+    """Butterworth low-pass over (N, 6) batches, second-order sections designed by scipy (``output="sos"``); the
+    state is carried from batch to batch and starts in steady state on the first sample (no start-up transient).
+
+    Each section runs through ``scipy.signal.lfilter`` (the same transposed direct-form recursion ``sosfilt`` runs
+    per section): at 14 samples a call, ``sosfilt``'s own argument checks cost several times the filtering
+    (benchmarks/README.md, controller bridge)."""
 
     def __init__(self, cutoff_hz: float, sample_rate_hz: float, order: int = FILTER_ORDER) -> None:
         if not 0 < cutoff_hz < 0.5 * sample_rate_hz:
             raise FtacqError(f"low-pass cut-off {cutoff_hz:g} Hz: must be between 0 and half the sensor rate "
                              f"({0.5 * sample_rate_hz:g} Hz)")
         self.sos = signal.butter(order, cutoff_hz, fs=sample_rate_hz, output="sos")
+        self._sections = [(section[:3].copy(), section[3:].copy()) for section in self.sos]
         self._zi_unit = signal.sosfilt_zi(self.sos)[:, :, None]  # (sections, 2, 1): steady state for a unit step
         self.zi: np.ndarray | None = None
         _, delay = signal.group_delay((*signal.sos2tf(self.sos),), w=[1.0], fs=sample_rate_hz)
@@ -178,9 +184,11 @@ class WrenchFilter:
         """Group delay at 1 Hz, s (the delay of slow changes)."""
 
     def __call__(self, wrench: np.ndarray) -> np.ndarray:
-        if self.zi is None:  # start in steady state on the first sample: no start-up transient
+        if self.zi is None:
             self.zi = self._zi_unit * wrench[0][None, None, :]
-        out, self.zi = signal.sosfilt(self.sos, wrench, axis=0, zi=self.zi)
+        out = wrench
+        for k, (b, a) in enumerate(self._sections):
+            out, self.zi[k] = signal.lfilter(b, a, out, axis=0, zi=self.zi[k])
         return out
 
 
