@@ -284,7 +284,17 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     elapsed = written[:, 3] - t0
     truth_fed = plan.fed_wrench(contact_at(elapsed))
     if plan.feed == "raw":
-        truth_fed = None  # the raw feed carries the tool's weight: compared after the controller's removal below
+        # the raw feed carries the tool's weight at the pose: known here only while the arm stays at q0
+        truth_fed = None
+        if args.still and not args.moves:
+            from ftacq.kinematics import forward_kinematics, ur_model
+            from procedures.plan import home_configuration_rad
+
+            calibration = truth.calibration()
+            base_R_flange = forward_kinematics(ur_model("UR5e"), home_configuration_rad("floor"))[:3, :3]
+            bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+            tool_weight = -calibration.compensate(bias[None, :], base_R_flange.T)[0]  # sensor frame, bias removed
+            truth_fed = plan.fed_wrench(contact_at(elapsed) + tool_weight)
     error = written[:, 5:] - truth_fed if truth_fed is not None else None
     keep = ~near_switch(elapsed, SETTLE_S) & (elapsed > 0.5) & (written[:, 2] - written[:, 3] <= FRESH_S)
     pushing = contact_at(elapsed)[:, 2] != 0
