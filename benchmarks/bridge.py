@@ -171,7 +171,7 @@ def main() -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import plan_feed
     from ftacq.kinematics import ur_model
-    from procedures.bridge import Bridge, BridgeSettings, WrenchFilter
+    from procedures.bridge import ROBOT_STATE_RATE_HZ, Bridge, BridgeSettings, WrenchFilter
     from procedures.plan import home_configuration_rad
     from tests.fakes.ur_process import URControllerProcess
     from tests.fakes.world import CellTruth, SharedPose
@@ -194,7 +194,8 @@ def main() -> int:
         try:
             ready = json.loads(world_process.stdout.readline())
             limits = MotionLimits(joint_speed_rad_s=MOVE_SPEED_RAD_S, joint_acceleration_rad_s2=MOVE_ACCELERATION_RAD_S2)
-            robot = URRobot(controller.host, limits, model="UR5e", leave_external_ft_input=True).start()
+            robot = URRobot(controller.host, limits, model="UR5e", leave_external_ft_input=True,
+                            frequency_hz=ROBOT_STATE_RATE_HZ).start()
             client = URForceTorqueInput(controller.host).start()
             sensor = open_sensor(ready["url"])
             sensor.start()
@@ -283,7 +284,17 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     elapsed = written[:, 3] - t0
     truth_fed = plan.fed_wrench(contact_at(elapsed))
     if plan.feed == "raw":
-        truth_fed = None  # the raw feed carries the tool's weight: compared after the controller's removal below
+        # the raw feed carries the tool's weight at the pose: known here only while the arm stays at q0
+        truth_fed = None
+        if args.still and not args.moves:
+            from ftacq.kinematics import forward_kinematics, ur_model
+            from procedures.plan import home_configuration_rad
+
+            calibration = truth.calibration()
+            base_R_flange = forward_kinematics(ur_model("UR5e"), home_configuration_rad("floor"))[:3, :3]
+            bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+            tool_weight = -calibration.compensate(bias[None, :], base_R_flange.T)[0]  # sensor frame, bias removed
+            truth_fed = plan.fed_wrench(contact_at(elapsed) + tool_weight)
     error = written[:, 5:] - truth_fed if truth_fed is not None else None
     keep = ~near_switch(elapsed, SETTLE_S) & (elapsed > 0.5) & (written[:, 2] - written[:, 3] <= FRESH_S)
     pushing = contact_at(elapsed)[:, 2] != 0

@@ -168,6 +168,8 @@ class URRobot:
         own the RTDE input ``external_force_torque`` (ur-rtde's recipe 23 holds it otherwise)."""
         self.limits = validate_limits(limits)
         self.connect_timeout_s = connect_timeout_s
+        self.frequency_hz = frequency_hz
+        """RTDE rate (Hz) of ur-rtde's receive and control interfaces; None = the controller's maximum."""
         self._reader = URStateReader(host, frequency_hz, model, connect_timeout_s)
         self._control = None
         self._call_lock = threading.Lock()
@@ -206,7 +208,7 @@ class URRobot:
         try:
             interface = rtde_control.RTDEControlInterface
             flags = interface.FLAG_UPLOAD_SCRIPT | (interface.FLAG_NO_EXT_FT if self.leave_external_ft_input else 0)
-            self._control = interface(self.host, -1.0, flags)
+            self._control = interface(self.host, float(self.frequency_hz or -1.0), flags)
         except RuntimeError as error:
             self._reader.close()
             raise DeviceConnectionError(

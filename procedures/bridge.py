@@ -37,7 +37,6 @@ the disable cannot arrive within 0.1 s the controller's own watchdog pauses the 
 
 from __future__ import annotations
 
-import collections
 import logging
 import os
 import sys
@@ -52,10 +51,8 @@ from scipy import signal
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
-from ftacq.dynamics.acceleration import joint_acceleration
-from ftacq.dynamics.model import SensorDynamics, predict_moving
-from ftacq.dynamics.timing import interpolate_rows
-from procedures.dynamic_compensation import SensorClock
+from drivers.ur_stream import StateWindow
+from procedures.dynamic_compensation import DynamicCompensator
 from procedures.excitation import counts_samples
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
@@ -79,12 +76,13 @@ SWITCH_INTERVAL_S = 0.0002
 SENSOR_HOLD_S = 0.0003
 """Longest the sensor driver may hold received samples before they are readable, s (drivers/sensor.py
 ``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU)."""
-ACCELERATION_CYCLES = 5
-PREDICTION_CYCLES = 8
+STATE_CYCLES = 256
+"""Controller cycles of joint state kept for the dynamic model (0.5 s at 500 Hz)."""
 CLOCK_DRIFT_ALLOWANCE = 1e-4
 """Rate (s/s, 100 ppm) at which the controller-to-host clock offset may rise: more than two clocks drift apart."""
-"""Model predictions kept (one per controller cycle) to interpolate onto the sensor samples' own times."""
-"""Controller cycles kept for the backward difference of actual_qd when the arm does not track its target."""
+ROBOT_STATE_RATE_HZ = 125.0
+"""RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
+the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
 PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
@@ -161,13 +159,19 @@ class BridgeSummary:
 
 
 class WrenchFilter:
-    """Butterworth low-pass over (N, 6) batches; the state is carried from batch to batch (scipy sosfilt)."""
+    """Butterworth low-pass over (N, 6) batches, second-order sections designed by scipy (``output="sos"``); the
+    state is carried from batch to batch and starts in steady state on the first sample (no start-up transient).
+
+    Each section runs through ``scipy.signal.lfilter`` (the same transposed direct-form recursion ``sosfilt`` runs
+    per section): at 14 samples a call, ``sosfilt``'s own argument checks cost several times the filtering
+    (benchmarks/README.md, controller bridge)."""
 
     def __init__(self, cutoff_hz: float, sample_rate_hz: float, order: int = FILTER_ORDER) -> None:
         if not 0 < cutoff_hz < 0.5 * sample_rate_hz:
             raise FtacqError(f"low-pass cut-off {cutoff_hz:g} Hz: must be between 0 and half the sensor rate "
                              f"({0.5 * sample_rate_hz:g} Hz)")
         self.sos = signal.butter(order, cutoff_hz, fs=sample_rate_hz, output="sos")
+        self._sections = [(section[:3].copy(), section[3:].copy()) for section in self.sos]
         self._zi_unit = signal.sosfilt_zi(self.sos)[:, :, None]  # (sections, 2, 1): steady state for a unit step
         self.zi: np.ndarray | None = None
         _, delay = signal.group_delay((*signal.sos2tf(self.sos),), w=[1.0], fs=sample_rate_hz)
@@ -175,9 +179,11 @@ class WrenchFilter:
         """Group delay at 1 Hz, s (the delay of slow changes)."""
 
     def __call__(self, wrench: np.ndarray) -> np.ndarray:
-        if self.zi is None:  # start in steady state on the first sample: no start-up transient
+        if self.zi is None:
             self.zi = self._zi_unit * wrench[0][None, None, :]
-        out, self.zi = signal.sosfilt(self.sos, wrench, axis=0, zi=self.zi)
+        out = wrench
+        for k, (b, a) in enumerate(self._sections):
+            out, self.zi[k] = signal.lfilter(b, a, out, axis=0, zi=self.zi[k])
         return out
 
 
@@ -187,6 +193,39 @@ def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
         return sensor.read(timeout_s=0.0)
     except DeviceTimeoutError:
         return None
+
+
+class CycleStates:
+    """The controller cycles' joint states as a robot state stream (``window``, as drivers.ur_stream.URStateStream)
+    for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, each on the
+    host clock as its controller timestamp plus the lower envelope of (arrival − timestamp), which may rise by
+    :data:`CLOCK_DRIFT_ALLOWANCE` of the elapsed controller time (a package that waited in a queue does not move
+    it; a host clock running faster than the controller's is followed). Written and read by the feed thread."""
+
+    def __init__(self, capacity: int = STATE_CYCLES) -> None:
+        self._rows = np.zeros((capacity, 26))  # arrival, timestamp, q, qd, target qd, target qdd
+        self._count = 0
+        self._offset: float | None = None
+        self._offset_at = 0.0
+
+    def append(self, cycle) -> None:
+        raw = cycle.received_s - cycle.timestamp_s
+        if self._offset is None:
+            self._offset = raw
+        else:
+            allowance = CLOCK_DRIFT_ALLOWANCE * max(cycle.timestamp_s - self._offset_at, 0.0)
+            self._offset = min(raw, self._offset + allowance)
+        self._offset_at = cycle.timestamp_s
+        row = self._rows[self._count % len(self._rows)]
+        row[0], row[1] = cycle.received_s, cycle.timestamp_s
+        row[2:8], row[8:14], row[14:20], row[20:26] = cycle.q, cycle.qd, cycle.target_qd, cycle.target_qdd
+        self._count += 1
+
+    def window(self, last: int) -> StateWindow:
+        n = min(self._count, len(self._rows), last)
+        rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
+        times = rows[:, 1] + (self._offset or 0.0)
+        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
 
 
 class _Log:
@@ -231,22 +270,16 @@ class Bridge:
         self.cutoff_hz = settings.cutoff_hz or CUTOFF_FRACTION * self.controller_rate_hz
         self.filter = WrenchFilter(self.cutoff_hz, self.sensor_rate_hz, settings.filter_order)
         self._bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
-        self.dynamics: SensorDynamics | None = None
+        self.states = CycleStates()
+        """Every controller cycle's joint state, on the host clock (the dynamic model's robot stream)."""
+        self.dynamic: DynamicCompensator | None = None
         if plan.feed == "raw":
             self.compensation = "bias only"
         elif calibration.has_dynamics:
             self.compensation = "dynamic"
-            self.dynamics = SensorDynamics.for_calibration(model, calibration)
+            self.dynamic = DynamicCompensator(calibration, model, self.states, counts_samples=counts_samples(sensor))
         else:
             self.compensation = "static"
-        self._recent: collections.deque = collections.deque(maxlen=ACCELERATION_CYCLES)
-        self._predictions: collections.deque = collections.deque(maxlen=PREDICTION_CYCLES)
-        self._clock_offset: tuple[float, float] | None = None
-        lag_ms = (calibration.metadata.get("dynamics") or {}).get("lag_ms") if isinstance(
-            calibration.metadata.get("dynamics"), dict) else None
-        self.lag_s = float(lag_ms or 0.0) / 1e3
-        """The sensor's lag behind the robot's state stream, s (measured by ``ftacq identify --motion``)."""
-        self.clock = SensorClock(counts_samples(sensor))
         self.feed_priority = "normal"
         self._stop_feeding = threading.Event()
         self._done = threading.Event()
@@ -265,39 +298,12 @@ class Bridge:
     def _sensor_frame(self, batch: WrenchBatch, cycle) -> np.ndarray:
         if self.plan.feed == "raw":
             return batch.wrench - self._bias
-        if self.dynamics is not None:
-            recent = self._recent
-            qdd, _ = joint_acceleration(np.array([r[0] for r in recent]), np.array([r[1] for r in recent]),
-                                        np.array([r[2] for r in recent]), np.array([r[3] for r in recent]))
-            predicted = predict_moving(self.dynamics, self.calibration, cycle.q, cycle.qd, qdd[-1])[0]
-            state_s = self._state_host_time(cycle)
-            history = self._predictions
-            if history and not history[-1][0] < state_s:
-                history.clear()
-            history.append((state_s, predicted))
-            if len(history) < 2:
-                return batch.wrench - predicted
-            # each sample gets the model at its own time (its sequence number on the host clock, less the lag the
-            # identification measured), so an acceleration step is not subtracted from samples taken before it
-            sample_s = self.clock.host_times(batch.time_s, batch.sequence) - self.lag_s
-            return batch.wrench - interpolate_rows(sample_s, np.array([h[0] for h in history]),
-                                                   np.array([h[1] for h in history]))
+        if self.dynamic is not None:
+            compensated = self.dynamic.compensate(batch, None)
+            if compensated is not None:
+                return compensated
         base_R_flange = forward_kinematics(self.model, cycle.q)[:3, :3]
         return self.calibration.compensate(batch.wrench, base_R_flange.T)
-
-    def _state_host_time(self, cycle) -> float:
-        """The host time of the robot state in ``cycle``: its controller timestamp plus the lower envelope of
-        (arrival − timestamp), which may rise by :data:`CLOCK_DRIFT_ALLOWANCE` of the elapsed controller time (so
-        it follows a host clock running faster than the controller's); a package that waited in a queue does not
-        move it."""
-        raw = cycle.received_s - cycle.timestamp_s
-        if self._clock_offset is None:
-            self._clock_offset = (raw, cycle.timestamp_s)
-        else:
-            offset, since = self._clock_offset
-            self._clock_offset = (min(raw, offset + CLOCK_DRIFT_ALLOWANCE * max(cycle.timestamp_s - since, 0.0)),
-                                  cycle.timestamp_s)
-        return cycle.timestamp_s + self._clock_offset[0]
 
     def _ask_realtime(self) -> None:
         """SCHED_FIFO for the calling thread (the feed), if allowed; :attr:`feed_priority` says what happened."""
@@ -330,8 +336,8 @@ class Bridge:
                     return
                 row = self._log.row()
                 row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
-                if self.dynamics is not None:
-                    self._recent.append((cycle.timestamp_s, cycle.qd, cycle.target_qd, cycle.target_qdd))
+                if self.dynamic is not None:
+                    self.states.append(cycle)
                 try:
                     batch = _take(self.sensor)
                 except DeviceError as error:

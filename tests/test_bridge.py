@@ -235,3 +235,20 @@ def test_cli_realtime_priority_out_of_range_is_a_one_line_error(capsys, value, w
     assert stop.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == f"ftacq bridge: error: argument --realtime-priority: {why}"
+
+
+@pytest.mark.parametrize("order", [2, 4])
+def test_wrench_filter_in_batches_equals_one_sosfilt_pass_from_steady_state(order):
+    from scipy import signal
+
+    from procedures.bridge import WrenchFilter
+
+    wrench = np.random.default_rng(order).standard_normal((2000, 6)) + np.array([5.0, -3.0, 20.0, 0.1, 0.2, -0.3])
+    batched = WrenchFilter(100.0, 7000.0, order)
+    edges = np.cumsum([14, 1, 30, 14] * 34)  # batches of 14, 1, 30, 14 samples: 2006 in all
+    out = np.vstack([batched(part) for part in np.split(wrench, edges[edges < len(wrench)])])
+    zi = signal.sosfilt_zi(batched.sos)[:, :, None] * wrench[0][None, None, :]
+    expected, _ = signal.sosfilt(batched.sos, wrench, axis=0, zi=zi)
+    np.testing.assert_allclose(out, expected, atol=1e-10)
+    constant = WrenchFilter(100.0, 7000.0, order)
+    np.testing.assert_allclose(constant(np.tile(wrench[:1], (50, 1))), np.tile(wrench[:1], (50, 1)), atol=1e-10)

@@ -128,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import ENABLE_EXTERNAL_FT_SENSOR, enable_function_for, plan_feed
     from ftacq.kinematics import ur_model
+    from procedures.bridge import ROBOT_STATE_RATE_HZ
 
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds {args.seconds}: must be a positive number of seconds")
@@ -136,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
         model = ur_model(model_name)
         robot = None
         if args.enable == "ur-rtde":
-            robot = URRobot(host, MotionLimits(), model=model, leave_external_ft_input=True)
+            robot = URRobot(host, MotionLimits(), model=model, leave_external_ft_input=True,
+                            frequency_hz=ROBOT_STATE_RATE_HZ)
             stack.callback(robot.close)
             robot.start()
         client = stack.enter_context(URForceTorqueInput(host))
