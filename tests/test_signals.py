@@ -36,3 +36,24 @@ def test_outside_the_main_thread_the_block_runs_with_the_handler_unchanged():
     thread.join(timeout=10)
     assert not thread.is_alive()
     assert results == [handler_before]
+
+
+def test_the_cli_stops_any_command_on_sigterm_as_on_ctrl_c(monkeypatch, capsys, tmp_path):
+    from ftacq.app import cli
+    from ftacq.app.commands import config
+
+    def terminated(args) -> int:
+        signal.raise_signal(signal.SIGTERM)
+        raise AssertionError("SIGTERM did not interrupt the command")
+
+    def ignored(signum, frame) -> None:  # the test's own handler: a CLI that forgot SIGTERM fails, not dies
+        pass
+
+    monkeypatch.setattr(config, "run_init", terminated)
+    before = signal.signal(signal.SIGTERM, ignored)
+    try:
+        assert cli.main(["config", "init", str(tmp_path / "CELL.toml")]) == 130
+        assert "interrupted" in capsys.readouterr().err
+        assert signal.getsignal(signal.SIGTERM) is ignored
+    finally:
+        signal.signal(signal.SIGTERM, before)

@@ -1,7 +1,8 @@
-"""SIGTERM handled as Ctrl-C, for the commands that move the robot or hold devices open.
+"""SIGTERM handled as Ctrl-C: the CLI (:func:`ftacq.app.cli.main`) runs every command inside it.
 
-``kill PID`` (or a service manager stopping ``ftacq``) then takes the same clean path as Ctrl-C: the procedure
-stops the robot, keeps its data, the drivers and the simulated cell are closed, and the CLI exits 130.
+``kill PID`` (or a service manager stopping ``ftacq``) then takes the same clean path as Ctrl-C: a procedure
+stops the robot and keeps its data, recordings are finished, the drivers and the simulated cell are closed, and
+the CLI exits 130.
 """
 
 from __future__ import annotations

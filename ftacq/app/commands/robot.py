@@ -159,20 +159,6 @@ def _register_set_payload(actions) -> None:
     parser.set_defaults(func=run_set_payload)
 
 
-def _confirm(args: argparse.Namespace, question: str) -> None:
-    import sys
-
-    from ftacq.errors import AbortedError, InputError
-
-    if args.yes:
-        return
-    if not sys.stdin or not sys.stdin.isatty():
-        raise InputError("refusing to change the controller's payload: no terminal to confirm on (stdin is not a "
-                         "tty); check the values above and pass --yes")
-    if input(question + " [y/N] ").strip().lower() not in ("y", "yes"):
-        raise AbortedError("not confirmed: nothing was sent")
-
-
 def run_set_payload(args: argparse.Namespace) -> int:
     """Send the payload (and gravity), read back, print both; return the exit status."""
     import contextlib
@@ -180,6 +166,7 @@ def run_set_payload(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.ur import URRobot
     from drivers.ur_payload import gravity_from_weight, read_payload, takes_target_payload
+    from ftacq.app.confirm import confirm
     from ftacq.calfile import load_calibration
     from ftacq.errors import InputError
     from ftacq.exports import sensor_offset_m, ur_payload, with_sensor_offset
@@ -213,7 +200,10 @@ def run_set_payload(args: argparse.Namespace) -> int:
     print(f"  URScript: {payload.urscript()}")
     # --config and --sim are mutually exclusive and one is required: no config means the simulated controller
     where = "the simulated controller" if config is None else f"the controller at {config.robot.host}"
-    _confirm(args, f"Send this payload{' and gravity' if gravity is not None else ''} to {where}?")
+    confirm(args, f"Send this payload{' and gravity' if gravity is not None else ''} to {where}?",
+            no_terminal="refusing to change the controller's payload: no terminal to confirm on (stdin is not a "
+                        "tty); check the values above and pass --yes",
+            declined="not confirmed: nothing was sent")
     with contextlib.ExitStack() as stack:
         cell = None
         if config is None:

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ftacq.app.signals import sigterm_as_interrupt
 from ftacq.errors import InputError
 
 SIM_BIAS_SHIFT = (0.35, -0.25, 0.6, 0.012, -0.008, 0.005)
@@ -61,18 +60,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``ftacq tare``; return the exit status."""
-    with sigterm_as_interrupt():
-        return _run(args)
-
-
-def _run(args: argparse.Namespace) -> int:
+    """Run ``ftacq tare``; return the exit status (SIGTERM stops it as Ctrl-C does: :mod:`ftacq.app.signals`)."""
     from dataclasses import replace
 
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
-    from ftacq.app.commands.calibrate import _confirm, sim_sampling
+    from ftacq.app.commands.calibrate import sim_sampling
+    from ftacq.app.confirm import confirm_motion
     from ftacq.app.config import CellConfig, load_config
     from ftacq.bias_estimate import apply_estimate
     from ftacq.calfile import load_calibration, save_calibration
@@ -143,7 +138,7 @@ def _run(args: argparse.Namespace) -> int:
             if args.dry_run:
                 print("dry run: the robot did not move", flush=True)
                 return 0
-            _confirm(args)
+            confirm_motion(args)
         elif args.dry_run:
             print("dry run: a tare at the current pose moves nothing; nothing measured", flush=True)
             return 0
