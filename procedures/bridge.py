@@ -5,23 +5,25 @@ Two threads::
 
     "ftacq-bridge-feed"   per controller cycle (the controller's output package is the clock):
                           take the sensor's new samples → bias-removed (raw feed) or compensated: the dynamic
-                          model (gravity and the tool's inertial wrench, ftacq.dynamics, from this cycle's
-                          actual_q, actual_qd and q̈) when the calibration has inertia, else the static model (the
-                          flange orientation from actual_q) → Butterworth low-pass (scipy sosfilt, state carried
-                          across batches) → the newest filtered value through the feed convention → checks → write
-                          external_force_torque
+                          model (gravity and the tool's inertial wrench) when the calibration has inertia, else
+                          the static model (the flange orientation from this cycle's actual_q) → Butterworth
+                          low-pass (state carried across batches) → the newest filtered value through the feed
+                          convention → checks → write external_force_torque
     caller's thread       enables the input (payload, enable call), waits for the end (--seconds, Ctrl-C, a
                           watchdog trip), publishes what is fed to the listeners, disables the input
 
 Timing (docs/bridge.md "Timing"): the value answering one output package must reach the controller before the next
 (2 ms at 500 Hz). The feed thread asks for real-time scheduling (SCHED_FIFO, :data:`REALTIME_PRIORITY`, as ur-rtde's
-own ``rt_priority``; refused without CAP_SYS_NICE or an rtprio limit, then it runs at normal priority and
+interfaces do with their ``rt_priority``; refused without CAP_SYS_NICE or an rtprio limit, then it runs at normal priority and
 :attr:`BridgeSummary.feed_priority` says why); the interpreter's thread switch interval is shortened to
 :data:`SWITCH_INTERVAL_S` while feeding, so the feed thread gets the interpreter within that when its package
 arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`.
 
-q̈ for the dynamic model: target_qdd while the arm tracks the controller's trajectory, else a backward difference of
-actual_qd over the last cycles (ftacq.dynamics.acceleration.joint_acceleration, as the monitor).
+Dynamic model: procedures.dynamic_compensation.DynamicCompensator, as in ``ftacq monitor``, with the controller
+cycles this bridge receives as its robot state stream (:class:`CycleStates`): the rigid-body model once per cycle
+(q̈ = target_qdd while the arm tracks the controller's trajectory, else a derivative of actual_qd), interpolated
+onto each sample's own time (its sequence number on the host clock, less the lag ``identify --motion`` measured).
+A batch with no cycle states around it is compensated statically.
 
 Decimation: the filter runs on every sensor sample (7 kHz); each controller cycle takes its newest output, so the
 cut-off (:data:`CUTOFF_FRACTION` of the controller rate) is the anti-alias filter. The stated delay is the
