@@ -58,7 +58,7 @@ from procedures.dynamic_compensation import DynamicCompensator
 from procedures.excitation import counts_samples
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
-from procedures.events import FedWrenches, Listener, Notice
+from procedures.events import Event, FedWrenches, Listener, Notice
 
 log = logging.getLogger(__name__)
 
@@ -456,6 +456,8 @@ class Bridge:
             self._done.wait(0.005)
 
     def _disable(self) -> bool:
+        if self.switch is None:
+            return False
         try:
             self.switch.enable_external_ft_input(False, self.plan.function)
             return True
@@ -474,7 +476,7 @@ class Bridge:
                                  written=len(rows)))
         return count
 
-    def _notify(self, event: object) -> None:
+    def _notify(self, event: Event) -> None:
         for listener in self.listeners:
             try:
                 listener(event)

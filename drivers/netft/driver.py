@@ -119,7 +119,8 @@ class NetFTSensor(SensorBase):
             raise InputError("counts_per_force, counts_per_torque, force_unit and torque_unit override discovery "
                              "only all together")
         self._override: Scaling | None = None
-        if all(v is not None for v in overrides):
+        if (counts_per_force is not None and counts_per_torque is not None and force_unit is not None
+                and torque_unit is not None):
             check_range("counts_per_force", counts_per_force, 1e-9, 1e12)
             check_range("counts_per_torque", counts_per_torque, 1e-9, 1e12)
             try:
@@ -299,7 +300,7 @@ class NetFTSensor(SensorBase):
     def reset_latch(self) -> None:
         """Clear the monitor-condition latch (RDT 0x0041)."""
         self._require_started()
-        self._receiver.send(rdt_command(RDT_RESET_LATCH))
+        self._started_receiver().send(rdt_command(RDT_RESET_LATCH))
 
     def health(self) -> SensorHealth:
         """Return a snapshot: received (well-formed records), lost, gaps, longest_gap_s, duplicate, out_of_order,
@@ -347,12 +348,18 @@ class NetFTSensor(SensorBase):
 
     def _send_start(self, bias: bool = False) -> None:
         """Send the start command (after a bias command when ``bias``), telling the tracker first."""
-        receiver = self._receiver
+        receiver = self._started_receiver()
         with self._decode_lock:
             self._tracker.expect_start(receiver.written, time.monotonic(), bias=bias)
         if bias:
             receiver.send(rdt_command(RDT_BIAS))
         receiver.send(rdt_command(RDT_START_BUFFERED if self.buffered else RDT_START))
+
+    def _started_receiver(self) -> RdtReceiver:
+        """The receive side, which exists from start() on (DeviceError before)."""
+        if self._receiver is None:
+            raise DeviceError(f"{self.label}: not started")
+        return self._receiver
 
     def _resend(self) -> None:
         self._send_start()
@@ -363,7 +370,7 @@ class NetFTSensor(SensorBase):
         deadline = self._tracker.hold_deadline
         if deadline is not None:  # held records are released when their reorder window expires
             timeout_s = min(timeout_s, max(deadline - time.monotonic(), 0.0) + 1e-4)
-        self._receiver.wait(timeout_s, lambda: self._closed)
+        self._started_receiver().wait(timeout_s, lambda: self._closed)
 
     def _take(self) -> WrenchBatch:
         with self._decode_lock:
@@ -378,7 +385,7 @@ class NetFTSensor(SensorBase):
     def _decode(self) -> None:
         """Move every record the receive thread wrote into decoded batches, updating the counters."""
         with self._decode_lock:
-            records, times, first_index = self._receiver.take()
+            records, times, first_index = self._started_receiver().take()
             if not len(records) and not self._tracker.held:
                 return
             tracker = self._tracker

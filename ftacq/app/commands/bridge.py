@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
             flange_p_tcp = base_T_flange[:3, :3].T @ (cycle.tcp_pose[:3] - base_T_flange[:3, 3])
         plan = plan_feed(calibration, args.feed, offset, sensor_body_kg=body_kg, function=function,
                          flange_p_tcp_m=flange_p_tcp)
-        version = ".".join(str(v) for v in client.version)
+        version = ".".join(str(v) for v in client.version or ())
         print(f"ftacq bridge: controller {host} ({model.name}, software {version}) at {client.frequency_hz:g} Hz; "
               f"feed {plan.feed}; {plan.function}(True, {plan.sensor_mass_kg:.4g} kg, "
               f"{np.round(plan.sensor_measuring_offset_m, 4).tolist()} m, {np.round(plan.sensor_cog_m, 4).tolist()} m);"
