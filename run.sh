@@ -31,7 +31,7 @@ cmd="${1:-}"; shift || true
 case "$cmd" in
   demo) setup; exec .venv/bin/ftacq calibrate --sim --yes "$@" ;;
   test) setup; exec .venv/bin/python -m pytest -n 2 "$@" ;;
-  check) setup; .venv/bin/ruff check ftacq drivers procedures
+  check) setup; .venv/bin/ruff check ftacq drivers procedures tests benchmarks
          if grep -q '^\[tool.mypy\]' pyproject.toml; then .venv/bin/mypy; fi ;;
   setup) setup ;;
   *) echo "usage: ./run.sh demo|test|check|setup [args...]" >&2; exit 2 ;;

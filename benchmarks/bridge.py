@@ -3,6 +3,8 @@
     .venv/bin/python benchmarks/bridge.py            # 60 s of feeding
     .venv/bin/python benchmarks/bridge.py --quick    # 10 s
     .venv/bin/python benchmarks/bridge.py --feed raw
+    .venv/bin/python benchmarks/bridge.py --moves dynamic   # real moveJ moves; calibration with the tool's inertia
+    .venv/bin/python benchmarks/bridge.py --moves static    # the same moves; calibration without it
 
 Three processes, as on a real cell: the simulated UR controller (tests/fakes/ur_controller.py, 500 Hz), a "world"
 process (this script with ``--world``: the simulated Net F/T at 7 kHz whose wrench follows the controller's flange
@@ -13,7 +15,13 @@ ur-rtde control and receive interfaces, the Net F/T driver, drivers/ur_ft_input.
 Printed figures (all from what the simulated controller recorded, not from what the bridge meant to send):
 
 - controller cycles counted while enabled, fed / missed (a cycle is fed when a new value arrived since the
-  previous output package to the feeding connection);
+  previous output package to the feeding connection; the simulated controller reads what reached its socket at the
+  start of each cycle, as a real one does). Each missed cycle is put down to the bridge when the bridge took longer
+  than one cycle from receiving the previous package to writing its answer, otherwise to the way there and back
+  (both processes on one loaded 2-core machine: the simulated controller is a Python process, not a real-time
+  one); the simulated controller's own tick jitter is printed beside it;
+- the bridge's answer time (package received → value written, this process) p50 / p99 / max, the feed thread's
+  scheduling (SCHED_FIFO where allowed, docs/bridge.md "Timing");
 - latency sensor sample → controller: from the driver's receive stamp of the newest sample a value includes to the
   controller's arrival stamp of that value (one CLOCK_MONOTONIC for all processes), p50 / p99 / max;
 - staleness: at each controller cycle, the age of the newest sensor sample in the value the controller holds;
@@ -58,6 +66,10 @@ FRESH_S = 0.01
 the sample's *receive* stamp, which on a loaded machine lags its generation (the push schedule's clock)."""
 SENSOR_OFFSET_M = (0.0, 0.0, 0.035)
 SENSOR_BODY_KG = 0.3
+MOVE_OFFSET_RAD = np.array([0.6, -0.3, 0.4, 0.8, 0.8, 1.0])
+MOVE_SPEED_RAD_S, MOVE_ACCELERATION_RAD_S2 = 1.0, 2.0
+"""``--moves``: moveJ back and forth between the start and start + MOVE_OFFSET_RAD at this speed and acceleration
+(as benchmarks/dynamics.py)."""
 GOALS = {"missed": 0, "latency_p99_ms": 4.0, "cpu_percent": 50.0}
 
 
@@ -85,7 +97,11 @@ def world(args: argparse.Namespace) -> int:
 
     pose = SharedPose(args.pose_shm)
     resource_tracker.unregister(pose._shm._name, "shared_memory")  # the benchmark process owns the block
-    physics = SensorPhysics(CellTruth(), pose, seed=1)
+    robot = None
+    if args.rigid:
+        from ftacq.kinematics import ur_model
+        robot = ur_model("UR5e")  # the sensor reads the rigid tool's inertial wrench from the controller's joint state
+    physics = SensorPhysics(CellTruth(), pose, seed=1, robot=robot)
     fake = FakeNetFT(physics, host="127.0.0.1", rate_hz=SENSOR_RATE_HZ)
     fake.start()
     control = socket.create_connection((args.host, args.control_port), timeout=5.0)
@@ -131,6 +147,10 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, help="feeding time, s")
     parser.add_argument("--feed", choices=("compensated", "raw"), default="compensated")
     parser.add_argument("--still", action="store_true", help="no jog")
+    parser.add_argument("--moves", choices=("static", "dynamic"),
+                        help="instead of the jog, real moveJ moves with the tool's inertial wrench in the sensor; the "
+                             "bridge's calibration without (static) or with (dynamic) the tool's inertia")
+    parser.add_argument("--rigid", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--max-staleness-s", type=float, default=None,
                         help="relax the bridge's staleness limit (default: the product's) so that a loaded machine "
                              "does not end the run early; the figures say so")
@@ -151,24 +171,31 @@ def main() -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import plan_feed
     from ftacq.kinematics import ur_model
-    from procedures.bridge import Bridge, BridgeSettings, WrenchFilter
+    from procedures.bridge import ROBOT_STATE_RATE_HZ, Bridge, BridgeSettings, WrenchFilter
     from procedures.plan import home_configuration_rad
     from tests.fakes.ur_process import URControllerProcess
     from tests.fakes.world import CellTruth, SharedPose
 
     truth = CellTruth()
     calibration = truth.calibration()
+    if args.moves:
+        from dataclasses import replace
+        calibration = replace(calibration, sensor_offset=np.array(truth.sensor_offset_m))
+        if args.moves == "dynamic":
+            calibration = replace(calibration, inertia=truth.inertia)
     q0 = home_configuration_rad("floor")
     shared = SharedPose(name=f"ftacq-bench-{os.getpid()}-{uuid.uuid4().hex[:6]}", create=True)
     with URControllerProcess(time_scale=1.0, pose_shm=shared.name, initial_q=q0) as controller:
         world_process = subprocess.Popen(
             [sys.executable, str(Path(__file__).resolve()), "--world", "--pose-shm", shared.name, "--host",
              controller.host, "--control-port", str(controller.control_port), "--q0", json.dumps(q0.tolist())]
-            + (["--still"] if args.still else []),
+            + (["--still"] if args.still or args.moves else []) + (["--rigid"] if args.moves else []),
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
         try:
             ready = json.loads(world_process.stdout.readline())
-            robot = URRobot(controller.host, MotionLimits(), model="UR5e", leave_external_ft_input=True).start()
+            limits = MotionLimits(joint_speed_rad_s=MOVE_SPEED_RAD_S, joint_acceleration_rad_s2=MOVE_ACCELERATION_RAD_S2)
+            robot = URRobot(controller.host, limits, model="UR5e", leave_external_ft_input=True,
+                            frequency_hz=ROBOT_STATE_RATE_HZ).start()
             client = URForceTorqueInput(controller.host).start()
             sensor = open_sensor(ready["url"])
             sensor.start()
@@ -183,14 +210,21 @@ def main() -> int:
             bridge = Bridge(sensor, client, robot, plan, calibration, ur_model("UR5e"), settings,
                             sensor_rate_hz=SENSOR_RATE_HZ)
             cpu0, wall0 = time.process_time(), time.monotonic()
-            summary = bridge.run(duration_s=seconds)
-            cpu_s, wall_s = time.process_time() - cpu0, time.monotonic() - wall0
-            state = controller.external_ft()
-            records = controller.external_ft_records()
-            health = sensor.health()
-            sensor.close()
-            client.close()
-            robot.close()
+            stop_moving = threading.Event()
+            if args.moves:
+                mover = threading.Thread(target=move_back_and_forth, args=(robot, bridge, q0, stop_moving), daemon=True)
+                mover.start()
+            try:
+                summary = bridge.run(duration_s=seconds)
+                stop_moving.set()
+                cpu_s, wall_s = time.process_time() - cpu0, time.monotonic() - wall0
+                state = controller.external_ft()
+                records = controller.external_ft_records()
+                health = sensor.health()
+            finally:  # ur-rtde's clients reconnect forever once the controller is gone: close them first
+                sensor.close()
+                client.close()
+                robot.close()
         finally:
             world_process.stdin.close()
             world_process.wait(10)
@@ -198,6 +232,21 @@ def main() -> int:
     report(args, seconds, summary, state, records, plan, cpu_s, wall_s, ready["t0"], health, truth,
            WrenchFilter(bridge.cutoff_hz, SENSOR_RATE_HZ), settings)
     return 0
+
+
+def move_back_and_forth(robot, bridge, q0: np.ndarray, stop: threading.Event) -> None:
+    """``--moves``: once the feed runs, moveJ between q0 and q0 + MOVE_OFFSET_RAD until ``stop``."""
+    while bridge.written == 0 and not stop.wait(0.01):
+        pass
+    targets = (q0 + MOVE_OFFSET_RAD, q0)
+    k = 0
+    while not stop.is_set():
+        try:
+            robot.move_joints(targets[k % 2], MOVE_SPEED_RAD_S, MOVE_ACCELERATION_RAD_S2)
+        except Exception as error:  # noqa: BLE001 - the controller went away at the end of the run
+            print(f"  moves stopped: {error}", file=sys.stderr)
+            return
+        k += 1
 
 
 def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, health, truth, wrench_filter,
@@ -219,11 +268,33 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     staleness_ms = (cycles[valid, 2] + (received[-n:, 0] - written[-n:, 3])[held[valid]]) * 1000.0
     fed_cycles = int(cycles[:, 1].sum())
     missed = len(cycles) - fed_cycles
+    period_s = 1.0 / summary.controller_rate_hz
+    answer_ms = summary.answer_time_s() * 1000.0
+    # each missed cycle: did the bridge answer the package before it within one cycle?
+    row_of_time = {float(t): i for i, t in enumerate(log[:, 0])}
+    bridge_late = unanswered = 0
+    for k in np.flatnonzero(cycles[1:, 1] == 0) + 1:
+        i = row_of_time.get(float(cycles[k - 1, 0]))
+        if i is None or not np.isfinite(log[i, 2]):
+            unanswered += 1  # the package never reached the feed loop, or it wrote nothing (stopped, no sample yet)
+        elif log[i, 2] - log[i, 1] > period_s:
+            bridge_late += 1
+    send_gap_ms = np.diff(cycles[:, 3]) * 1000.0
     # error against the truth at the newest sample's time
     elapsed = written[:, 3] - t0
     truth_fed = plan.fed_wrench(contact_at(elapsed))
     if plan.feed == "raw":
-        truth_fed = None  # the raw feed carries the tool's weight: compared after the controller's removal below
+        # the raw feed carries the tool's weight at the pose: known here only while the arm stays at q0
+        truth_fed = None
+        if args.still and not args.moves:
+            from ftacq.kinematics import forward_kinematics, ur_model
+            from procedures.plan import home_configuration_rad
+
+            calibration = truth.calibration()
+            base_R_flange = forward_kinematics(ur_model("UR5e"), home_configuration_rad("floor"))[:3, :3]
+            bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+            tool_weight = -calibration.compensate(bias[None, :], base_R_flange.T)[0]  # sensor frame, bias removed
+            truth_fed = plan.fed_wrench(contact_at(elapsed) + tool_weight)
     error = written[:, 5:] - truth_fed if truth_fed is not None else None
     keep = ~near_switch(elapsed, SETTLE_S) & (elapsed > 0.5) & (written[:, 2] - written[:, 3] <= FRESH_S)
     pushing = contact_at(elapsed)[:, 2] != 0
@@ -232,13 +303,21 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     filtered_noise = wrench_filter(rng.standard_normal((70000, 6)) * noise)[1000:].std(axis=0)
     print(f"ftacq bridge benchmark: {seconds:g} s, feed {plan.feed}, sensor {SENSOR_RATE_HZ:g} Hz, controller "
           f"{summary.controller_rate_hz:g} Hz, low-pass {summary.cutoff_hz:g} Hz (group delay "
-          f"{summary.filter_delay_s * 1000:.2f} ms), arm {'still' if args.still else 'jogging'}, push "
+          f"{summary.filter_delay_s * 1000:.2f} ms), arm {arm_motion(args)}, push "
           f"{np.linalg.norm(CONTACT[:3]):.1f} N every {CONTACT_EVERY_S:g} s")
     span_s = float(cycles[-1, 0] - cycles[0, 0]) if len(cycles) > 1 else float("nan")
     print(f"  controller cycles while enabled {len(cycles)}: fed {fed_cycles}, missed {missed} "
           f"({(len(cycles) - 1) / span_s:.0f} cycles/s of controller time); values received {state['received']}, "
           f"written {summary.written}, identical to the bridge's log: {same}; watchdog trips "
           f"{len(state['watchdog_trips'])}; bridge trip: {summary.trip or 'none'}")
+    print(f"  missed cycles put down to the bridge (answer later than one cycle): {bridge_late}; not answered "
+          f"(the feed had stopped or not begun): {unanswered}; to the way there and back: "
+          f"{missed - bridge_late - unanswered}; simulated controller's package spacing p1 / p99 "
+          f"{np.percentile(send_gap_ms, 1):.2f} / {np.percentile(send_gap_ms, 99):.2f} ms (real controller: "
+          f"{period_s * 1000:g} ms)")
+    print(f"  bridge answer time (package received -> value written): p50 {np.percentile(answer_ms, 50):.2f} ms, p99 "
+          f"{np.percentile(answer_ms, 99):.2f} ms, max {answer_ms.max():.2f} ms; feed thread {summary.feed_priority}; "
+          f"compensation {summary.compensation}")
     print(f"  latency sensor sample -> controller: p50 {np.percentile(latency_ms, 50):.2f} ms, p99 "
           f"{np.percentile(latency_ms, 99):.2f} ms, max {latency_ms.max():.2f} ms (plus the filter's "
           f"{summary.filter_delay_s * 1000:.2f} ms group delay)")
@@ -264,6 +343,13 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     ok = missed <= GOALS["missed"] and p99 <= GOALS["latency_p99_ms"] and cpu < GOALS["cpu_percent"]
     print(f"  goals (0 missed, p99 <= {GOALS['latency_p99_ms']:g} ms, < {GOALS['cpu_percent']:g} % CPU): "
           f"{'met' if ok else 'NOT met'}")
+
+
+def arm_motion(args) -> str:
+    if args.moves:
+        return (f"moving (moveJ {MOVE_SPEED_RAD_S:g} rad/s, {MOVE_ACCELERATION_RAD_S2:g} rad/s², tool inertia in the "
+                f"sensor; calibration {'with' if args.moves == 'dynamic' else 'without'} inertia)")
+    return "still" if args.still else "jogging"
 
 
 def bridge_limit_ms() -> float:

@@ -6,8 +6,7 @@ python-can); the first use of a name imports its module.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ftacq.lazy import lazy_names
 
 _LAZY = {
     "open_sensor": "drivers.sensor",
@@ -24,14 +23,4 @@ _LAZY = {
 __all__ = list(_LAZY)
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'drivers' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())

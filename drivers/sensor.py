@@ -188,6 +188,10 @@ class ForceTorqueSensor(Protocol):
     def health(self) -> SensorHealth:
         """Return a snapshot of the stream's health counters."""
 
+    def prefer_low_latency(self, max_hold_s: float) -> None:
+        """Make received samples readable at most ``max_hold_s`` seconds after they arrive (a hint; see
+        :meth:`SensorBase.prefer_low_latency`)."""
+
     def close(self) -> None:
         """Stop streaming and release sockets / the bus. Safe to call twice."""
 
@@ -260,6 +264,11 @@ class SensorBase:
     def bias(self) -> None:
         """Tare the sensor at the current load (device-specific)."""
         raise NotImplementedError
+
+    def prefer_low_latency(self, max_hold_s: float) -> None:
+        """Hint from a reader that acts on the newest sample each cycle (``ftacq bridge``): make received samples
+        readable at most ``max_hold_s`` (s) after they arrive. Drivers that hold samples back to save CPU honour
+        it (at some CPU cost); the others already deliver at once and ignore it."""
 
     def _open(self) -> None:
         raise NotImplementedError

@@ -168,6 +168,8 @@ class URRobot:
         own the RTDE input ``external_force_torque`` (ur-rtde's recipe 23 holds it otherwise)."""
         self.limits = validate_limits(limits)
         self.connect_timeout_s = connect_timeout_s
+        self.frequency_hz = frequency_hz
+        """RTDE rate (Hz) of ur-rtde's receive and control interfaces; None = the controller's maximum."""
         self._reader = URStateReader(host, frequency_hz, model, connect_timeout_s)
         self._control = None
         self._call_lock = threading.Lock()
@@ -206,7 +208,7 @@ class URRobot:
         try:
             interface = rtde_control.RTDEControlInterface
             flags = interface.FLAG_UPLOAD_SCRIPT | (interface.FLAG_NO_EXT_FT if self.leave_external_ft_input else 0)
-            self._control = interface(self.host, -1.0, flags)
+            self._control = interface(self.host, float(self.frequency_hz or -1.0), flags)
         except RuntimeError as error:
             self._reader.close()
             raise DeviceConnectionError(
@@ -280,16 +282,17 @@ class URRobot:
         program not running, or a reply further than FK_CROSS_CHECK_M / FK_CROSS_CHECK_DEG away).
         """
         q = self.joint_positions()
-        nominal = flange_pose(self.model, q) if self.model is not None else None
+        model = self.model
+        nominal = flange_pose(model, q) if model is not None else None
         controller = self._controller_flange_pose(q)
         if controller is not None:
-            if nominal is None or self._close_poses(controller, nominal):
+            if model is None or nominal is None or self._close_poses(controller, nominal):
                 return controller
             if not self._fk_warned:
                 self._fk_warned = True
                 log.warning("robot %s: the controller's forward kinematics disagrees with the %s model by more than "
                             "%g m / %g deg; using the nominal model (is the model right?)", self.host,
-                            self.model.name, FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG)
+                            model.name, FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG)
         if nominal is None:
             raise RobotError(f"robot controller {self.host}: cannot compute the flange pose (unknown robot model and "
                              "no forward kinematics from the controller); pass model=, e.g. 'UR5e'")

@@ -32,10 +32,10 @@ RTDE_PORT = 30004
 PROTOCOL_VERSION = 2
 INPUT_NAME = "external_force_torque"
 OUTPUTS = ("timestamp", "actual_q", "actual_qd", "actual_TCP_force", "runtime_state", "safety_status_bits",
-           "actual_TCP_pose")
+           "actual_TCP_pose", "target_qd", "target_qdd")
 """Output recipe: controller time (s), joint angles (rad) and speeds (rad/s), TCP wrench (N, N·m), program state,
-safety bits, TCP pose (m, rotation vector). All in every controller version that has ``external_force_torque``
-(RTDE guide)."""
+safety bits, TCP pose (m, rotation vector), target joint speeds (rad/s) and accelerations (rad/s², for the tool's
+inertial wrench). All in every controller version that has ``external_force_torque`` (RTDE guide)."""
 CONNECT_TIMEOUT_S = 2.0
 REPLY_TIMEOUT_S = 2.0
 CYCLE_TIMEOUT_S = 0.1
@@ -56,8 +56,8 @@ class ExternalInputInUseError(DeviceError):
 @dataclass(frozen=True)
 class ControllerCycle:
     """One output package: controller time (s), q (rad), q̇ (rad/s), actual_TCP_force (N, N·m, base axes about
-    the TCP), runtime_state, safety_status_bits, actual_TCP_pose [x, y, z (m), rx, ry, rz (rad)] and the host
-    monotonic time it arrived (s)."""
+    the TCP), runtime_state, safety_status_bits, actual_TCP_pose [x, y, z (m), rx, ry, rz (rad)], the host
+    monotonic time it arrived (s), target q̇ (rad/s) and target q̈ (rad/s²)."""
 
     timestamp_s: float
     q: np.ndarray
@@ -67,6 +67,8 @@ class ControllerCycle:
     safety_status_bits: int
     received_s: float
     tcp_pose: np.ndarray
+    target_qd: np.ndarray
+    target_qdd: np.ndarray
 
 
 class URForceTorqueInput:
@@ -224,7 +226,8 @@ class URForceTorqueInput:
         return ControllerCycle(timestamp_s=values[1], q=np.array(values[2:8]), qd=np.array(values[8:14]),
                                tcp_force=np.array(values[14:20]), runtime_state=int(values[20]),
                                safety_status_bits=int(values[21]), received_s=received_s,
-                               tcp_pose=np.array(values[22:28]))
+                               tcp_pose=np.array(values[22:28]), target_qd=np.array(values[28:34]),
+                               target_qdd=np.array(values[34:40]))
 
     def write(self, wrench) -> None:
         """Send one ``external_force_torque`` value [Fx, Fy, Fz (N), Tx, Ty, Tz (N·m)]."""

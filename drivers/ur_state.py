@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import Any
 
 import numpy as np
 
@@ -72,8 +73,8 @@ class URStateReader:
         self.frequency_hz = frequency_hz
         self.model = _resolve_model(model)
         self.connect_timeout_s = connect_timeout_s
-        self._receive = None
-        self._last_timestamp = None
+        self._receive: Any = None  # rtde_receive.RTDEReceiveInterface once started (ur-rtde ships no type stubs)
+        self._last_timestamp: float | None = None  # the controller's timestamp, s
         self._last_change_s = 0.0
         self._timestamps_advance = False
         self.software_version: str | None = None

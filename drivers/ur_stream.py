@@ -81,13 +81,18 @@ class URStateStream:
         self.error: str | None = None
 
     # ------------------------------------------------------------------ protocol
-    def _send(self, package_type: int, payload: bytes = b"") -> None:
-        self._sock.sendall(_HEADER.pack(_HEADER.size + len(payload), package_type) + payload)
-
-    def _recv_exact(self, n: int, sock: socket.socket | None = None) -> bytes:
+    def _connected(self, sock: socket.socket | None = None) -> socket.socket:
+        """``sock``, else the stream's socket; DeviceConnectionError when there is none (not started, closed)."""
         sock = sock or self._sock
         if sock is None:
             raise DeviceConnectionError(f"robot controller {self.host} port {self.port} (RTDE): not connected")
+        return sock
+
+    def _send(self, package_type: int, payload: bytes = b"") -> None:
+        self._connected().sendall(_HEADER.pack(_HEADER.size + len(payload), package_type) + payload)
+
+    def _recv_exact(self, n: int, sock: socket.socket | None = None) -> bytes:
+        sock = self._connected(sock)
         data = b""
         while len(data) < n:
             chunk = sock.recv(n - len(data))
@@ -114,8 +119,8 @@ class URStateStream:
         deadline = time.monotonic() + self.connect_timeout_s
         where = f"robot controller {self.host} port {self.port} (RTDE)"
         try:
-            self._sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout_s)
-            self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._sock = sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout_s)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._send(_V, struct.pack(">H", 2))
             if not self._reply(_V, deadline)[:1] == b"\x01":
                 raise DeviceConnectionError(f"{where}: the controller refused RTDE protocol version 2")
@@ -133,15 +138,16 @@ class URStateStream:
         except DeviceError:
             self.close()
             raise
-        self._sock.settimeout(RECEIVE_TIMEOUT_S)
-        self._thread = threading.Thread(target=self._read_loop, name="ftacq-rtde-stream", daemon=True)
+        sock.settimeout(RECEIVE_TIMEOUT_S)
+        self._thread = threading.Thread(target=self._read_loop, args=(sock,), name="ftacq-rtde-stream",
+                                        daemon=True)
         self._thread.start()
         return self
 
-    def _read_loop(self) -> None:
+    def _read_loop(self, sock: socket.socket) -> None:
         values = struct.Struct(">" + "d" * (_COLUMNS - 1))
         package_size = _HEADER.size + 1 + values.size
-        rows, capacity, sock = self._rows, self._rows.shape[0], self._sock
+        rows, capacity = self._rows, self._rows.shape[0]
         buffer = b""
         while not self._stop.is_set():
             try:

@@ -10,8 +10,7 @@ procedure, monitor) in ``procedures``.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from ftacq.lazy import lazy_names
 
 __version__ = "0.1.0"
 
@@ -38,14 +37,4 @@ _LAZY = {
 __all__ = ["__version__", "STANDARD_GRAVITY_M_S2", *_LAZY]
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'ftacq' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())

@@ -63,6 +63,16 @@ class Calibration:
     metadata: Mapping[str, Any] = field(default_factory=dict)
     sensor_offset: np.ndarray | None = None
     inertia: np.ndarray | None = None
+    # Precomputed compensation operators, derived from the fields above in __post_init__ (not constructor
+    # arguments, not compared, not shown): gain K (6, 3), lifted L (9, 6) and −L, bias (6,), and plain-float
+    # copies of K's rows, gravity_base and bias for the single-sample path.
+    _gain: np.ndarray = field(init=False, repr=False, compare=False)
+    _lifted: np.ndarray = field(init=False, repr=False, compare=False)
+    _lifted_negative: np.ndarray = field(init=False, repr=False, compare=False)
+    _bias: np.ndarray = field(init=False, repr=False, compare=False)
+    _gain_rows: tuple[tuple[float, ...], ...] = field(init=False, repr=False, compare=False)
+    _gravity_tuple: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _bias_tuple: tuple[float, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name, shape in (("sensor_offset", (3,)), ("inertia", (3, 3))):
@@ -76,7 +86,7 @@ class Calibration:
             ("center_of_mass", (3,)),
         ):
             object.__setattr__(self, name, _frozen_array(getattr(self, name), shape, name))
-        # Precomputed compensation operators (not fields: derived from the fields above).
+        # Precomputed compensation operators (derived from the fields above).
         # Predicted wrench = K @ (flange_R_base @ gravity_base) + bias with K = [S; [c]× S] (6×3), so for a
         # batch of rotations  pred = R.reshape(N, 9) @ L + bias  with  L[(j, k), :] = K[:, j] · gravity_base[k].
         c = self.center_of_mass

@@ -119,7 +119,9 @@ def _source(calibration: Calibration) -> dict[str, Any]:
 
 def ur_payload_text(calibration: Calibration) -> str:
     """The ``ur`` export: JSON with the URScript line and the values, frames stated."""
-    payload = ur_payload(calibration)
+    payload = ur_payload(calibration)  # InputError without the sensor offset
+    offset = sensor_offset_m(calibration)
+    assert offset is not None, "ur_payload refuses a calibration without sensor_offset_m"
     document = {
         "format": UR_FORMAT,
         "version": UR_FORMAT_VERSION,
@@ -131,7 +133,7 @@ def ur_payload_text(calibration: Calibration) -> str:
         "convention": "cog_flange_m: centre of gravity from the tool mount, tool-flange axes; inertia_kg_m2: "
                       "[Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the centre of gravity, tool-flange axes (null: the "
                       "calibration has no inertia and the controller uses zeros)",
-        "sensor_offset_m": [float(v) for v in sensor_offset_m(calibration)],
+        "sensor_offset_m": [float(v) for v in offset],
         "mass_sigma_kg": calibration.uncertainty.get("mass_kg"),
         "source": _source(calibration),
     }
@@ -200,7 +202,7 @@ def with_sensor_offset(calibration: Calibration, offset_m) -> Calibration:
 
     offset = [float(v) for v in np.asarray(offset_m, dtype=float).reshape(3)]
     if any(f.name == "sensor_offset" for f in fields(calibration)):
-        return replace(calibration, sensor_offset=offset)
+        return replace(calibration, sensor_offset=np.array(offset))
     metadata = dict(calibration.metadata)
     metadata["sensor_offset_m"] = offset
     return replace(calibration, metadata=metadata)

@@ -253,10 +253,10 @@ def read_pose_csv(path: str | os.PathLike) -> PoseRecord:
             if not np.all(np.isnan(values)):
                 optional[name] = values
     for name in (*STD_COLUMNS, *_INTEGER_COLUMNS):
-        values = optional.get(name)
-        if values is None:
+        present = optional.get(name)
+        if present is None:
             continue
-        bad = np.flatnonzero(values < 0)
+        bad = np.flatnonzero(present < 0)
         if bad.size:
             k = int(bad[0])
             raise InputError(f"{path}: line {lines[k]}, column {name!r}: value {rows[k][header.index(name)]!r} is negative")
@@ -333,8 +333,8 @@ def format_pose_row(
     set_name: str = "",
     count: int | None = None,
     std: Sequence[float] | None = None,
-    saturated: int | None = None,
-    lost: int | None = None,
+    saturated: float | None = None,
+    lost: float | None = None,
     t_start_s: float | None = None,
     t_end_s: float | None = None,
     joint_positions_rad: Sequence[float] | None = None,
@@ -342,7 +342,8 @@ def format_pose_row(
     """Return one CSV line (with newline) in the :data:`POSE_CSV_HEADER` column order.
 
     ``pose`` [x, y, z (m), rx, ry, rz (rad)], ``wrench`` [N, N·m], ``std`` per channel (same units),
-    ``joint_positions_rad`` (6,). Values are written with full float64 precision (``repr``).
+    ``joint_positions_rad`` (6,). ``saturated`` and ``lost`` are sample counts, given as int or as the float a
+    pose CSV was read back into (written as whole numbers when whole). Values are written with full float64 precision (``repr``).
     """
     pose = [float(v) for v in pose]
     wrench = [float(v) for v in wrench]

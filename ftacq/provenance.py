@@ -24,7 +24,7 @@ import hashlib
 import math
 import os
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 SENSOR_KEYS = ("serial", "model", "transport", "counts_per_force", "counts_per_torque", "force_unit", "torque_unit",
                "firmware")
@@ -59,8 +59,8 @@ def tool_record(name: str | None) -> dict[str, Any] | None:
     return {"name": str(name)} if name else None
 
 
-def bias_entry(method: str, force_bias: Sequence[float], torque_bias: Sequence[float],
-               force_sigma: Sequence[float] | None = None, torque_sigma: Sequence[float] | None = None,
+def bias_entry(method: str, force_bias: Iterable[float], torque_bias: Iterable[float],
+               force_sigma: Iterable[float] | None = None, torque_sigma: Iterable[float] | None = None,
                time: str | None = None, **extra: Any) -> dict[str, Any]:
     """Return one ``bias_history`` entry (N, N·m, sensor frame; 1σ where known; ``time`` UTC ISO, default now)."""
     entry: dict[str, Any] = {

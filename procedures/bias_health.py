@@ -62,11 +62,15 @@ class DriftCompensator:
         health: the :class:`ftacq.drift.BiasHealth` (its calibration is the one compensated with; its
             ``auto_tare`` decides whether the correction is subtracted).
         still: the :class:`StillDetector`.
+        moving: the compensator for the moving arm when the calibration has inertia
+            (:class:`procedures.dynamic_compensation.DynamicCompensator`), None for the static model. The tracker
+            learns only from rest windows, where both models agree; the correction applies to either.
     """
 
     health: BiasHealth
     still: StillDetector = field(default_factory=StillDetector)
     notices: list[HealthNotice] = field(default_factory=list)
+    moving: object | None = None
 
     @property
     def calibration(self):
@@ -77,7 +81,12 @@ class DriftCompensator:
         if robot is None:
             return None
         flange_R_base = rotation_from_rotvec(np.asarray(robot.flange_pose, dtype=float)[3:6]).T
-        residual = self.calibration.compensate(batch.wrench, flange_R_base)
+        if self.moving is not None:
+            residual = self.moving.compensate(batch, robot)  # type: ignore[attr-defined]
+            if residual is None:
+                return None
+        else:
+            residual = self.calibration.compensate(batch.wrench, flange_R_base)
         time_s = np.asarray(batch.time_s, dtype=float)
         still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
         good = ~np.asarray(batch.saturated, dtype=bool)

@@ -4,12 +4,26 @@ into the UR controller's external F/T input, under a watchdog (docs/bridge.md).
 Two threads::
 
     "ftacq-bridge-feed"   per controller cycle (the controller's output package is the clock):
-                          take the sensor's new samples → bias-removed or compensated (static model; the flange
-                          orientation from this cycle's actual_q) → Butterworth low-pass (scipy sosfilt, state
-                          carried across batches) → the newest filtered value through the feed convention → checks
-                          → write external_force_torque
+                          take the sensor's new samples → bias-removed (raw feed) or compensated: the dynamic
+                          model (gravity and the tool's inertial wrench) when the calibration has inertia, else
+                          the static model (the flange orientation from this cycle's actual_q) → Butterworth
+                          low-pass (state carried across batches) → the newest filtered value through the feed
+                          convention → checks → write external_force_torque
     caller's thread       enables the input (payload, enable call), waits for the end (--seconds, Ctrl-C, a
                           watchdog trip), publishes what is fed to the listeners, disables the input
+
+Timing (docs/bridge.md "Timing"): the value answering one output package must reach the controller before the next
+(2 ms at 500 Hz). The feed thread asks for real-time scheduling (SCHED_FIFO, :data:`REALTIME_PRIORITY`, as ur-rtde's
+interfaces do with their ``rt_priority``; refused without CAP_SYS_NICE or an rtprio limit, then it runs at normal priority and
+:attr:`BridgeSummary.feed_priority` says why); the interpreter's thread switch interval is shortened to
+:data:`SWITCH_INTERVAL_S` while feeding, so the feed thread gets the interpreter within that when its package
+arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`.
+
+Dynamic model: procedures.dynamic_compensation.DynamicCompensator, as in ``ftacq monitor``, with the controller
+cycles this bridge receives as its robot state stream (:class:`CycleStates`): the rigid-body model once per cycle
+(q̈ = target_qdd while the arm tracks the controller's trajectory, else a derivative of actual_qd), interpolated
+onto each sample's own time (its sequence number on the host clock, less the lag ``identify --motion`` measured).
+A batch with no cycle states around it is compensated statically.
 
 Decimation: the filter runs on every sensor sample (7 kHz); each controller cycle takes its newest output, so the
 cut-off (:data:`CUTOFF_FRACTION` of the controller rate) is the anti-alias filter. The stated delay is the
@@ -26,6 +40,8 @@ the disable cannot arrive within 0.1 s the controller's own watchdog pauses the 
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -37,9 +53,12 @@ from scipy import signal
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
+from drivers.ur_stream import StateWindow
+from procedures.dynamic_compensation import DynamicCompensator
+from procedures.excitation import counts_samples
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
-from procedures.events import FedWrenches, Listener, Notice
+from procedures.events import Event, FedWrenches, Listener, Notice
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +70,21 @@ MAX_STALENESS_S = 0.05
 JUMP_FORCE_N, JUMP_TORQUE_NM = 50.0, 5.0
 """Largest change of the fed force (norm, N) / torque (norm, N·m) from one controller cycle to the next."""
 CYCLE_TIMEOUT_S = 0.1
+REALTIME_PRIORITY = 80
+"""SCHED_FIFO priority asked for the feed thread (1-99; 0 keeps normal scheduling). The thread blocks on the
+controller's socket between cycles, so it takes a core only for its ~0.3 ms of work per cycle."""
+SWITCH_INTERVAL_S = 0.0002
+"""The interpreter's thread switch interval while feeding, s (Python's default 5 ms is longer than a cycle)."""
+SENSOR_HOLD_S = 0.0003
+"""Longest the sensor driver may hold received samples before they are readable, s (drivers/sensor.py
+``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU)."""
+STATE_CYCLES = 256
+"""Controller cycles of joint state kept for the dynamic model (0.5 s at 500 Hz)."""
+CLOCK_DRIFT_ALLOWANCE = 1e-4
+"""Rate (s/s, 100 ppm) at which the controller-to-host clock offset may rise: more than two clocks drift apart."""
+ROBOT_STATE_RATE_HZ = 125.0
+"""RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
+the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
 PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
@@ -88,6 +122,9 @@ class BridgeSettings:
     jump_force_n: float = JUMP_FORCE_N
     jump_torque_nm: float = JUMP_TORQUE_NM
     cycle_timeout_s: float = CYCLE_TIMEOUT_S
+    realtime_priority: int = REALTIME_PRIORITY
+    switch_interval_s: float = SWITCH_INTERVAL_S
+    sensor_hold_s: float = SENSOR_HOLD_S
 
 
 @dataclass
@@ -105,7 +142,17 @@ class BridgeSummary:
     cutoff_hz: float = 0.0
     sensor_rate_hz: float = 0.0
     controller_rate_hz: float = 0.0
+    compensation: str = ""
+    """"dynamic", "static" or "bias only" (raw feed)."""
+    feed_priority: str = ""
+    """How the feed thread was scheduled, e.g. "SCHED_FIFO 80" or "normal (…why…)"."""
     log: np.ndarray = field(default_factory=lambda: np.empty((0, len(LOG_COLUMNS))))
+
+    def answer_time_s(self) -> np.ndarray:
+        """Time from a controller cycle's package arriving to the value written in answer, s (a value that must
+        reach the controller before its next cycle: longer than one cycle is late)."""
+        rows = self.log[np.isfinite(self.log[:, 2])]
+        return rows[:, 2] - rows[:, 1]
 
     def staleness_s(self) -> np.ndarray:
         """Age of the newest sensor sample when each value was written, s."""
@@ -114,13 +161,19 @@ class BridgeSummary:
 
 
 class WrenchFilter:
-    """Butterworth low-pass over (N, 6) batches; the state is carried from batch to batch (scipy sosfilt)."""
+    """Butterworth low-pass over (N, 6) batches, second-order sections designed by scipy (``output="sos"``); the
+    state is carried from batch to batch and starts in steady state on the first sample (no start-up transient).
+
+    Each section runs through ``scipy.signal.lfilter`` (the same transposed direct-form recursion ``sosfilt`` runs
+    per section): at 14 samples a call, ``sosfilt``'s own argument checks cost several times the filtering
+    (benchmarks/README.md, controller bridge)."""
 
     def __init__(self, cutoff_hz: float, sample_rate_hz: float, order: int = FILTER_ORDER) -> None:
         if not 0 < cutoff_hz < 0.5 * sample_rate_hz:
             raise FtacqError(f"low-pass cut-off {cutoff_hz:g} Hz: must be between 0 and half the sensor rate "
                              f"({0.5 * sample_rate_hz:g} Hz)")
         self.sos = signal.butter(order, cutoff_hz, fs=sample_rate_hz, output="sos")
+        self._sections = [(section[:3].copy(), section[3:].copy()) for section in self.sos]
         self._zi_unit = signal.sosfilt_zi(self.sos)[:, :, None]  # (sections, 2, 1): steady state for a unit step
         self.zi: np.ndarray | None = None
         _, delay = signal.group_delay((*signal.sos2tf(self.sos),), w=[1.0], fs=sample_rate_hz)
@@ -128,9 +181,11 @@ class WrenchFilter:
         """Group delay at 1 Hz, s (the delay of slow changes)."""
 
     def __call__(self, wrench: np.ndarray) -> np.ndarray:
-        if self.zi is None:  # start in steady state on the first sample: no start-up transient
+        if self.zi is None:
             self.zi = self._zi_unit * wrench[0][None, None, :]
-        out, self.zi = signal.sosfilt(self.sos, wrench, axis=0, zi=self.zi)
+        out = wrench
+        for k, (b, a) in enumerate(self._sections):
+            out, self.zi[k] = signal.lfilter(b, a, out, axis=0, zi=self.zi[k])
         return out
 
 
@@ -140,6 +195,39 @@ def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
         return sensor.read(timeout_s=0.0)
     except DeviceTimeoutError:
         return None
+
+
+class CycleStates:
+    """The controller cycles' joint states as a robot state stream (``window``, as drivers.ur_stream.URStateStream)
+    for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, each on the
+    host clock as its controller timestamp plus the lower envelope of (arrival − timestamp), which may rise by
+    :data:`CLOCK_DRIFT_ALLOWANCE` of the elapsed controller time (a package that waited in a queue does not move
+    it; a host clock running faster than the controller's is followed). Written and read by the feed thread."""
+
+    def __init__(self, capacity: int = STATE_CYCLES) -> None:
+        self._rows = np.zeros((capacity, 26))  # arrival, timestamp, q, qd, target qd, target qdd
+        self._count = 0
+        self._offset: float | None = None
+        self._offset_at = 0.0
+
+    def append(self, cycle) -> None:
+        raw = cycle.received_s - cycle.timestamp_s
+        if self._offset is None:
+            self._offset = raw
+        else:
+            allowance = CLOCK_DRIFT_ALLOWANCE * max(cycle.timestamp_s - self._offset_at, 0.0)
+            self._offset = min(raw, self._offset + allowance)
+        self._offset_at = cycle.timestamp_s
+        row = self._rows[self._count % len(self._rows)]
+        row[0], row[1] = cycle.received_s, cycle.timestamp_s
+        row[2:8], row[8:14], row[14:20], row[20:26] = cycle.q, cycle.qd, cycle.target_qd, cycle.target_qdd
+        self._count += 1
+
+    def window(self, last: int) -> StateWindow:
+        n = min(self._count, len(self._rows), last)
+        rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
+        times = rows[:, 1] + (self._offset or 0.0)
+        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
 
 
 class _Log:
@@ -184,6 +272,17 @@ class Bridge:
         self.cutoff_hz = settings.cutoff_hz or CUTOFF_FRACTION * self.controller_rate_hz
         self.filter = WrenchFilter(self.cutoff_hz, self.sensor_rate_hz, settings.filter_order)
         self._bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+        self.states = CycleStates()
+        """Every controller cycle's joint state, on the host clock (the dynamic model's robot stream)."""
+        self.dynamic: DynamicCompensator | None = None
+        if plan.feed == "raw":
+            self.compensation = "bias only"
+        elif calibration.has_dynamics:
+            self.compensation = "dynamic"
+            self.dynamic = DynamicCompensator(calibration, model, self.states, counts_samples=counts_samples(sensor))
+        else:
+            self.compensation = "static"
+        self.feed_priority = "normal"
         self._stop_feeding = threading.Event()
         self._done = threading.Event()
         self._trip: str | None = None
@@ -192,15 +291,40 @@ class Bridge:
         self._written = 0
         self._thread: threading.Thread | None = None
 
+    @property
+    def written(self) -> int:
+        """Values written so far (read from any thread)."""
+        return self._written
+
     # ------------------------------------------------------------------ feed thread
-    def _sensor_frame(self, batch: WrenchBatch, q: np.ndarray) -> np.ndarray:
+    def _sensor_frame(self, batch: WrenchBatch, cycle) -> np.ndarray:
         if self.plan.feed == "raw":
             return batch.wrench - self._bias
-        base_R_flange = forward_kinematics(self.model, q)[:3, :3]
+        if self.dynamic is not None:
+            compensated = self.dynamic.compensate(batch, None)
+            if compensated is not None:
+                return compensated
+        base_R_flange = forward_kinematics(self.model, cycle.q)[:3, :3]
         return self.calibration.compensate(batch.wrench, base_R_flange.T)
+
+    def _ask_realtime(self) -> None:
+        """SCHED_FIFO for the calling thread (the feed), if allowed; :attr:`feed_priority` says what happened."""
+        priority = self.settings.realtime_priority
+        if priority <= 0:
+            self.feed_priority = "normal (real-time priority not asked)"
+            return
+        if not hasattr(os, "sched_setscheduler"):
+            self.feed_priority = "normal (no SCHED_FIFO on this system)"
+            return
+        try:
+            os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority))
+            self.feed_priority = f"SCHED_FIFO {priority}"
+        except (OSError, ValueError) as error:  # EPERM without CAP_SYS_NICE / rtprio limit
+            self.feed_priority = f"normal (SCHED_FIFO {priority} refused: {getattr(error, 'strerror', None) or error})"
 
     def _feed(self) -> None:
         settings = self.settings
+        self._ask_realtime()
         held: np.ndarray | None = None
         newest_s = -np.inf
         previous: np.ndarray | None = None
@@ -214,6 +338,8 @@ class Bridge:
                     return
                 row = self._log.row()
                 row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
+                if self.dynamic is not None:
+                    self.states.append(cycle)
                 try:
                     batch = _take(self.sensor)
                 except DeviceError as error:
@@ -224,7 +350,7 @@ class Bridge:
                         self._trip_now(f"the sensor reports saturation or an error status "
                                        f"({int(np.count_nonzero(batch.saturated))} of {len(batch)} samples)")
                         return
-                    filtered = self.filter(self._sensor_frame(batch, cycle.q))
+                    filtered = self.filter(self._sensor_frame(batch, cycle))
                     held, newest_s = filtered[-1], float(batch.time_s[-1])
                     self._samples += len(batch)
                     row[4] = len(batch)
@@ -269,7 +395,11 @@ class Bridge:
         expected = int((duration_s or 60.0) * self.controller_rate_hz * 1.2) + 1024
         self._log = _Log(expected)
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
-                                sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz)
+                                sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,
+                                compensation=self.compensation)
+        self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
+        switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(min(switch_interval_s, self.settings.switch_interval_s))
         start_s = time.monotonic()
         self._thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
         self._thread.start()
@@ -282,7 +412,9 @@ class Bridge:
                 self.switch.enable_external_ft_input(True, self.plan.function, self.plan.sensor_mass_kg,
                                                      self.plan.sensor_measuring_offset_m, self.plan.sensor_cog_m)
                 enabled = True
-                self._notify(Notice(f"feeding: {self.plan.function} enabled, feed {self.plan.feed}", source="bridge"))
+                self._notify(Notice(f"feeding: {self.plan.function} enabled, feed {self.plan.feed} "
+                                    f"({self.compensation} compensation), feed thread {self.feed_priority}",
+                                    source="bridge"))
             deadline_s = None if duration_s is None else start_s + duration_s
             while not stop.is_set() and not self._done.is_set():
                 wait_s = PUBLISH_PERIOD_S
@@ -302,7 +434,9 @@ class Bridge:
             if self._thread is not None:
                 self._thread.join(2 * self.settings.cycle_timeout_s + 1.0)
             self._publish(published)
+            sys.setswitchinterval(switch_interval_s)
             summary.duration_s = time.monotonic() - start_s
+            summary.feed_priority = self.feed_priority
             summary.trip = self._trip
             summary.cycles, summary.written, summary.samples = self._log.count, self._written, self._samples
             summary.log = self._log.data[:self._log.count].copy()
@@ -322,6 +456,8 @@ class Bridge:
             self._done.wait(0.005)
 
     def _disable(self) -> bool:
+        if self.switch is None:
+            return False
         try:
             self.switch.enable_external_ft_input(False, self.plan.function)
             return True
@@ -340,7 +476,7 @@ class Bridge:
                                  written=len(rows)))
         return count
 
-    def _notify(self, event: object) -> None:
+    def _notify(self, event: Event) -> None:
         for listener in self.listeners:
             try:
                 listener(event)

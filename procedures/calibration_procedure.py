@@ -255,7 +255,8 @@ class CalibrationProcedure:
 
     def run(self) -> ProcedureResult:
         """Execute the plan; always returns a result (the robot is stopped on any exit but success)."""
-        status, message, error, interrupted = "failed", "", None, False
+        status, message, interrupted = "failed", "", False
+        error: BaseException | None = None
         try:
             with SensorTap(self.sensor, self._emit):  # every sample read reaches the listeners (raw stream)
                 self.startup()

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import threading
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from ftacq.dynamics.acceleration import joint_acceleration
 from ftacq.dynamics.identify import MotionRecord
 from ftacq.dynamics.timing import device_to_host_clock
 from ftacq.errors import PlanError
+
+if TYPE_CHECKING:
+    from drivers.sensor import ForceTorqueSensor, WrenchBatch
 
 log = logging.getLogger(__name__)
 
@@ -149,8 +153,8 @@ def sensor_host_times(arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray
 class _SensorRecorder:
     """Reads the sensor in a thread until stopped, keeping every batch."""
 
-    sensor: object
-    batches: list = field(default_factory=list)
+    sensor: ForceTorqueSensor
+    batches: list[WrenchBatch] = field(default_factory=list)
     error: BaseException | None = None
 
     def __post_init__(self) -> None:

@@ -39,7 +39,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import TYPE_CHECKING, Protocol, Sequence
 
 import numpy as np
 
@@ -49,6 +49,9 @@ from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
 from procedures import events
 from procedures.delivery import DEFAULT_MAX_QUEUED, DEFAULT_PERIOD_S, BackgroundListener
+
+if TYPE_CHECKING:
+    from ftacq.calibration import Calibration
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +88,7 @@ class GravityCompensator:
     """Static gravity compensation with a :class:`ftacq.calibration.Calibration` and the latest flange orientation
     (:meth:`ftacq.calibration.Calibration.compensate`: raw − bias − tool weight in the sensor frame)."""
 
-    calibration: object
+    calibration: Calibration
 
     def compensate(self, batch: WrenchBatch, robot: events.RobotState | None) -> np.ndarray | None:
         if robot is None:
@@ -384,8 +387,9 @@ class LiveMonitor:
     def _publish_periodic(self, samples: events.WrenchSamples, summary: MonitorSummary) -> None:
         """Publish the arm (``robot_rate_hz``) and the stream's health (``status_rate_hz``) on the sensor clock."""
         now_s = float(samples.batch.time_s[-1])
-        if samples.flange_pose is not None and now_s - self._last_robot_s >= 1.0 / self.robot_rate_hz:
-            self._publisher(events.RobotState(now_s, samples.joint_positions_rad, samples.flange_pose))
+        joints, pose = samples.joint_positions_rad, samples.flange_pose  # both known, or both None (no robot)
+        if joints is not None and pose is not None and now_s - self._last_robot_s >= 1.0 / self.robot_rate_hz:
+            self._publisher(events.RobotState(now_s, joints, pose))
             self._last_robot_s = now_s
         if now_s - self._last_status_s >= 1.0 / self.status_rate_hz:
             self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples))

@@ -5,6 +5,7 @@ the watchdog (silent sensor, saturation, Ctrl-C) and ``--check`` (procedures/bri
 from __future__ import annotations
 
 import _thread
+import sys
 import threading
 import time
 
@@ -154,6 +155,24 @@ def test_ctrl_c_disables_the_input_while_still_feeding(cell, robot, parts):
     assert state["watchdog_trips"] == before["watchdog_trips"]  # disabled before the feed stopped
 
 
+def test_feed_runs_at_normal_priority_where_real_time_is_refused(cell, robot, parts, monkeypatch):
+    """Without CAP_SYS_NICE or an rtprio limit SCHED_FIFO is refused: the bridge feeds anyway and says so; the
+    interpreter's switch interval is restored afterwards."""
+    sensor, client, plan = parts
+
+    def refuse(*_args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr("os.sched_setscheduler", refuse)
+    switch_interval_s = sys.getswitchinterval()
+    summary = Bridge(sensor, client, robot, plan, cell.truth.calibration(), UR5E, LOADED).run(duration_s=0.5)
+    assert summary.trip is None and summary.written > 0
+    assert summary.feed_priority == "normal (SCHED_FIFO 80 refused: Operation not permitted)"
+    assert summary.compensation == "static"
+    assert sys.getswitchinterval() == switch_interval_s
+    assert len(summary.answer_time_s()) == summary.written
+
+
 def test_program_mode_only_feeds(cell, robot, parts):
     """--enable program: the PolyScope program enables the input; the bridge makes no enable call of its own."""
     sensor, client, plan = parts
@@ -204,3 +223,32 @@ def test_cli_config_without_calibration_is_a_one_line_error(tmp_path, capsys):
     assert main(["bridge", "--config", str(config)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["ftacq: error: ftacq bridge --config needs --calibration CAL.json (the tool the sensor carries)"]
+
+
+@pytest.mark.parametrize("value, why", [("120", "120 is outside 0-99 (0 = normal scheduling)"),
+                                        ("high", "'high' is not a whole number")])
+def test_cli_realtime_priority_out_of_range_is_a_one_line_error(capsys, value, why):
+    from ftacq.app.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["bridge", "--sim", "--realtime-priority", value])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"ftacq bridge: error: argument --realtime-priority: {why}"
+
+
+@pytest.mark.parametrize("order", [2, 4])
+def test_wrench_filter_in_batches_equals_one_sosfilt_pass_from_steady_state(order):
+    from scipy import signal
+
+    from procedures.bridge import WrenchFilter
+
+    wrench = np.random.default_rng(order).standard_normal((2000, 6)) + np.array([5.0, -3.0, 20.0, 0.1, 0.2, -0.3])
+    batched = WrenchFilter(100.0, 7000.0, order)
+    edges = np.cumsum([14, 1, 30, 14] * 34)  # batches of 14, 1, 30, 14 samples: 2006 in all
+    out = np.vstack([batched(part) for part in np.split(wrench, edges[edges < len(wrench)])])
+    zi = signal.sosfilt_zi(batched.sos)[:, :, None] * wrench[0][None, None, :]
+    expected, _ = signal.sosfilt(batched.sos, wrench, axis=0, zi=zi)
+    np.testing.assert_allclose(out, expected, atol=1e-10)
+    constant = WrenchFilter(100.0, 7000.0, order)
+    np.testing.assert_allclose(constant(np.tile(wrench[:1], (50, 1))), np.tile(wrench[:1], (50, 1)), atol=1e-10)

@@ -34,7 +34,8 @@ SHIFT = np.array([0.4, -0.3, 0.5, 0.01, -0.012, 0.006])
 FAST_SETTLE = SettleSettings(settle_time_s=0.0, window_s=0.02, average_time_s=0.2, timeout_s=5.0)
 
 
-def shifted_truth(truth: CellTruth = CellTruth()) -> CellTruth:
+def shifted_truth(truth: CellTruth | None = None) -> CellTruth:
+    truth = truth or CellTruth()
     return replace(truth, force_bias_n=tuple(np.add(truth.force_bias_n, SHIFT[:3])),
                    torque_bias_nm=tuple(np.add(truth.torque_bias_nm, SHIFT[3:])))
 

@@ -264,3 +264,32 @@ def test_taken_address_is_reported_and_the_helper_retries_elsewhere(fake, monkey
     with URControllerProcess(time_scale=0.0) as second:
         assert second.host == fresh
         assert second.state()["q"] is not None
+
+
+def test_pendant_jog_moves_with_the_motion_profile_not_a_jump():
+    """``jog`` (the simulated technician's pendant moves): the arm moves through the controller's moveJ profile, so
+    its joint state (and a simulated sensor's inertial wrench) changes smoothly; ``set q`` jumps."""
+    from tests.fakes.world import SharedPose
+
+    shared = SharedPose(name=None, create=True)
+    try:
+        with URControllerProcess(time_scale=1.0, pose_shm=shared.name, initial_q=HOME_Q) as process:
+            target = np.array(HOME_Q) + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.4])
+            duration_s = process.jog(target, 1.0, 4.0)
+            assert duration_s == pytest.approx(0.4 / 1.0 + 1.0 / 4.0)  # trapezoid: L/v + v/a
+            moving = process.wait_for(lambda state: state["moving"], timeout_s=5.0)
+            assert moving["move_count"] >= 1
+            seen = []
+
+            def in_motion() -> bool:
+                state = shared.read_state()[2]
+                seen.append(state)
+                return state is not None and not state.at_rest
+
+            wait_until(in_motion, what="the published joint state in motion (q̇ ≠ 0: not a jump)")
+            assert 0 < np.abs(seen[-1].qd).max() <= 1.0 + 1e-9  # on the profile, within the jog's speed
+            process.wait_for(lambda state: not state["moving"], timeout_s=10.0)
+            np.testing.assert_allclose(process.state()["q"], target, atol=1e-9)
+            assert process.commands()[-1]["source"] == "pendant"
+    finally:
+        shared.close()

@@ -238,8 +238,8 @@ def discover(box: BoxAddress, *, override: Scaling | None = None, rate_hz: float
                 f"{tcp_scaling.describe()}. Check the active configuration (setcfgsel) or pass "
                 f"counts_per_force, counts_per_torque, force_unit and torque_unit in the URL")
         scaling = http_scaling
-    elif http_scaling is not None or tcp_scaling is not None:
-        scaling = http_scaling or tcp_scaling
+    elif (only := http_scaling or tcp_scaling) is not None:
+        scaling = only
         logger.warning("Net F/T %s: scaling from %s only (%s)", box.host, scaling.source, "; ".join(problems))
     else:
         if not api and calinfo is None:

@@ -121,7 +121,8 @@ class NetFTSensor(SensorBase):
             raise InputError("counts_per_force, counts_per_torque, force_unit and torque_unit override discovery "
                              "only all together")
         self._override: Scaling | None = None
-        if all(v is not None for v in overrides):
+        if (counts_per_force is not None and counts_per_torque is not None and force_unit is not None
+                and torque_unit is not None):
             check_range("counts_per_force", counts_per_force, 1e-9, 1e12)
             check_range("counts_per_torque", counts_per_torque, 1e-9, 1e12)
             try:
@@ -156,6 +157,7 @@ class NetFTSensor(SensorBase):
         self._address: tuple | None = None
         self._family: int = socket.AF_INET
         self._receiver: RdtReceiver | None = None
+        self._receive_hold_s: float | None = None
 
     # ------------------------------------------------------------------ construction from a URL
 
@@ -178,6 +180,13 @@ class NetFTSensor(SensorBase):
     def label(self) -> str:
         return f"Net F/T {self.host}:{self.rdt_port}"
 
+    def prefer_low_latency(self, max_hold_s: float) -> None:
+        """Shorten the receive thread's pause after a wake-up (drivers/netft/receiver.py ``COALESCE_S``, 1 ms) to
+        ``max_hold_s``: the newest record is readable sooner, for more wake-ups (CPU) per second."""
+        self._receive_hold_s = max(0.0, float(max_hold_s))
+        if self._receiver is not None:
+            self._receiver.coalesce_s = min(self._receiver.coalesce_s, self._receive_hold_s)
+
     def _open(self) -> None:
         """Discover units and counts per unit (HTTP and TCP, cross-checked), set the rate if asked, open the
         socket, start the receive thread and the stream, and wait for the first record.
@@ -193,6 +202,8 @@ class NetFTSensor(SensorBase):
         self._apply(found)
         receiver = RdtReceiver(self.host, self._address, self._family, self.timeout_s, self._resend,
                                self.accept_any_port)
+        if self._receive_hold_s is not None:
+            receiver.coalesce_s = min(receiver.coalesce_s, self._receive_hold_s)
         receiver.open()
         self._receiver = receiver
         self.info.extra["receive_buffer_bytes"] = receiver.receive_buffer_bytes
@@ -293,7 +304,7 @@ class NetFTSensor(SensorBase):
     def reset_latch(self) -> None:
         """Clear the monitor-condition latch (RDT 0x0041)."""
         self._require_started()
-        self._receiver.send(rdt_command(RDT_RESET_LATCH))
+        self._started_receiver().send(rdt_command(RDT_RESET_LATCH))
 
     def health(self) -> SensorHealth:
         """Return a snapshot: received (well-formed records), lost, gaps, longest_gap_s, duplicate, out_of_order,
@@ -341,12 +352,18 @@ class NetFTSensor(SensorBase):
 
     def _send_start(self, bias: bool = False) -> None:
         """Send the start command (after a bias command when ``bias``), telling the tracker first."""
-        receiver = self._receiver
+        receiver = self._started_receiver()
         with self._decode_lock:
             self._tracker.expect_start(receiver.written, time.monotonic(), bias=bias)
         if bias:
             receiver.send(rdt_command(RDT_BIAS))
         receiver.send(rdt_command(RDT_START_BUFFERED if self.buffered else RDT_START))
+
+    def _started_receiver(self) -> RdtReceiver:
+        """The receive side, which exists from start() on (DeviceError before)."""
+        if self._receiver is None:
+            raise DeviceError(f"{self.label}: not started")
+        return self._receiver
 
     def _resend(self) -> None:
         self._send_start()
@@ -357,7 +374,7 @@ class NetFTSensor(SensorBase):
         deadline = self._tracker.hold_deadline
         if deadline is not None:  # held records are released when their reorder window expires
             timeout_s = min(timeout_s, max(deadline - time.monotonic(), 0.0) + 1e-4)
-        self._receiver.wait(timeout_s, lambda: self._closed)
+        self._started_receiver().wait(timeout_s, lambda: self._closed)
 
     def _take(self) -> WrenchBatch:
         with self._decode_lock:
@@ -372,7 +389,7 @@ class NetFTSensor(SensorBase):
     def _decode(self) -> None:
         """Move every record the receive thread wrote into decoded batches, updating the counters."""
         with self._decode_lock:
-            records, times, first_index = self._receiver.take()
+            records, times, first_index = self._started_receiver().take()
             if not len(records) and not self._tracker.held:
                 return
             tracker = self._tracker

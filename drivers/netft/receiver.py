@@ -139,6 +139,8 @@ class RdtReceiver:
     def send(self, datagram: bytes) -> None:
         """Send a command datagram to the box (a failure is counted, never raised)."""
         try:
+            if self.sock is None:
+                raise OSError("socket not open")
             with self._send_lock:
                 self.sock.sendto(datagram, self.address)
         except OSError as error:
@@ -180,6 +182,8 @@ class RdtReceiver:
 
     def _receive(self) -> None:
         sock, ring, times, stop = self.sock, memoryview(self._ring), self._times, self._stop
+        if sock is None:
+            raise RuntimeError("RdtReceiver.start() before open()")
         expected, any_port = self.address, self.accept_any_port
         capacity, capacity_mask, max_bytes = self.capacity, self.capacity - 1, self.max_datagram_bytes
         room_needed = self.slack + 1

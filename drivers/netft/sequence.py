@@ -220,7 +220,8 @@ class SequenceTracker:
             df = (f - self._head_ft) & UINT32_MASK
             forward = 1 <= dr < HALF_RANGE
             step = self.ft_step
-            ours_pending = self._active_since is not None
+            active_since = self._active_since
+            ours_pending = active_since is not None
             if forward:
                 same_stream = df < HALF_RANGE and (not ours_pending or step == 0 or df <= dr * step)
             elif df == 0:
@@ -245,8 +246,8 @@ class SequenceTracker:
                             self._active_since = None  # this box does not restart its sequence on a start
                 continue  # stage 2 sorts out copies and late records
             ft_forward = 0 < df < HALF_RANGE
-            ours = ours_pending and (self.rate_hz <= 0 or r <= (t - self._active_since) * self.rate_hz
-                                     * RESTART_RATE_MARGIN + RESTART_WINDOW)
+            ours = active_since is not None and (self.rate_hz <= 0 or r <= (t - active_since) * self.rate_hz
+                                                 * RESTART_RATE_MARGIN + RESTART_WINDOW)
             if not ours and not ft_forward and r > RESTART_WINDOW:
                 keep[i] = False  # a stale record of an older stream
                 counters.duplicate += 1
@@ -294,7 +295,8 @@ class SequenceTracker:
     def _order(self, records: np.ndarray, times: np.ndarray, now: float, out: list, release_all: bool) -> None:
         """Deliver records of the current stream in sequence order, holding those past a gap (see the module)."""
         counters = self.counters
-        last = int(self._last_rdt)
+        last = self._last_rdt
+        assert last is not None, "stage 2 runs once stage 1 has started a stream"
         held = len(self._held)
         if held:
             records = np.concatenate([self._held, records])
@@ -337,7 +339,7 @@ class SequenceTracker:
         breaks = np.flatnonzero(np.diff(np.concatenate([[0], key])) != 1)
         first_after = np.minimum.accumulate(times[::-1])[::-1]  # earliest arrival among the records from here on
         begin = 0
-        for gap_at in breaks:
+        for gap_at in breaks.tolist():
             if not release_all and now - float(first_after[gap_at]) < self.reorder_window_s:
                 self._deliver(records[begin:gap_at], times[begin:gap_at], key[begin:gap_at], out)
                 self._held = records[gap_at:].copy()
@@ -348,7 +350,9 @@ class SequenceTracker:
                 return
             previous_key = int(key[gap_at - 1]) if gap_at > 0 else 0
             self._deliver(records[begin:gap_at], times[begin:gap_at], key[begin:gap_at], out)
-            self._note_missing(int(self._last_rdt), int(key[gap_at]) - previous_key - 1,
+            delivered = self._last_rdt  # advanced by _deliver (unchanged after an empty run): never None here
+            assert delivered is not None
+            self._note_missing(delivered, int(key[gap_at]) - previous_key - 1,
                                float(times[gap_at]) - self._last_time)
             begin = gap_at
         self._deliver(records[begin:], times[begin:], key[begin:], out)

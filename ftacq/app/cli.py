@@ -22,6 +22,7 @@ import sys
 
 from ftacq import __version__
 from ftacq.app.helptext import examples
+from ftacq.app.signals import sigterm_as_interrupt
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
 
 COMMAND_MODULES = (
@@ -93,7 +94,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_BAD_INPUT
     try:
-        return int(args.func(args) or 0)
+        with sigterm_as_interrupt():  # SIGTERM stops every command as Ctrl-C does (exit 130, data kept)
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("ftacq: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

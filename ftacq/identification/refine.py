@@ -164,12 +164,12 @@ CHUNK_POSES = 2048
 """Poses per block when accumulating the normal equations (bounds the Jacobian block's memory)."""
 
 
-def _as_orientation_block(flange_R_base) -> OrientationBlock:
+def _as_orientation_block(flange_R_base: np.ndarray | OrientationBlock) -> OrientationBlock:
     return flange_R_base if isinstance(flange_R_base, OrientationBlock) else OrientationBlock(flange_R_base)
 
 
 def normal_equations(
-    params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray
+    params: ModelParameters, flange_R_base: np.ndarray | OrientationBlock, wrench: np.ndarray, weight: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Return (JᵀWJ (15, 15), JᵀW r (15,), cost rᵀW r, residuals r (N, 6)).
 
@@ -205,7 +205,8 @@ def normal_equations(
     return information, gradient, total, residual
 
 
-def cost(params: ModelParameters, flange_R_base, wrench: np.ndarray, weight: np.ndarray) -> float:
+def cost(params: ModelParameters, flange_R_base: np.ndarray | OrientationBlock, wrench: np.ndarray,
+         weight: np.ndarray) -> float:
     """Return rᵀ W r at ``params`` (``weight`` as in :func:`normal_equations`)."""
     poses = _as_orientation_block(flange_R_base)
     residual = wrench.T - _predict_t(params, poses.rotations_t)
@@ -227,16 +228,16 @@ class RefineResult:
 
 def levenberg_marquardt(
     params: ModelParameters,
-    flange_R_base: np.ndarray,
+    flange_R_base: np.ndarray | OrientationBlock,
     wrench: np.ndarray,
     weight: np.ndarray,
     max_iterations: int = MAX_ITERATIONS,
 ) -> RefineResult:
     """Minimise rᵀ W r from ``params`` (``weight`` (N, 6) = w_i / σ_i,ch² or (N, 6, 6) whitening matrices, as in
-    :func:`normal_equations`); return the optimum."""
-    flange_R_base = _as_orientation_block(flange_R_base)
+    :func:`normal_equations`); return the optimum. ``flange_R_base`` as in :func:`normal_equations`."""
+    poses = _as_orientation_block(flange_R_base)
     damping = INITIAL_DAMPING
-    jtj, jtr, current, _ = normal_equations(params, flange_R_base, wrench, weight)
+    jtj, jtr, current, _ = normal_equations(params, poses, wrench, weight)
     for iteration in range(1, max_iterations + 1):
         scale = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
         scaled = jtj / np.outer(scale, scale)
@@ -248,7 +249,7 @@ def levenberg_marquardt(
                 damping *= 10.0
                 continue
             candidate = params.updated(step)
-            trial = cost(candidate, flange_R_base, wrench, weight)
+            trial = cost(candidate, poses, wrench, weight)
             if trial <= current:
                 accepted = True
                 break
@@ -258,7 +259,7 @@ def levenberg_marquardt(
         predicted_decrease = float(step @ jtr)
         params = candidate
         damping = max(damping / 10.0, 1e-15)
-        jtj, jtr, current, _ = normal_equations(params, flange_R_base, wrench, weight)
+        jtj, jtr, current, _ = normal_equations(params, poses, wrench, weight)
         if predicted_decrease <= DECREMENT_TOLERANCE * max(current, 1.0):
             return RefineResult(params, True, iteration, current)
     return RefineResult(params, False, max_iterations, current)

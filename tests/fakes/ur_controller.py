@@ -26,7 +26,9 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
   ``commands``' ``move`` field; default: the next move.
 - ``release_estop`` (the e-stop button is released; then ``close safety popup``, ``power on``, ``brake release``
   on the UR Dashboard Server, as on a real arm) · ``restore`` (end a drop or freeze) · ``clear_faults``
-- ``set time_scale X`` · ``set q q0 .. q5`` · ``set tcp_offset x y z rx ry rz`` · ``quit``
+- ``jog q0 .. q5 SPEED ACCELERATION`` (a moveJ from the teach pendant: the arm moves with the controller's motion
+  profile, so a simulated sensor sees the tool's inertia; answers ``accepted`` and the move's ``duration_s``) ·
+  ``set time_scale X`` · ``set q q0 .. q5`` (a jump, no motion) · ``set tcp_offset x y z rx ry rz`` · ``quit``
 - ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
   the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
   period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
@@ -41,6 +43,7 @@ import argparse
 import errno
 import json
 import os
+import select
 import signal
 import socket
 import struct
@@ -57,6 +60,12 @@ from tests.fakes.ur_simulator import Fault, URSimulator
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 TICK_HZ = 500.0
+READ_POLL_S = 0.5
+"""A connection's thread checks whether the connection was closed this often, s."""
+RECEIVE_CHUNK_BYTES = 65536
+SWITCH_INTERVAL_S = 0.0002
+"""The interpreter's thread switch interval in this process (Python's default is 5 ms): the tick thread and the
+connection threads each get the interpreter within this when they wake, as a real-time controller would serve them."""
 IDLE_TICK_S = 0.01
 """Tick period while no client streams and nothing moves (keeps an idle controller CPU-light)."""
 MAX_STREAM_HZ = 500.0
@@ -64,6 +73,20 @@ SEND_TIMEOUT_S = 1.0
 BIND_ERROR_EXIT = 3
 TOOL_MOTION_OUTPUTS = frozenset({"actual_TCP_speed", "target_TCP_speed", "actual_tool_accelerometer"})
 FAULT_KINDS = ("protective_stop", "emergency_stop", "program_stop", "drop", "freeze")
+
+
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_STAMP_SPACE = socket.CMSG_SPACE(16)
+
+
+def _kernel_arrival_s(ancillary) -> float | None:
+    """The kernel's receive stamp (SO_TIMESTAMPNS, CLOCK_REALTIME) of the newest bytes read, on the monotonic clock:
+    when an input reached this controller, however late this process's threads got to it."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 16:
+            seconds, nanoseconds = struct.unpack("qq", data[:16])
+            return time.monotonic() - (time.time() - (seconds + nanoseconds * 1e-9))
+    return None
 
 
 def _listener(host: str, port: int) -> socket.socket:
@@ -84,17 +107,6 @@ def _alive(connection: "RTDEConnection") -> bool:
         return True
     except OSError:
         return False
-
-
-def _recv_exact(sock: socket.socket, n: int) -> bytes | None:
-    chunks, got = [], 0
-    while got < n:
-        chunk = sock.recv(n - got)
-        if not chunk:
-            return None
-        chunks.append(chunk)
-        got += len(chunk)
-    return b"".join(chunks)
 
 
 class _OutputPlan:
@@ -140,7 +152,10 @@ class RTDEConnection:
         self.last_sent_seq = 0
         self.streaming = False
         self.closed = False
+        self.receive_lock = threading.Lock()
+        self.received = bytearray()
         sock.settimeout(None)
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)  # the kernel stamps when each input arrived
         # a send timeout only (a Python socket timeout would also apply to the reader thread's recv)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, struct.pack("ll", int(SEND_TIMEOUT_S), 0))
 
@@ -174,25 +189,53 @@ class RTDEConnection:
         self.sock.close()
 
     def serve(self) -> None:
+        """The connection's thread: wait for bytes, then :meth:`pump` them (the tick thread pumps too)."""
         try:
             while not self.closed:
-                header = _recv_exact(self.sock, rp.HEADER_SIZE)
-                if header is None:
+                readable, _, _ = select.select([self.sock], [], [], READ_POLL_S)
+                if readable and not self.pump():
                     break
-                size, package_type = rp.HEADER.unpack(header)
-                body = _recv_exact(self.sock, max(size - rp.HEADER_SIZE, 0)) if size > rp.HEADER_SIZE else b""
-                if body is None:
-                    break
-                if self.server.frozen:
-                    continue
-                self._handle(package_type, body)
-        except OSError:
+        except (OSError, ValueError):  # closed under us
             pass
         finally:
             self.close()
             self.server.forget(self)
 
-    def _handle(self, package_type: int, body: bytes) -> None:
+    def pump(self) -> bool:
+        """Read whatever has arrived (never wait for more) and handle every whole package in order; False once the
+        client has closed. Called by the connection's thread and, for the owner of ``external_force_torque``, by
+        the tick thread at the start of each cycle: a controller reads its inputs at the start of a cycle, so a
+        value that reached the socket before the cycle counts for it even if this process's reader thread has
+        not run yet (a real controller has no interpreter lock)."""
+        with self.receive_lock:
+            arrival_s = None
+            while True:
+                try:
+                    chunk, ancillary, _flags, _address = self.sock.recvmsg(RECEIVE_CHUNK_BYTES, _STAMP_SPACE,
+                                                                           socket.MSG_DONTWAIT)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    return False
+                if not chunk:
+                    return False
+                arrival_s = _kernel_arrival_s(ancillary)
+                self.received += chunk
+                if len(chunk) < RECEIVE_CHUNK_BYTES:
+                    break
+            buffer = self.received
+            while len(buffer) >= rp.HEADER_SIZE:
+                size, package_type = rp.HEADER.unpack_from(buffer)
+                end = max(size, rp.HEADER_SIZE)
+                if len(buffer) < end:
+                    break
+                body = bytes(buffer[rp.HEADER_SIZE:end])
+                del buffer[:end]
+                if not self.server.frozen:
+                    self._handle(package_type, body, arrival_s)
+        return True
+
+    def _handle(self, package_type: int, body: bytes, arrival_s: float | None = None) -> None:
         sim = self.server.sim
         if package_type == rp.REQUEST_PROTOCOL_VERSION:
             requested = struct.unpack(">H", body[:2])[0] if len(body) >= 2 else 1
@@ -246,7 +289,7 @@ class RTDEConnection:
                     sim._event("short_package", recipe=recipe.recipe_id, bytes=len(body) - 1, expected=recipe.codec.size)
             values = recipe.unpack_partial(body[1:])
             doubles = sum(c for t, c in zip(recipe.types, recipe.counts) if rp.TYPE_FORMATS[t][0] == "d")
-            sim.apply_inputs(values, doubles)
+            sim.apply_inputs(values, doubles, arrival_s)
 
 
 class ControllerServer:
@@ -374,17 +417,21 @@ class ControllerServer:
                 self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"], snap["joint_state"])
             if not self.frozen:
                 with self.lock:
-                    # receive-only clients first: a client must never see 'done' on its control connection
-                    # before its other connections have the final state
-                    connections = sorted((c for c in self.rtde_connections if c.streaming), key=lambda c: bool(c.inputs))
+                    # the owner of external_force_torque first (its answer is due before the next cycle), then
+                    # receive-only clients: a client must never see 'done' on its control connection before its
+                    # other connections have the final state
+                    feeder = self.input_owners.get("external_force_torque")
+                    connections = sorted((c for c in self.rtde_connections if c.streaming),
+                                         key=lambda c: (c is not feeder, bool(c.inputs)))
                 for connection in connections:
                     if now >= connection.next_send_s:
-                        connection.send_data(snap)
-                        if self.input_owners.get("external_force_torque") is connection:
+                        if connection is feeder:
+                            connection.pump()  # the inputs that reached the controller before this cycle
                             with self.sim.lock:
                                 if self.sim.external_ft.count_cycle(now, snap["fields"]["timestamp"],
                                                                     connection.period_s):
                                     self.sim.external_ft_watchdog_pause()
+                        connection.send_data(snap)
                         connection.last_sent_seq = snap["seq"]
                         connection.next_send_s += connection.period_s
                         if connection.next_send_s < now:
@@ -552,6 +599,15 @@ class ControllerServer:
                 else:
                     raise ValueError(f"cannot set {what!r}")
             return {}
+        if command == "jog":
+            values = [float(v) for v in words[1:]]
+            if len(values) != 8:
+                raise ValueError("jog needs q0 .. q5 (rad), speed (rad/s) and acceleration (rad/s²)")
+            with sim.lock:
+                accepted = sim._start_move("movej", np.array(values[:6]), values[6], values[7], True, source="pendant")
+                scale = sim.motion_time_scale()
+                duration_s = sim.motion.duration_s / scale if accepted and scale > 0 else 0.0
+            return {"accepted": accepted, "duration_s": duration_s}
         if command == "quit":
             threading.Timer(0.05, self.stop_event.set).start()
             return {}
@@ -632,6 +688,7 @@ def main(argv: list[str] | None = None) -> int:
         return BIND_ERROR_EXIT
     signal.signal(signal.SIGTERM, lambda *_: server.stop_event.set())
     signal.signal(signal.SIGINT, lambda *_: server.stop_event.set())
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     server.start()
     print("READY " + json.dumps(server.ready_info()), flush=True)
     parent = os.getppid()

@@ -19,7 +19,8 @@ Modelled on UR's documentation as summarised in docs/bridge.md ("What the contro
 
 Every received input is recorded with its arrival time (CLOCK_MONOTONIC, comparable across processes on one
 host) and the controller time; every controller cycle while enabled is counted as fed (a new value arrived
-since the previous cycle) or missed, with the age of the value the controller holds.
+since the previous cycle) or missed, with the age of the value the controller holds and the time its output
+package was sent (a feeder must answer each package before the next one).
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ class ExternalFTInput:
         self.last_arrival_s: float | None = None
         self.enable_calls: list[dict] = []
         self.received = _Growing(8)  # arrival monotonic s, controller time s, 6 values
-        self.cycles = _Growing(3)  # controller time s, fed (0/1), age of the held value s (nan: none yet)
+        self.cycles = _Growing(4)  # controller time s, fed (0/1), age of the held value s (nan: none yet), sent (monotonic s)
         self.watchdog_trips: list[float] = []
         self._new_since_cycle = False
         self._unfed_s = 0.0
@@ -101,8 +102,9 @@ class ExternalFTInput:
 
     # ------------------------------------------------------------------ cycle
     def count_cycle(self, now_s: float, controller_time_s: float, period_s: float) -> bool:
-        """One controller cycle as the feeding client sees it (an output package was just sent to the connection
-        that owns ``external_force_torque``): fed when a new value arrived since the previous one. Returns True
+        """One controller cycle as the feeding client sees it (the inputs that reached the controller were just
+        read, and an output package is about to be sent to the connection that owns ``external_force_torque``):
+        fed when a new value arrived since the previous package. Returns True
         (and disables) when the cycles without a new value add up to :data:`WATCHDOG_PERIOD_S`: the caller pauses
         the program. Counted in cycles, so a stall of this simulator process itself is not the client's fault."""
         if not self.enabled:
@@ -110,7 +112,7 @@ class ExternalFTInput:
             return False
         age = now_s - self.last_arrival_s if self.last_arrival_s is not None else float("nan")
         fed = self._new_since_cycle
-        self.cycles.append([controller_time_s, 1.0 if fed else 0.0, age])
+        self.cycles.append([controller_time_s, 1.0 if fed else 0.0, age, now_s])
         self._new_since_cycle = False
         self._unfed_s = 0.0 if fed else self._unfed_s + period_s
         return self._unfed_s > self.watchdog_period_s + 1e-9 and self._trip(controller_time_s)

@@ -231,13 +231,21 @@ class URControllerProcess:
         """Every value the controller received (rows: arrival monotonic s, controller time s, Fx..Tz) and every
         controller cycle counted while enabled (rows: controller time s, fed 0/1, age of the held value s)."""
         reply = self.control("external_ft_records")
-        return {"received": np.array(reply["received"]).reshape(-1, 8), "cycles": np.array(reply["cycles"]).reshape(-1, 3)}
+        return {"received": np.array(reply["received"]).reshape(-1, 8), "cycles": np.array(reply["cycles"]).reshape(-1, 4)}
 
     def set_time_scale(self, time_scale: float) -> None:
         self.control(f"set time_scale {float(time_scale)!r}")
 
     def set_joint_positions(self, q) -> None:
         self.control("set q " + " ".join(repr(float(v)) for v in q))
+
+    def jog(self, q, speed_rad_s: float, acceleration_rad_s2: float) -> float:
+        """Move to ``q`` as a moveJ from the teach pendant (the controller's motion profile, not a jump); return the
+        move's duration (s). Raises DeviceError when the controller refuses it (not running, a limit)."""
+        reply = self.control("jog " + " ".join(repr(float(v)) for v in (*q, speed_rad_s, acceleration_rad_s2)))
+        if not reply.get("accepted"):
+            raise DeviceError(f"simulated controller {self.host}: refused the jog to {list(np.round(q, 3))}")
+        return float(reply["duration_s"])
 
     def set_tcp_offset(self, tcp) -> None:
         self.control("set tcp_offset " + " ".join(repr(float(v)) for v in tcp))

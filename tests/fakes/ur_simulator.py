@@ -228,9 +228,10 @@ class URSimulator:
         self.events.append({"time": self.controller_time_s(), "event": what, **details})
 
     # ------------------------------------------------------------------ inputs
-    def apply_inputs(self, values: dict[str, object], double_count: int) -> None:
-        """Apply a decoded client data package (name → value)."""
-        arrival_s = time.monotonic()
+    def apply_inputs(self, values: dict[str, object], double_count: int, arrival_s: float | None = None) -> None:
+        """Apply a decoded client data package (name → value) that arrived at ``arrival_s`` (monotonic; now if
+        not known)."""
+        arrival_s = time.monotonic() if arrival_s is None else arrival_s
         with self.lock:
             for name, value in values.items():
                 if name == "external_force_torque":

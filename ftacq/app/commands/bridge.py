@@ -16,6 +16,7 @@ import contextlib
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "technician jogs the arm and pushes on the tool (not with --check)")
     parser.add_argument("--calibration", type=Path, metavar="CAL.json",
                         help="calibration from ftacq calibrate / identify (required with --config; --sim uses the "
-                             "simulated cell's ground truth)")
+                             "simulated cell's ground truth, the tool's inertia included)")
     parser.add_argument("--feed", choices=("compensated", "raw"), default="compensated",
                         help="compensated: ftacq removes the tool's gravity; raw: the controller does, from the "
                              "payload set from the calibration (default %(default)s)")
@@ -67,6 +68,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "default) or program (your PolyScope program runs the printed URScript lines; ftacq "
                              "only feeds)")
     parser.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    parser.add_argument("--realtime-priority", type=_priority, default=None, metavar="N",
+                        help="SCHED_FIFO priority of the feed thread, 1-99, 0 = normal scheduling (default: "
+                             "procedures.bridge.REALTIME_PRIORITY, docs/bridge.md \"Timing\"; needs CAP_SYS_NICE or "
+                             "an rtprio limit, else the feed runs at normal priority and says so)")
     parser.add_argument("--check", action="store_true",
                         help="with the arm still: feed known wrenches, read back actual_TCP_force and say whether "
                              "frame, signs and payload handling match the convention")
@@ -74,6 +79,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     add_sink_args(parser)
     parser.set_defaults(func=run)
+
+
+def _priority(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 0 <= value <= 99:
+        raise argparse.ArgumentTypeError(f"{value} is outside 0-99 (0 = normal scheduling)")
+    return value
 
 
 def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
@@ -89,8 +104,9 @@ def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
         cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
         truth = cell.truth
         offset = np.asarray(getattr(truth, "sensor_offset_m", (0.0, 0.0, 0.0)), dtype=float)
-        return (cell.robot_host, cell.model_name, cell.sensor_url, calibration or truth.calibration(), offset, 0.0,
-                cell)
+        if calibration is None:  # the ground truth, tool inertia included: the jogging arm is compensated dynamically
+            calibration = replace(truth.calibration(), sensor_offset=offset, inertia=truth.inertia)
+        return cell.robot_host, cell.model_name, cell.sensor_url, calibration, offset, 0.0, cell
     from ftacq.app.config import load_config
 
     if calibration is None:
@@ -112,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import ENABLE_EXTERNAL_FT_SENSOR, enable_function_for, plan_feed
     from ftacq.kinematics import ur_model
+    from procedures.bridge import ROBOT_STATE_RATE_HZ
 
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds {args.seconds}: must be a positive number of seconds")
@@ -120,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
         model = ur_model(model_name)
         robot = None
         if args.enable == "ur-rtde":
-            robot = URRobot(host, MotionLimits(), model=model, leave_external_ft_input=True)
+            robot = URRobot(host, MotionLimits(), model=model, leave_external_ft_input=True,
+                            frequency_hz=ROBOT_STATE_RATE_HZ)
             stack.callback(robot.close)
             robot.start()
         client = stack.enter_context(URForceTorqueInput(host))
@@ -134,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
             flange_p_tcp = base_T_flange[:3, :3].T @ (cycle.tcp_pose[:3] - base_T_flange[:3, 3])
         plan = plan_feed(calibration, args.feed, offset, sensor_body_kg=body_kg, function=function,
                          flange_p_tcp_m=flange_p_tcp)
-        version = ".".join(str(v) for v in client.version)
+        version = ".".join(str(v) for v in client.version or ())
         print(f"ftacq bridge: controller {host} ({model.name}, software {version}) at {client.frequency_hz:g} Hz; "
               f"feed {plan.feed}; {plan.function}(True, {plan.sensor_mass_kg:.4g} kg, "
               f"{np.round(plan.sensor_measuring_offset_m, 4).tolist()} m, {np.round(plan.sensor_cog_m, 4).tolist()} m);"
@@ -169,7 +187,7 @@ def _check(client, robot, plan, model, calibration) -> int:
 
 def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> int:
     from drivers.sensor import open_sensor
-    from procedures.bridge import Bridge
+    from procedures.bridge import Bridge, BridgeSettings
 
     sensor = open_sensor(sensor_url)
     stack.callback(sensor.close)
@@ -184,14 +202,20 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
         background = BackgroundListener([DashboardListener(Dashboard(recording), model=model)])
         stack.callback(background.close)
         listeners.append(background)
-    bridge = Bridge(sensor, client, robot, plan, calibration, model, listeners=tuple(listeners))
-    print(f"ftacq bridge: sensor {sensor_url} at {bridge.sensor_rate_hz:.0f} Hz, low-pass {bridge.cutoff_hz:g} Hz "
-          f"(delay {bridge.filter.delay_s * 1000:.1f} ms); feeding (Ctrl-C to stop)", file=sys.stderr)
+    settings = BridgeSettings()
+    if args.realtime_priority is not None:
+        settings = replace(settings, realtime_priority=args.realtime_priority)
+    bridge = Bridge(sensor, client, robot, plan, calibration, model, settings, listeners=tuple(listeners))
+    print(f"ftacq bridge: sensor {sensor_url} at {bridge.sensor_rate_hz:.0f} Hz, {bridge.compensation} compensation, "
+          f"low-pass {bridge.cutoff_hz:g} Hz (delay {bridge.filter.delay_s * 1000:.1f} ms); feeding (Ctrl-C to stop)",
+          file=sys.stderr)
     summary = bridge.run(duration_s=args.seconds)
     staleness = summary.staleness_s()
     p50, p99 = (np.percentile(staleness, [50, 99]) * 1000 if len(staleness) else (np.nan, np.nan))
+    late = int(np.count_nonzero(summary.answer_time_s() > 1.0 / summary.controller_rate_hz))
     print(f"ftacq bridge: {summary.written} values written in {summary.cycles} controller cycles over "
-          f"{summary.duration_s:.1f} s; newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms; filter delay "
+          f"{summary.duration_s:.1f} s; answered later than one cycle: {late}; feed thread {summary.feed_priority}; "
+          f"newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms; filter delay "
           f"{summary.filter_delay_s * 1000:.1f} ms; external input "
           f"{'disabled' if summary.disabled else 'NOT disabled (the controller pauses the program by itself)'}"
           + ("; stopped by Ctrl-C" if summary.interrupted else ""))

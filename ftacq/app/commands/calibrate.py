@@ -14,14 +14,18 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ftacq.app.dashboard.sinks import add_sink_args
+from ftacq.app.confirm import confirm_motion
 from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 from ftacq.mounts import MOUNTS
+
+if TYPE_CHECKING:
+    from procedures.events import Listener
 
 log = logging.getLogger(__name__)
 
@@ -104,28 +108,6 @@ def _wants_dashboard(args: argparse.Namespace) -> bool:
                 or getattr(args, "serve", False) or getattr(args, "save", None) is not None)
 
 
-def _confirm(args: argparse.Namespace) -> None:
-    if args.yes:
-        return
-    if not sys.stdin or not sys.stdin.isatty():
-        raise InputError("refusing to move the robot: no terminal to confirm the plan on (stdin is not a tty); "
-                         "check the plan above (or with --dry-run) and pass --yes")
-    answer = input("Move the robot through this plan? Keep the e-stop within reach. [y/N] ")
-    if answer.strip().lower() not in ("y", "yes"):
-        raise AbortedError("plan not confirmed: the robot did not move")
-
-
-def _install_sigterm() -> object:
-    """Turn SIGTERM into KeyboardInterrupt (same clean stop as Ctrl-C); return the previous handler."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    try:
-        return signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        return None
-
-
 def _err(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
@@ -136,17 +118,9 @@ def _err(text: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``ftacq calibrate``; return the exit status (raises FtacqError subclasses for the CLI to report).
 
-    SIGTERM is handled as Ctrl-C for the whole command, so the simulated cell and the drivers are always closed.
+    The CLI handles SIGTERM as Ctrl-C (:mod:`ftacq.app.signals`), so the simulated cell and the drivers are
+    always closed.
     """
-    previous = _install_sigterm()
-    try:
-        return _run(args)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-
-
-def _run(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from ftacq.app.config import config_from_dict, load_config
@@ -251,7 +225,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.dry_run:
             print("dry run: the robot did not move", flush=True)
             return 0
-        _confirm(args)
+        confirm_motion(args)
 
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
@@ -268,7 +242,7 @@ def _run(args: argparse.Namespace) -> int:
         progress = ProgressListener(total, estimate_s / (max(time_scale, 1.0) if args.sim else 1),
                                     done=total - remaining)
         stack.callback(progress.close)
-        listeners = [RunFolderWriter(folder), progress]
+        listeners: list[Listener] = [RunFolderWriter(folder), progress]
         if cell is not None and args.sim_wrong_tool:
             listeners.insert(0, cell.wrong_tool_listener(plan))
         if _wants_dashboard(args):
@@ -280,7 +254,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.dynamic and status == 0:
             from ftacq.app.commands.dynamic_stage import run_dynamic_stage
 
-            status = run_dynamic_stage(args, stack, config, settings, robot, sensor, folder, cell, _confirm)
+            status = run_dynamic_stage(args, stack, config, settings, robot, sensor, folder, cell, confirm_motion)
         return status
 
 

@@ -16,17 +16,28 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ftacq.app.helptext import examples
 
+if TYPE_CHECKING:
+    from procedures.bias_health import DriftCompensator
+    from procedures.dynamic_compensation import DynamicCompensator
+    from procedures.monitor import HealthCheck
+
 DEFAULT_SIM_MODEL = "UR5e"
 SIM_SENSOR_RATE_HZ = 7000.0
 SIM_JOG_RATE_HZ = 30.0
+"""How often the simulated technician looks at the clock (pushes, tool swap, the next jog)."""
 SIM_JOG_AMPLITUDE_RAD = np.array([0.35, 0.15, 0.2, 0.7, 0.7, 1.2])
 """Peak joint excursions (rad) of the simulated technician's jog around the start configuration."""
-SIM_JOG_PERIOD_S = np.array([23.0, 17.0, 19.0, 11.0, 7.0, 13.0])
+SIM_JOG_SPEED_RAD_S, SIM_JOG_ACCELERATION_RAD_S2 = 0.8, 2.0
+"""The simulated technician jogs with moveJ moves from the pendant (the controller's motion profile), so the simulated
+sensor reads the tool's inertial wrench as on a real arm."""
+SIM_JOG_TARGETS = (1.0, -0.6, 0.3, -1.0, 0.6, -0.3)
+"""The jog visits start + f × SIM_JOG_AMPLITUDE_RAD for these f in turn."""
 SIM_PHASE_S = 8.0
 """The simulated technician jogs for this long, then holds the arm still for as long (the drift tracker learns only
 while the arm is still)."""
@@ -72,7 +83,7 @@ class SimulatedTechnician:
         q_start = np.asarray(self.cell.initial_q, dtype=float)
         start_s = time.monotonic()
         next_s = start_s
-        jog_s = 0.0
+        move, move_end_s, q_now = 0, 0.0, q_start
         while not self._stop.wait(max(0.0, next_s - time.monotonic())):
             next_s += self.period_s
             t = time.monotonic() - start_s
@@ -83,11 +94,15 @@ class SimulatedTechnician:
                 if not self.jog:
                     continue
                 phase_s = t % (2 * SIM_PHASE_S)
-                if phase_s < SIM_PHASE_S:  # jogging
-                    jog_s += self.period_s
-                    self.cell.controller.set_joint_positions(
-                        q_start + SIM_JOG_AMPLITUDE_RAD * np.sin(2 * np.pi * jog_s / SIM_JOG_PERIOD_S))
+                if phase_s < SIM_PHASE_S:  # jogging: the next move if the previous one is over and this one fits
                     self.cell.set_contact(np.zeros(6))
+                    if t < move_end_s:
+                        continue
+                    target = q_start + SIM_JOG_TARGETS[move % len(SIM_JOG_TARGETS)] * SIM_JOG_AMPLITUDE_RAD
+                    if phase_s + jog_duration_s(q_now, target) <= SIM_PHASE_S:
+                        move_end_s = t + self.cell.controller.jog(target, SIM_JOG_SPEED_RAD_S,
+                                                                  SIM_JOG_ACCELERATION_RAD_S2)
+                        q_now, move = target, move + 1
                 else:  # holding still; a hand pushes on the tool for a while
                     hold_s = phase_s - SIM_PHASE_S
                     pushing = SIM_CONTACT_START_S <= hold_s < SIM_CONTACT_START_S + SIM_CONTACT_DURATION_S
@@ -96,6 +111,13 @@ class SimulatedTechnician:
             except Exception as error:  # noqa: BLE001 - the demo stops jogging; the monitor goes on
                 self.error = error
                 return
+
+
+def jog_duration_s(q_from: np.ndarray, q_to: np.ndarray) -> float:
+    """Duration (s) of a moveJ with the simulated technician's speed and acceleration (trapezoid or triangle)."""
+    length = float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from))))
+    v, a = SIM_JOG_SPEED_RAD_S, SIM_JOG_ACCELERATION_RAD_S2
+    return length / v + v / a if length >= v * v / a else 2.0 * np.sqrt(length / a)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -204,7 +226,8 @@ def run(args: argparse.Namespace) -> int:
             stack.callback(SimulatedTechnician(cell, jog=not args.sim_still,
                                                swap_after_s=args.sim_swap_tool).start().close)
         sensor.start()
-        compensator, checks = None, []
+        compensator: DriftCompensator | None = None
+        checks: list[HealthCheck] = []
         if calibration is not None:
             compensator, checks, health_text = _drift_health(calibration, sensor.info, args)
             print(f"ftacq monitor: {health_text}", file=sys.stderr)
@@ -221,10 +244,11 @@ def run(args: argparse.Namespace) -> int:
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
         readout = LiveReadout()
         stack.callback(readout.close)
+        dynamic = None
         if calibration is not None:
             dynamic = _choose_compensator(calibration, model, robot_host, stack, sensor)
-            if dynamic is not None:  # the drift tracker runs on the static compensation only
-                compensator, checks = dynamic, []
+            if dynamic is not None and compensator is not None:  # (the drift compensator: built above with it)
+                compensator.moving = dynamic  # the drift tracker's compensation while the arm moves
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=compensator, checks=checks,
                               listeners=[dashboard, readout], record_path=args.record, record_header=header)
@@ -236,14 +260,15 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(summary))
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
-    if hasattr(compensator, "static_batches") and compensator.static_batches:
-        print(f"dynamic compensation: {compensator.static_batches} of "
-              f"{compensator.static_batches + compensator.dynamic_batches} reads had no robot state around them and "
+    if dynamic is not None and dynamic.static_batches:
+        print(f"dynamic compensation: {dynamic.static_batches} of "
+              f"{dynamic.static_batches + dynamic.dynamic_batches} reads had no robot state around them and "
               "were compensated statically")
     return 0
 
 
-def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack, sensor):
+def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack,
+                        sensor) -> DynamicCompensator | None:
     """The dynamic compensator when the calibration has inertia (with its own RTDE state stream), else None (the
     static one is kept), saying which on stderr."""
     if not calibration.has_dynamics:
@@ -264,7 +289,8 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
     return compensator
 
 
-def _drift_health(calibration, sensor_info, args: argparse.Namespace):
+def _drift_health(calibration, sensor_info,
+                  args: argparse.Namespace) -> tuple[DriftCompensator, list[HealthCheck], str]:
     """Check the calibration belongs to the sensor (refused unless --force) and build the drift tracker's
     compensator and health check; return (compensator, checks, a line saying when the biases were measured)."""
     from ftacq.drift import MAX_PRIOR_AGE_S, BiasHealth

@@ -159,20 +159,6 @@ def _register_set_payload(actions) -> None:
     parser.set_defaults(func=run_set_payload)
 
 
-def _confirm(args: argparse.Namespace, question: str) -> None:
-    import sys
-
-    from ftacq.errors import AbortedError, InputError
-
-    if args.yes:
-        return
-    if not sys.stdin or not sys.stdin.isatty():
-        raise InputError("refusing to change the controller's payload: no terminal to confirm on (stdin is not a "
-                         "tty); check the values above and pass --yes")
-    if input(question + " [y/N] ").strip().lower() not in ("y", "yes"):
-        raise AbortedError("not confirmed: nothing was sent")
-
-
 def run_set_payload(args: argparse.Namespace) -> int:
     """Send the payload (and gravity), read back, print both; return the exit status."""
     import contextlib
@@ -180,6 +166,7 @@ def run_set_payload(args: argparse.Namespace) -> int:
     from drivers.robot import MotionLimits
     from drivers.ur import URRobot
     from drivers.ur_payload import gravity_from_weight, read_payload, takes_target_payload
+    from ftacq.app.confirm import confirm
     from ftacq.calfile import load_calibration
     from ftacq.errors import InputError
     from ftacq.exports import sensor_offset_m, ur_payload, with_sensor_offset
@@ -211,18 +198,22 @@ def run_set_payload(args: argparse.Namespace) -> int:
     if gravity is not None:
         print(f"  gravity         {_fmt(gravity, 4)} m/s² (base frame, away from the earth; from the base tilt)")
     print(f"  URScript: {payload.urscript()}")
-    where = "the simulated controller" if args.sim else f"the controller at {config.robot.host}"
-    _confirm(args, f"Send this payload{' and gravity' if gravity is not None else ''} to {where}?")
+    # --config and --sim are mutually exclusive and one is required: no config means the simulated controller
+    where = "the simulated controller" if config is None else f"the controller at {config.robot.host}"
+    confirm(args, f"Send this payload{' and gravity' if gravity is not None else ''} to {where}?",
+            no_terminal="refusing to change the controller's payload: no terminal to confirm on (stdin is not a "
+                        "tty); check the values above and pass --yes",
+            declined="not confirmed: nothing was sent")
     with contextlib.ExitStack() as stack:
         cell = None
-        if args.sim:
+        if config is None:
             from ftacq.app.simcell import simulated_cell
 
             cell = stack.enter_context(simulated_cell(sensor="netft", time_scale=0.0))
-            host = cell.robot_host
+            host, model = cell.robot_host, None
         else:
-            host = config.robot.host
-        robot = stack.enter_context(URRobot(host, MotionLimits(), model=None if args.sim else config.robot.model))
+            host, model = config.robot.host, config.robot.model
+        robot = stack.enter_context(URRobot(host, MotionLimits(), model=model))
         method = robot.set_payload(payload.mass_kg, payload.cog_flange_m, payload.inertia_flange_kg_m2)
         if gravity is not None:
             robot.set_gravity(gravity)

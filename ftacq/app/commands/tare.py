@@ -60,25 +60,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``ftacq tare``; return the exit status."""
-    from ftacq.app.commands.calibrate import _install_sigterm
-    import signal
-
-    previous = _install_sigterm()
-    try:
-        return _run(args)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-
-
-def _run(args: argparse.Namespace) -> int:
+    """Run ``ftacq tare``; return the exit status (SIGTERM stops it as Ctrl-C does: :mod:`ftacq.app.signals`)."""
     from dataclasses import replace
 
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
-    from ftacq.app.commands.calibrate import _confirm, sim_sampling
+    from ftacq.app.commands.calibrate import sim_sampling
+    from ftacq.app.confirm import confirm_motion
     from ftacq.app.config import CellConfig, load_config
     from ftacq.bias_estimate import apply_estimate
     from ftacq.calfile import load_calibration, save_calibration
@@ -119,6 +108,8 @@ def _run(args: argparse.Namespace) -> int:
                                                      mount=config.robot.mount, time_scale=time_scale))
             config = config.replace_section("robot", host=cell.robot_host)
             config = config.replace_section("sensor", url=cell.sensor_url)
+        # checked above: --calibration is required without --sim, and --sim defaults to the simulated cell's
+        assert calibration is not None
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         settings = config.plan_settings()
         limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
@@ -147,7 +138,7 @@ def _run(args: argparse.Namespace) -> int:
             if args.dry_run:
                 print("dry run: the robot did not move", flush=True)
                 return 0
-            _confirm(args)
+            confirm_motion(args)
         elif args.dry_run:
             print("dry run: a tare at the current pose moves nothing; nothing measured", flush=True)
             return 0

@@ -14,17 +14,13 @@ Importing ``rerun`` takes over a second: the names below are loaded on first use
 commands that draw nothing do not pay for it (rerun is a hard dependency all the same).
 """
 
-from importlib import import_module
-from typing import Any
+from ftacq.lazy import lazy_names
 
 _HOMES = {"APP_ID": "layout", "blueprint": "layout", "DashboardListener": "listener", "Dashboard": "recorder",
           "add_sink_args": "sinks", "close_recording": "sinks", "open_recording": "sinks"}
 
-
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+__getattr__, __dir__ = lazy_names(__name__, {name: f"{__name__}.{home}" for name, home in _HOMES.items()},
+                                  globals())
 
 
 __all__ = ["APP_ID", "Dashboard", "DashboardListener", "add_sink_args", "blueprint", "close_recording",

@@ -90,15 +90,17 @@ class DashboardListener:
             compensated = self._calibration.compensate(
                 batch.wrench, rotation_from_rotvec(np.asarray(event.flange_pose)[3:6]).T)
         self.dashboard.log_wrench_batch(batch.time_s, batch.wrench, compensated)
-        if compensated is None and self._backfill is not None:
-            self._keep_for_backfill(batch.time_s, batch.wrench, event.flange_pose)
+        backfill = self._backfill
+        if compensated is None and backfill is not None:
+            self._keep_for_backfill(backfill, batch.time_s, batch.wrench, event.flange_pose)
         if not self._robot_events and event.flange_pose is not None and event.joint_positions_rad is not None:
             now_s = float(batch.time_s[-1])
             if now_s - self._last_arm_s >= 1.0 / 30.0:
                 self._robot(events.RobotState(now_s, event.joint_positions_rad, event.flange_pose))
 
-    def _keep_for_backfill(self, time_s: np.ndarray, wrench: np.ndarray, pose: np.ndarray | None) -> None:
-        """Keep thinned raw samples; without a pose they wait for the next PoseMeasured (the arm is still while
+    def _keep_for_backfill(self, backfill: list[tuple[np.ndarray, np.ndarray, np.ndarray]], time_s: np.ndarray,
+                           wrench: np.ndarray, pose: np.ndarray | None) -> None:
+        """Keep thinned raw samples (placed ones in ``backfill``, the listener's list); without a pose they wait for the next PoseMeasured (the arm is still while
         the procedure reads the sensor)."""
         if self._backfill_samples >= BACKFILL_MAX_SAMPLES:
             return
@@ -108,7 +110,7 @@ class DashboardListener:
         if pose is None:
             self._unplaced.append(part)
         else:
-            self._backfill.append((*part, np.asarray(pose, dtype=float)))
+            backfill.append((*part, np.asarray(pose, dtype=float)))
         self._backfill_samples += keep.size
 
     def _place_backfill(self, event: events.PoseMeasured) -> None:

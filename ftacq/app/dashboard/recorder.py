@@ -188,19 +188,21 @@ class Dashboard:
                         self._send(path, time_s, rr.Transform3D.columns(translation=frames[:, i, :3, 3],
                                                                          mat3x3=frames[:, i, :3, :3]))
             self._send(FLANGE, time_s, rr.Transform3D.columns(translation=flange_pose[:, :3], mat3x3=base_R_flange))
-            if self._gravity_base is not None:
-                weight = np.broadcast_to(self._gravity_base * FORCE_ARROW_SCALE_M_PER_N, (n, 3))
+            gravity_base = self._gravity_base
+            if gravity_base is not None:
+                weight = np.broadcast_to(gravity_base * FORCE_ARROW_SCALE_M_PER_N, (n, 3))
                 self._send(GRAVITY, time_s, rr.Arrows3D.columns(
                     origins=flange_pose[:, :3], vectors=weight, colors=np.tile(np.array(GRAVITY_COLOR, np.uint8), (n, 1)),
                     radii=np.full(n, ARROW_RADIUS_M)))
-                self._log_labels(time_s, flange_pose[:, :3], base_R_flange, weight)
+                self._log_labels(time_s, flange_pose[:, :3], base_R_flange, gravity_base, weight)
 
     def _log_labels(self, time_s: np.ndarray, origins: np.ndarray, base_R_flange: np.ndarray,
-                    weight: np.ndarray) -> None:
-        """The "tool weight" and "contact" labels, placed clear of both arrows (:func:`arm.label_anchors`)."""
+                    gravity_base: np.ndarray, weight: np.ndarray) -> None:
+        """The "tool weight" and "contact" labels, placed clear of both arrows (:func:`arm.label_anchors`);
+        ``gravity_base`` the tool's weight (3,) N, ``weight`` its arrows (n, 3) m."""
         flange_R_sensor = np.eye(3) if self._sensor_rotation is None else self._sensor_rotation.T
         contact_n = float(np.linalg.norm(self._contact_sensor))
-        texts = [f"tool weight {np.linalg.norm(self._gravity_base):.1f} N", f"contact {contact_n:.1f} N"]
+        texts = [f"tool weight {np.linalg.norm(gravity_base):.1f} N", f"contact {contact_n:.1f} N"]
         anchors = np.empty((time_s.shape[0], 2, 3))
         for k in range(time_s.shape[0]):  # per arm state (30 Hz), not per sample
             contact = base_R_flange[k] @ flange_R_sensor @ self._contact_sensor * FORCE_ARROW_SCALE_M_PER_N
