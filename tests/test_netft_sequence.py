@@ -131,6 +131,23 @@ def test_restart_after_a_silence_that_began_after_the_first_record_counts_every_
     assert (c.lost, c.gaps, c.restarts, c.duplicate) == (300 + first - 1, 1, 0, 0)
 
 
+def test_a_start_re_sent_just_before_the_link_came_back_restarts_the_box_once_more_as_ours() -> None:
+    """A 1 s silence: the driver re-sent its start at 0.25, 0.5 and 1.0 s (no record arrived in between). The box
+    restarted for the second, so the first records through carry ~3500; then it hears the third and restarts
+    again. Both restarts are ours: no restart counted, and the only loss is what the box streamed into the quiet
+    link."""
+    feed = Feed()
+    feed.push(records(range(1, 7001)), 1.0)
+    for sent_s in (1.25, 1.5, 2.0):
+        feed.tracker.expect_start(feed.index, sent_s)
+    ft_resume = 7000 + 7000  # ft_sequence ran on through the 1 s silence
+    feed.push(records(range(3500, 3520), ft=range(ft_resume, ft_resume + 20)), 2.0005)
+    feed.push(records(range(1, 101), ft=range(ft_resume + 20, ft_resume + 120)), 2.002)  # the third start heard
+    assert feed.rdt[7000:] == list(range(3500, 3520)) + list(range(1, 101))
+    c = feed.counters
+    assert (c.restarts, c.duplicate, c.lost, c.gaps) == (0, 0, ft_resume - 7000 - 1, 1)
+
+
 def test_restart_whose_first_record_is_above_the_last_is_still_a_new_stream() -> None:
     feed = Feed()
     feed.push(records(range(1, 501)), 1.0)

@@ -21,6 +21,8 @@ counter, which runs on across streams (+n per record at 7000/n Hz) and restarts 
   (``elapsed × rate × 1.25 + 16``). The records the box produced meanwhile (from ``ft_sequence``) count as lost.
   A power-cycled box (``ft_sequence`` back near zero) answering our start is also our restart, counted in
   ``restarts``. A box that never restarts its sequence on a start is recognised after 256 continuing records.
+  When several starts were sent before the restarted stream showed (re-sends during a long silence), the box may
+  have started that stream for an earlier one and still restart once more for the last: the last stays expected.
 - **The ``ft_sequence`` step per record** is learnt from consecutive records; until two have been delivered (a link
   that went quiet right after the first record) it is the nominal one, internal rate / RDT rate, so that a
   restart is still told from a continuation and its losses still counted from ``ft_sequence``.
@@ -102,6 +104,7 @@ class SequenceTracker:
         self._held_times = np.empty(0)
         self._starts: collections.deque[tuple[int, float, bool]] = collections.deque()
         self._active_since: float | None = None  # send time of the earliest start not yet answered
+        self._latest_start_s: float | None = None  # send time of the latest start taken into account
         self._continuing = 0
         self._bias_pending = False
         self._fresh_stream = False
@@ -209,6 +212,7 @@ class SequenceTracker:
                 if self._active_since is None:
                     self._active_since = sent_s
                     self._continuing = 0
+                self._latest_start_s = sent_s
                 self._bias_pending = self._bias_pending or bias
             r, f, t = int(rdt[i]), int(ft[i]), float(times[i])
             if self._last_rdt is None:  # the first record: it answers our first start
@@ -265,7 +269,10 @@ class SequenceTracker:
             else:
                 lost = r - 1
             self._new_stream(r, f, t, lost=max(lost, 0))
-            self._active_since = None
+            latest = self._latest_start_s
+            # a later start than the one this stream may answer can still restart the box: keep expecting it
+            keep_expecting = ours and active_since is not None and latest is not None and latest > active_since
+            self._active_since = latest if keep_expecting else None
             self._continuing = 0
         self._flush_run(records, times, keep, run_start, len(records), now, out, before_new_stream=False)
 
