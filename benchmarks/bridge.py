@@ -95,6 +95,7 @@ def world(args: argparse.Namespace) -> int:
     from tests.fakes.netft import FakeNetFT
     from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
 
+    sys.setswitchinterval(0.0005)  # the sensor's sender thread gets the interpreter promptly (a real box is not Python)
     pose = SharedPose(args.pose_shm)
     resource_tracker.unregister(pose._shm._name, "shared_memory")  # the benchmark process owns the block
     robot = None
@@ -116,9 +117,15 @@ def world(args: argparse.Namespace) -> int:
     print(json.dumps({"url": fake.url, "t0": t0}), flush=True)
     stop = threading.Event()
 
-    def pushes() -> None:
-        while not stop.wait(0.0005):
-            physics.contact_wrench = contact_at(np.array([time.monotonic() - t0]))[0]
+    def pushes() -> None:  # the push switches on and off at known times: wake then, not in a polling loop
+        while True:
+            elapsed = time.monotonic() - t0
+            physics.contact_wrench = contact_at(np.array([elapsed]))[0]
+            phase = elapsed % CONTACT_EVERY_S if elapsed >= 0 else elapsed
+            start = CONTACT_EVERY_S - CONTACT_DURATION_S
+            wait_s = (start - phase) if phase < start else (CONTACT_EVERY_S - phase)
+            if stop.wait(max(wait_s, 0.0) + 1e-4):
+                return
 
     pusher = threading.Thread(target=pushes, daemon=True)
     pusher.start()
