@@ -224,7 +224,10 @@ def test_a_silence_shorter_than_sensor_timeout_never_aborts_a_pose(fake, phase) 
 
 def test_data_resume_promptly_after_a_power_cycle(fake) -> None:
     """While the box is off the driver keeps re-sending its start at most every 0.5 s (not a back-off to seconds),
-    so the box streams again soon after it is back; its fresh stream is accepted (a counted restart)."""
+    so the box streams again soon after it is back; its fresh stream is accepted (a counted restart).
+
+    "Soon" is checked on the driver's schedule (the interval it set after its latest re-send), not on host time,
+    which a loaded machine stretches; the box hearing a start after power-on and streaming is waited for."""
     from drivers.netft.receiver import BACKOFF_RESTARTING_MAX_S
 
     with NetFTSensor.from_url(fake.url) as sensor:
@@ -237,14 +240,13 @@ def test_data_resume_promptly_after_a_power_cycle(fake) -> None:
                 sensor.read(timeout_s=0.1)
             except DeviceTimeoutError:
                 pass
+        # a doubling back-off would be at 4 s or more after five re-sends
+        assert 0 < sensor._receiver.last_retry_interval_s <= BACKOFF_RESTARTING_MAX_S
         since = len(fake.commands)
-        on_at = fake.power_on()
-        first_start = fake.wait_for_command(0x0002, since=since, timeout_s=DRAIN_TIMEOUT_S)[0]
+        fake.power_on()
+        fake.wait_for_command(0x0002, since=since, timeout_s=DRAIN_TIMEOUT_S)  # a re-send reached the box
         batch = sensor.read(timeout_s=READ_TIMEOUT_S)
         while batch.sequence[0] != 1:
             batch = sensor.read(timeout_s=READ_TIMEOUT_S)
         health = sensor.health()
-    # the next re-send reached the box at most one bounded interval after it was back (plus scheduling slack);
-    # a doubling back-off would wait 2 s or more here
-    assert first_start.time_s - on_at < BACKOFF_RESTARTING_MAX_S + 0.5
     assert health.restarts == 1 and health.duplicate == 0

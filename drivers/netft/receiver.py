@@ -103,6 +103,8 @@ class RdtReceiver:
         self.counters = SensorHealth()  # malformed, foreign, timeouts, reconnects
         self.overflowed = 0
         self.socket_errors = 0
+        self.last_retry_interval_s = 0.0
+        """Interval the receive thread scheduled after its latest re-sent start, seconds (0: none re-sent yet)."""
         self.receive_buffer_bytes = 0
         self.sock: socket.socket | None = None
         self._stop = threading.Event()
@@ -256,6 +258,7 @@ class RdtReceiver:
                     counters.timeouts += 1
                     counters.reconnects += 1
                     interval_s = next_retry_interval_s(interval_s, now - last_data_s)
+                    self.last_retry_interval_s = interval_s
                     logger.info("Net F/T %s: no data for %.2f s; re-sending start (next in %.2f s)",
                                 self.host, now - last_data_s, interval_s)
                     self._resend()
