@@ -19,7 +19,6 @@ from ftacq.dynamics.model import SensorDynamics, predict_moving
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import URModel
 from ftacq.so3 import rotation_from_rotvec
-from procedures.excitation import STREAM_GAP_S
 
 STATE_WINDOW_ROWS = 64
 """Newest robot states looked at per batch (128 ms at 500 Hz)."""
@@ -33,7 +32,7 @@ class SensorClock:
     """Host times of a sensor's samples from its sequence numbers (its own clock) and the arrival stamps: the
     period by least squares over the current run, the offset as the lower envelope of (arrival − sequence·period)
     over the run's recent reads (one candidate kept per read, re-evaluated with the newest period). A restarted count
-    or a stall starts a new run. A sequence that does not count samples (a polled sensor) leaves the arrival stamps."""
+    starts a new run; a stall of the host or of the link does not (the device's clock ran on). A sequence that does not count samples (a polled sensor) leaves the arrival stamps."""
 
     def __init__(self, counts_samples: bool = True) -> None:
         self._usable = counts_samples
@@ -43,22 +42,23 @@ class SensorClock:
         self._origin: tuple[float, float] | None = None
         self._sums = np.zeros(5)  # n, Σs, Σa, Σs², Σsa (relative to the origin)
         self._points: list[tuple[float, float]] = []  # per read: the sample closest to the envelope
-        self._last, self._last_arrival = -np.inf, -np.inf
+        self._last = -np.inf
 
     def host_times(self, arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray:
         arrival = np.asarray(arrival_s, dtype=float)
         seq = np.asarray(sequence, dtype=float)
         if not self._usable or arrival.size == 0:
             return arrival
-        if np.any(np.diff(seq) <= 0) or np.any(np.diff(arrival) > STREAM_GAP_S):
+        if np.any(np.diff(seq) <= 0):
             return arrival  # a restart inside one read: this read keeps its arrival stamps
-        if self._origin is not None and (seq[0] - self._origin[0] <= self._last
-                                         or arrival[0] - self._last_arrival > STREAM_GAP_S):
+        # a restarted count starts a new run; a gap in arrival with the count going on (the host stalled, records
+        # were lost or delayed) does not: the device's own clock ran on, and the lower envelope already ignores delay
+        if self._origin is not None and seq[0] - self._origin[0] <= self._last:
             self._restart()
         if self._origin is None:
             self._origin = (float(seq[0]), float(arrival[0]))
         s, a = seq - self._origin[0], arrival - self._origin[1]
-        self._last, self._last_arrival = float(s[-1]), float(arrival[-1])
+        self._last = float(s[-1])
         self._sums += (s.size, s.sum(), a.sum(), (s * s).sum(), (s * a).sum())
         n, ss, sa, sss, ssa = self._sums
         denominator = n * sss - ss * ss

@@ -213,3 +213,20 @@ def test_simulated_controller_outputs_agree_with_its_motion():
     assert not np.any(at_rest["target_qdd"]) and not np.any(at_rest["actual_TCP_speed"])
     np.testing.assert_allclose(np.linalg.norm(at_rest["actual_tool_accelerometer"]), 9.81, rtol=1e-12)
     assert np.all(np.isinf(sim.joint_state(start).switch_in_s))
+
+
+def test_joint_state_goes_back_through_the_previous_phase():
+    """A sensor that generates its samples late gets those from before the last change of q̈ from the phase
+    before it (switched_ago_s, qdd_before), not from the current phase extrapolated backwards."""
+    q_switch, qd_switch = np.array([0.1, -1.2, 1.3, -1.5, -1.6, 0.2]), np.array([0.3, 0.0, -0.2, 0.1, 0.0, 0.5])
+    qdd_before, qdd_now, since_s = np.array([2.0, 0.0, 1.0, 0.0, 0.0, -1.0]), np.zeros(6), 0.1
+    state = JointState(50.0, 1.0, q_switch + qd_switch * since_s + 0.5 * qdd_now * since_s ** 2,
+                       qd_switch + qdd_now * since_s, qdd_now, switched_ago_s=since_s, qdd_before=qdd_before)
+    back_s = 0.2  # before the switch
+    q, qd, qdd = state.at(np.array([50.0 - since_s - back_s, 50.0 - since_s / 2]))
+    np.testing.assert_allclose(q[0], q_switch - qd_switch * back_s + 0.5 * qdd_before * back_s ** 2, atol=1e-12)
+    np.testing.assert_allclose(qd[0], qd_switch - qdd_before * back_s, atol=1e-12)
+    np.testing.assert_allclose(qdd[0], qdd_before)
+    np.testing.assert_allclose(qdd[1], qdd_now)
+    assert not JointState(50.0, 1.0, q_switch, np.zeros(6), np.zeros(6), switched_ago_s=0.01,
+                          qdd_before=qdd_before).at_rest  # just stopped: samples from before still move

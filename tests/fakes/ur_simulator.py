@@ -135,6 +135,8 @@ class URSimulator:
         self.qdd = np.zeros(6)
         self.qdd_switch_in_s = np.full(3, np.inf)  # motion time until each later change of q̈, and q̈ after each
         self.qdd_next = np.zeros((3, 6))
+        self.qdd_switched_at_s = -np.inf  # clock time of the last change of q̈, and q̈ before it
+        self.qdd_before = np.zeros(6)
         self.tcp_offset = np.zeros(6)
         self.payload_kg, self.payload_cog, self.payload_inertia = 0.0, np.zeros(3), np.zeros(6)
         self.gravity_m_s2 = {"floor": (0.0, 0.0, 9.82), "wall": (9.82, 0.0, 0.0), "ceiling": (0.0, 0.0, -9.82)}[mount]
@@ -402,6 +404,8 @@ class URSimulator:
         self._path_queue.clear()
 
     def _at_rest(self) -> None:
+        if np.any(self.qdd):  # the motion ended (or stopped) since the last tick: q̈ changes to zero now
+            self.qdd_switched_at_s, self.qdd_before = self._last_step_s, self.qdd
         self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros((3, 6)), np.full(3, np.inf)
 
     def motion_time_scale(self) -> float:
@@ -437,6 +441,7 @@ class URSimulator:
             self._fire(Fault("protective_stop"))
             return
         qd_before, dt_motion = self.qd, dt * self.motion_time_scale()
+        qdd_before, switch_in_s = self.qdd, float(self.qdd_switch_in_s[0])
         self.q, self.qd = sample
         acceleration = motion.acceleration(t)
         if acceleration is None:  # moveL: no closed form; differentiate q̇
@@ -444,6 +449,11 @@ class URSimulator:
             self.qdd_switch_in_s, self.qdd_next = np.full(3, np.inf), np.zeros((3, 6))
         else:
             self.qdd, self.qdd_switch_in_s, self.qdd_next = acceleration
+            if not np.array_equal(self.qdd, qdd_before):  # q̈ changed since the last tick: when, exactly
+                scale = self.motion_time_scale()
+                since_s = min(switch_in_s, dt_motion) if np.isfinite(switch_in_s) else 0.0  # 0: a new move
+                self.qdd_switched_at_s = now - (dt_motion - since_s) / scale if scale > 0 else now
+                self.qdd_before = qdd_before
         if fired is not None:
             self.faults.remove(fired)
             self._fire(fired)
@@ -671,8 +681,10 @@ class URSimulator:
 
     def joint_state(self, now: float) -> JointState:
         """The joint state at ``now`` for the simulated sensor (see :class:`tests.fakes.world.JointState`)."""
-        return JointState(now, self.motion_time_scale(), self.q.copy(), self.qd.copy(), self.qdd.copy(),
-                          self.qdd_switch_in_s.copy(), self.qdd_next.copy())
+        scale = self.motion_time_scale()
+        return JointState(now, scale, self.q.copy(), self.qd.copy(), self.qdd.copy(),
+                          self.qdd_switch_in_s.copy(), self.qdd_next.copy(),
+                          max(now - self.qdd_switched_at_s, 0.0) * scale, self.qdd_before.copy())
 
     def snapshot(self, now: float, dt: float) -> dict:
         flange, tcp = self._poses()

@@ -163,6 +163,9 @@ class JointState:
         switch_in_s (3,): motion time from the tick to each later change of q̈ (inf when none); qdd_next (3, 6):
             q̈ after each. A trapezoidal move has at most three, so the sensor follows the move exactly even while
             the controller process is descheduled.
+        switched_ago_s: motion time from the last change of q̈ to the tick (inf: none known); qdd_before (6,): q̈
+            before it. A sensor that generates its samples late (its process was descheduled) gets the samples
+            from before that change right too.
     """
 
     stamp_s: float
@@ -172,15 +175,18 @@ class JointState:
     qdd: np.ndarray
     switch_in_s: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
     qdd_next: np.ndarray = field(default_factory=lambda: np.zeros((3, 6)))
+    switched_ago_s: float = np.inf
+    qdd_before: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     @property
     def at_rest(self) -> bool:
-        return not (np.any(self.qd) or np.any(self.qdd) or np.any(self.qdd_next))
+        recently_moving = self.switched_ago_s < MAX_EXTRAPOLATION_S and np.any(self.qdd_before)
+        return not (np.any(self.qd) or np.any(self.qdd) or np.any(self.qdd_next) or recently_moving)
 
     def at(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Return (q, q̇, q̈), each (S, 6), at clock times ``times_s`` (S,): exact for the piecewise constant q̈
-        of the controller's profiles (ahead of the stamp through every change of q̈; behind it within the current
-        phase; at most :data:`MAX_EXTRAPOLATION_S` either way)."""
+        of the controller's profiles (ahead of the stamp through every change of q̈; behind it through the current
+        phase and the one before; at most :data:`MAX_EXTRAPOLATION_S` either way)."""
         tau = np.clip((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S,
                       MAX_EXTRAPOLATION_S)[:, None]
         switches = np.asarray(self.switch_in_s, dtype=float).reshape(-1)
@@ -189,9 +195,15 @@ class JointState:
         q = np.broadcast_to(self.q, (n, 6)).copy()
         qd = np.broadcast_to(self.qd, (n, 6)).copy()
         qdd = np.broadcast_to(self.qdd, (n, 6)).copy()
-        behind = np.minimum(tau, 0.0)  # before the stamp: the current phase, backwards
-        q += qd * behind + 0.5 * qdd * behind ** 2
-        qd += qdd * behind
+        behind = np.minimum(tau, 0.0)  # before the stamp: the current phase backwards, then the one before
+        within = np.maximum(behind, -float(self.switched_ago_s))
+        q += qd * within + 0.5 * qdd * within ** 2
+        qd += qdd * within
+        beyond = behind - within
+        qdd_before = np.asarray(self.qdd_before, dtype=float)
+        q += qd * beyond + 0.5 * qdd_before * beyond ** 2
+        qd += qdd_before * beyond
+        qdd = np.where(beyond < 0.0, qdd_before, qdd)
         done = np.zeros_like(tau)
         for boundary, acceleration in zip(list(switches) + [np.inf], list(after) + [None]):
             step = np.clip(np.minimum(tau, boundary) - done, 0.0, None)
@@ -208,11 +220,11 @@ class SharedPose:
     """A flange pose and the joint state shared between processes through shared memory, guarded by a seqlock.
 
     Layout (float64): [sequence, x, y, z, rx, ry, rz, joint_speed_rad_s, stamp_s, time_scale, q (6), q̇ (6),
-    q̈ (6), switch_in_s (3), q̈ after each switch (3 × 6)]. The writer makes the sequence odd while writing; readers retry
+    q̈ (6), switch_in_s (3), q̈ after each switch (3 × 6), switched_ago_s, q̈ before it (6)]. The writer makes the sequence odd while writing; readers retry
     until they see the same even sequence before and after copying.
     """
 
-    _SLOTS = 49
+    _SLOTS = 56
 
     def __init__(self, name: str | None = None, create: bool = False) -> None:
         if create:
@@ -225,6 +237,7 @@ class SharedPose:
             self._array[:] = 0.0
             self._array[1:7] = [0.4, 0.0, 0.4, np.pi, 0.0, 0.0]
             self._array[28:31] = np.inf
+            self._array[49] = np.inf
 
     @property
     def name(self) -> str:
@@ -238,12 +251,14 @@ class SharedPose:
         self._array[1:7] = pose
         self._array[7] = joint_speed_rad_s
         if state is None:
-            self._array[8:49] = 0.0
+            self._array[8:56] = 0.0
             self._array[28:31] = np.inf
+            self._array[49] = np.inf
         else:
             self._array[8], self._array[9] = state.stamp_s, state.time_scale
             self._array[10:16], self._array[16:22], self._array[22:28] = state.q, state.qd, state.qdd
             self._array[28:31], self._array[31:49] = state.switch_in_s, np.ravel(state.qdd_next)
+            self._array[49], self._array[50:56] = state.switched_ago_s, state.qdd_before
         self._array[0] = seq + 2.0
 
     def _copy(self) -> np.ndarray:
@@ -262,7 +277,8 @@ class SharedPose:
         v = self._copy()
         state = None
         if v[8] > 0.0:
-            state = JointState(float(v[8]), float(v[9]), v[10:16], v[16:22], v[22:28], v[28:31], v[31:49].reshape(3, 6))
+            state = JointState(float(v[8]), float(v[9]), v[10:16], v[16:22], v[22:28], v[28:31], v[31:49].reshape(3, 6),
+                               float(v[49]), v[50:56])
         return v[1:7], float(v[7]), state
 
     def close(self) -> None:
