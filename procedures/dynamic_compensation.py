@@ -41,7 +41,8 @@ class SensorClock:
     def _restart(self) -> None:
         self._origin: tuple[float, float] | None = None
         self._sums = np.zeros(5)  # n, Σs, Σa, Σs², Σsa (relative to the origin)
-        self._points: list[tuple[float, float]] = []  # per read: the sample closest to the envelope
+        self._points = np.empty((ENVELOPE_READS, 2))  # per read: the sample closest to the envelope (a ring)
+        self._point_count = 0
         self._last = -np.inf
 
     def host_times(self, arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray:
@@ -68,9 +69,9 @@ class SensorClock:
         if not period > 0:
             return arrival
         best = int(np.argmin(a - s * period))
-        self._points.append((float(s[best]), float(a[best])))
-        del self._points[:-ENVELOPE_READS]
-        points = np.array(self._points)
+        self._points[self._point_count % ENVELOPE_READS] = s[best], a[best]
+        self._point_count += 1
+        points = self._points[:min(self._point_count, ENVELOPE_READS)]
         offset = float(np.min(points[:, 1] - points[:, 0] * period))
         return self._origin[1] + s * period + offset
 
