@@ -38,7 +38,8 @@ RECEIVE_TIMEOUT_S = 1.0
 JOIN_TIMEOUT_S = 2.0
 DEFAULT_CAPACITY = 1 << 18
 """Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
-_COLUMNS = 26  # arrival, timestamp, q (6), qd (6), target qd (6), target qdd (6)
+ROW_COLUMNS = 26
+"""Columns of one kept state row: arrival (host s), timestamp (controller s), q (6), q̇ (6), target q̇ (6), target q̈ (6)."""
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,13 @@ class StateWindow:
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
 
+    @classmethod
+    def from_rows(cls, rows: np.ndarray, offset_s: float) -> "StateWindow":
+        """The window of rows laid out as :data:`ROW_COLUMNS` (arrival, timestamp, q, q̇, target q̇, target q̈),
+        on the host clock as timestamp + ``offset_s``."""
+        return cls(rows[:, 1] + offset_s, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26],
+                   rows[:, 14:20])
+
 
 class URStateStream:
     """A receive-only RTDE client keeping every state sample (context manager; :meth:`close` is safe twice).
@@ -70,7 +78,7 @@ class URStateStream:
                  connect_timeout_s: float = CONNECT_TIMEOUT_S, port: int = RTDE_PORT) -> None:
         self.host, self.port, self.frequency_hz = host, port, float(frequency_hz)
         self.connect_timeout_s = connect_timeout_s
-        self._rows = np.empty((capacity, _COLUMNS))
+        self._rows = np.empty((capacity, ROW_COLUMNS))
         self._count = 0
         self._lock = threading.Lock()
         self._sock: socket.socket | None = None
@@ -145,7 +153,7 @@ class URStateStream:
         return self
 
     def _read_loop(self, sock: socket.socket) -> None:
-        values = struct.Struct(">" + "d" * (_COLUMNS - 1))
+        values = struct.Struct(">" + "d" * (ROW_COLUMNS - 1))
         package_size = _HEADER.size + 1 + values.size
         rows, capacity = self._rows, self._rows.shape[0]
         buffer = b""
@@ -203,10 +211,10 @@ class URStateStream:
                 n = min(n, last)
             index = np.arange(count - n, count) % capacity
             rows = self._rows[index]
-        times = rows[:, 1] + (offset if np.isfinite(offset) else 0.0)
+        offset = offset if np.isfinite(offset) else 0.0
         if since_s is not None:
-            rows, times = rows[times >= since_s], times[times >= since_s]
-        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
+            rows = rows[rows[:, 1] + offset >= since_s]
+        return StateWindow.from_rows(rows, offset)
 
     def wait_for_samples(self, count: int, timeout_s: float) -> bool:
         """Wait until at least ``count`` samples were received in total; False after ``timeout_s``."""

@@ -16,12 +16,16 @@ from __future__ import annotations
 
 import collections
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ftacq.drift import BiasHealth, HealthNotice
 from ftacq.so3 import rotation_from_rotvec
 from procedures.events import BiasDrift, Notice
+
+if TYPE_CHECKING:
+    from procedures.monitor import Compensator
 
 STILL_TOLERANCE_RAD = 2e-4
 """Largest joint excursion (rad, about 0.01°) over the still window that still counts as still (encoder jitter)."""
@@ -70,7 +74,7 @@ class DriftCompensator:
     health: BiasHealth
     still: StillDetector = field(default_factory=StillDetector)
     notices: list[HealthNotice] = field(default_factory=list)
-    moving: object | None = None
+    moving: Compensator | None = None
 
     @property
     def calibration(self):
@@ -82,7 +86,7 @@ class DriftCompensator:
             return None
         flange_R_base = rotation_from_rotvec(np.asarray(robot.flange_pose, dtype=float)[3:6]).T
         if self.moving is not None:
-            residual = self.moving.compensate(batch, robot)  # type: ignore[attr-defined]
+            residual = self.moving.compensate(batch, robot)
             if residual is None:
                 return None
         else:

@@ -51,14 +51,15 @@ import numpy as np
 from scipy import signal
 
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
+from drivers.ur_ft_input import ControllerCycle
+from drivers.ur_stream import ROW_COLUMNS, StateWindow
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
-from drivers.ur_stream import StateWindow
-from procedures.dynamic_compensation import DynamicCompensator
-from procedures.excitation import counts_samples
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
+from procedures.dynamic_compensation import DynamicCompensator
 from procedures.events import Event, FedWrenches, Listener, Notice
+from procedures.excitation import counts_samples
 
 log = logging.getLogger(__name__)
 
@@ -148,15 +149,19 @@ class BridgeSummary:
     """How the feed thread was scheduled, e.g. "SCHED_FIFO 80" or "normal (…why…)"."""
     log: np.ndarray = field(default_factory=lambda: np.empty((0, len(LOG_COLUMNS))))
 
+    def written_rows(self) -> np.ndarray:
+        """The log rows of cycles that were answered with a value."""
+        return self.log[np.isfinite(self.log[:, 2])]
+
     def answer_time_s(self) -> np.ndarray:
         """Time from a controller cycle's package arriving to the value written in answer, s (a value that must
         reach the controller before its next cycle: longer than one cycle is late)."""
-        rows = self.log[np.isfinite(self.log[:, 2])]
+        rows = self.written_rows()
         return rows[:, 2] - rows[:, 1]
 
     def staleness_s(self) -> np.ndarray:
         """Age of the newest sensor sample when each value was written, s."""
-        rows = self.log[np.isfinite(self.log[:, 2])]
+        rows = self.written_rows()
         return rows[:, 2] - rows[:, 3]
 
 
@@ -205,12 +210,12 @@ class CycleStates:
     it; a host clock running faster than the controller's is followed). Written and read by the feed thread."""
 
     def __init__(self, capacity: int = STATE_CYCLES) -> None:
-        self._rows = np.zeros((capacity, 26))  # arrival, timestamp, q, qd, target qd, target qdd
+        self._rows = np.zeros((capacity, ROW_COLUMNS))  # laid out as drivers.ur_stream's kept rows
         self._count = 0
         self._offset: float | None = None
         self._offset_at = 0.0
 
-    def append(self, cycle) -> None:
+    def append(self, cycle: ControllerCycle) -> None:
         raw = cycle.received_s - cycle.timestamp_s
         if self._offset is None:
             self._offset = raw
@@ -226,8 +231,7 @@ class CycleStates:
     def window(self, last: int) -> StateWindow:
         n = min(self._count, len(self._rows), last)
         rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
-        times = rows[:, 1] + (self._offset or 0.0)
-        return StateWindow(times, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
+        return StateWindow.from_rows(rows, self._offset or 0.0)
 
 
 class _Log:
@@ -297,7 +301,7 @@ class Bridge:
         return self._written
 
     # ------------------------------------------------------------------ feed thread
-    def _sensor_frame(self, batch: WrenchBatch, cycle) -> np.ndarray:
+    def _sensor_frame(self, batch: WrenchBatch, cycle: ControllerCycle) -> np.ndarray:
         if self.plan.feed == "raw":
             return batch.wrench - self._bias
         if self.dynamic is not None:
