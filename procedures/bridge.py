@@ -283,7 +283,8 @@ class Bridge:
             self.compensation = "bias only"
         elif calibration.has_dynamics:
             self.compensation = "dynamic"
-            self.dynamic = DynamicCompensator(calibration, model, self.states, counts_samples=counts_samples(sensor))
+            self.dynamic = DynamicCompensator(calibration, model, self.states, counts_samples=counts_samples(sensor),
+                                              sample_rate_hz=self.sensor_rate_hz)
         else:
             self.compensation = "static"
         self.feed_priority = "normal"

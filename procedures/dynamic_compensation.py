@@ -23,19 +23,25 @@ from ftacq.so3 import rotation_from_rotvec
 STATE_WINDOW_ROWS = 64
 """Newest robot states looked at per batch (128 ms at 500 Hz)."""
 MAX_STATE_GAP_S = 0.05
+"""A batch whose samples are further than this from the newest robot state is compensated statically, s."""
 ENVELOPE_READS = 2000
 """Reads (≈ 20 s) over which the sensor clock's lower envelope is taken."""
-"""A batch whose samples are further than this from the newest robot state is compensated statically."""
+PERIOD_FIT_SPAN_S = 10.0
+"""A run shorter than this keeps the sensor's nominal period (when known): a least-squares period over a few
+seconds of delayed arrivals is off by far more than the device clock's error (ppm), s."""
 
 
 class SensorClock:
     """Host times of a sensor's samples from its sequence numbers (its own clock) and the arrival stamps: the
     period by least squares over the current run, the offset as the lower envelope of (arrival − sequence·period)
     over the run's recent reads (one candidate kept per read, re-evaluated with the newest period). A restarted count
-    starts a new run; a stall of the host or of the link does not (the device's clock ran on). A sequence that does not count samples (a polled sensor) leaves the arrival stamps."""
+    starts a new run; a stall of the host or of the link does not (the device's clock ran on). With ``nominal_period_s``
+(the rate the device reports) a run shorter than :data:`PERIOD_FIT_SPAN_S` uses it instead of the fit. A sequence
+that does not count samples (a polled sensor) leaves the arrival stamps."""
 
-    def __init__(self, counts_samples: bool = True) -> None:
+    def __init__(self, counts_samples: bool = True, nominal_period_s: float | None = None) -> None:
         self._usable = counts_samples
+        self._nominal_period_s = nominal_period_s if nominal_period_s and nominal_period_s > 0 else None
         self._restart()
 
     def _restart(self) -> None:
@@ -62,12 +68,16 @@ class SensorClock:
         self._last = float(s[-1])
         self._sums += (s.size, s.sum(), a.sum(), (s * s).sum(), (s * a).sum())
         n, ss, sa, sss, ssa = self._sums
-        denominator = n * sss - ss * ss
-        if n < 50 or denominator <= 0:
-            return arrival
-        period = (n * ssa - ss * sa) / denominator
-        if not period > 0:
-            return arrival
+        nominal = self._nominal_period_s
+        if nominal is not None and self._last * nominal < PERIOD_FIT_SPAN_S:
+            period = nominal
+        else:
+            denominator = n * sss - ss * ss
+            if n < 50 or denominator <= 0:
+                return arrival
+            period = (n * ssa - ss * sa) / denominator
+            if not period > 0:
+                return arrival
         best = int(np.argmin(a - s * period))
         self._points[self._point_count % ENVELOPE_READS] = s[best], a[best]
         self._point_count += 1
@@ -80,11 +90,12 @@ class DynamicCompensator:
     """Compensates gravity and the tool's inertial wrench (calibration with inertia) with the RTDE state stream.
 
     Args: calibration (``has_dynamics``), robot (the arm's model), stream (a started URStateStream),
-    lag_s (the sensor's lag behind the robot stream; default the one the identification measured).
+    lag_s (the sensor's lag behind the robot stream; default the one the identification measured),
+    counts_samples and sample_rate_hz (the sensor's reported rate, Hz: its nominal period for :class:`SensorClock`).
     """
 
     def __init__(self, calibration: Calibration, robot: URModel, stream, lag_s: float | None = None,
-                 counts_samples: bool = True) -> None:
+                 counts_samples: bool = True, sample_rate_hz: float | None = None) -> None:
         if not calibration.has_dynamics:
             raise ValueError("the calibration has no inertia: use the static GravityCompensator")
         self.calibration = calibration
@@ -93,7 +104,7 @@ class DynamicCompensator:
         measured = calibration.metadata.get("dynamics", {}).get("lag_ms") if isinstance(
             calibration.metadata.get("dynamics"), dict) else None
         self.lag_s = float(lag_s if lag_s is not None else (measured or 0.0) / 1e3)
-        self.clock = SensorClock(counts_samples)
+        self.clock = SensorClock(counts_samples, 1.0 / sample_rate_hz if sample_rate_hz else None)
         self._times = np.empty(0)
         self._predicted = np.empty((0, 6))
         self._last_controller_time = -np.inf

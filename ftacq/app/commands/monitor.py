@@ -282,7 +282,8 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
     stream = URStateStream(robot_host)
     stack.callback(stream.close)
     stream.start()
-    compensator = DynamicCompensator(calibration, model, stream, counts_samples=counts_samples(sensor))
+    compensator = DynamicCompensator(calibration, model, stream, counts_samples=counts_samples(sensor),
+                                     sample_rate_hz=sensor.info.rate_hz)
     print(f"ftacq monitor: dynamic compensation (tool inertia from the calibration; sensor lag "
           f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "
           "trajectory, else a filtered derivative of actual_qd", file=sys.stderr)
