@@ -70,9 +70,6 @@ MOVE_OFFSET_RAD = np.array([0.6, -0.3, 0.4, 0.8, 0.8, 1.0])
 MOVE_SPEED_RAD_S, MOVE_ACCELERATION_RAD_S2 = 1.0, 2.0
 """``--moves``: moveJ back and forth between the start and start + MOVE_OFFSET_RAD at this speed and acceleration
 (as benchmarks/dynamics.py)."""
-SIM_PRIORITY = 90
-"""The simulated devices' real-time loops run above the bridge's feed thread (80): a real controller and a real Net
-F/T box are not preempted by the PC."""
 GOALS = {"missed": 0, "latency_p99_ms": 4.0, "cpu_percent": 50.0}
 
 
@@ -165,10 +162,6 @@ def main() -> int:
                         help="relax the bridge's staleness limit (default: the product's) so that a loaded machine "
                              "does not end the run early; the figures say so")
     parser.add_argument("--cycle-timeout-s", type=float, default=None, help="relax the lost-cycle limit likewise")
-    parser.add_argument("--sim-priority", type=int, default=SIM_PRIORITY,
-                        help="SCHED_FIFO priority of the simulated controller's 500 Hz loop and of the simulated "
-                             "sensor's sender, as the real devices' own real-time loops (0 = normal scheduling; "
-                             f"default {SIM_PRIORITY})")
     parser.add_argument("--world", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--pose-shm", help=argparse.SUPPRESS)
     parser.add_argument("--host", help=argparse.SUPPRESS)
@@ -199,8 +192,7 @@ def main() -> int:
             calibration = replace(calibration, inertia=truth.inertia)
     q0 = home_configuration_rad("floor")
     shared = SharedPose(name=f"ftacq-bench-{os.getpid()}-{uuid.uuid4().hex[:6]}", create=True)
-    with URControllerProcess(time_scale=1.0, pose_shm=shared.name, initial_q=q0,
-                             extra_args=["--realtime-priority", str(args.sim_priority)]) as controller:
+    with URControllerProcess(time_scale=1.0, pose_shm=shared.name, initial_q=q0) as controller:
         world_process = subprocess.Popen(
             [sys.executable, str(Path(__file__).resolve()), "--world", "--pose-shm", shared.name, "--host",
              controller.host, "--control-port", str(controller.control_port), "--q0", json.dumps(q0.tolist())]

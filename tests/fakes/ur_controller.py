@@ -295,10 +295,8 @@ class RTDEConnection:
 class ControllerServer:
     """All listeners, connection threads and the tick thread of one simulated controller."""
 
-    def __init__(self, sim: URSimulator, host: str, pose_shm: str | None = None, realtime_priority: int = 0) -> None:
+    def __init__(self, sim: URSimulator, host: str, pose_shm: str | None = None) -> None:
         self.sim, self.host = sim, host
-        self.realtime_priority = realtime_priority
-        self.tick_priority = "normal"
         self.stop_event = threading.Event()
         self.frozen = False
         self.dropped = False
@@ -409,13 +407,6 @@ class ControllerServer:
             self.sim.stream_period_s = max(periods) if periods else 1.0 / MAX_STREAM_HZ
 
     def _tick_loop(self) -> None:
-        if self.realtime_priority > 0:  # a real controller's 500 Hz loop runs on a real-time kernel
-            try:
-                os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO,
-                                      os.sched_param(self.realtime_priority))
-                self.tick_priority = f"SCHED_FIFO {self.realtime_priority}"
-            except (OSError, AttributeError) as error:
-                self.tick_priority = f"normal (SCHED_FIFO refused: {error})"
         period = 1.0 / TICK_HZ
         next_tick = time.monotonic()
         while not self.stop_event.is_set():
@@ -538,7 +529,7 @@ class ControllerServer:
         command = words[0].lower()
         sim = self.sim
         if command == "ping":
-            return {"tick_priority": self.tick_priority}
+            return {}
         if command == "state":
             return {"state": sim.state_view(), "frozen": self.frozen, "dropped": self.dropped}
         if command == "commands":
@@ -679,9 +670,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor")
     parser.add_argument("--version", type=parse_version, default=(5, 11, 1, 108318), help="controller version")
     parser.add_argument("--serial-number", default="20235500123")
-    parser.add_argument("--realtime-priority", type=int, default=0, metavar="N",
-                        help="SCHED_FIFO priority of the 500 Hz tick thread, as a real controller's real-time loop "
-                             "(0, the default: normal scheduling; the benchmarks ask for it where allowed)")
     return parser
 
 
@@ -690,7 +678,7 @@ def main(argv: list[str] | None = None) -> int:
     sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version,
                       initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
                       serial_number=args.serial_number)
-    server = ControllerServer(sim, args.host, args.pose_shm, realtime_priority=args.realtime_priority)
+    server = ControllerServer(sim, args.host, args.pose_shm)
     try:
         server.bind()
     except OSError as error:
