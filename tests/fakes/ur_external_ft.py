@@ -68,7 +68,9 @@ class ExternalFTInput:
         self.last_arrival_s: float | None = None
         self.enable_calls: list[dict] = []
         self.received = _Growing(8)  # arrival monotonic s, controller time s, 6 values
-        self.cycles = _Growing(4)  # controller time s, fed (0/1), age of the held value s (nan: none yet), sent (monotonic s)
+        # controller time s, fed (0/1), age of the held value s (nan: none yet), cycle start (monotonic s), output
+        # package handed to the kernel (monotonic s; nan until sent): the simulator's own delay shows between the two
+        self.cycles = _Growing(5)
         self.watchdog_trips: list[float] = []
         self._new_since_cycle = False
         self._unfed_s = 0.0
@@ -112,10 +114,15 @@ class ExternalFTInput:
             return False
         age = now_s - self.last_arrival_s if self.last_arrival_s is not None else float("nan")
         fed = self._new_since_cycle
-        self.cycles.append([controller_time_s, 1.0 if fed else 0.0, age, now_s])
+        self.cycles.append([controller_time_s, 1.0 if fed else 0.0, age, now_s, float("nan")])
         self._new_since_cycle = False
         self._unfed_s = 0.0 if fed else self._unfed_s + period_s
         return self._unfed_s > self.watchdog_period_s + 1e-9 and self._trip(controller_time_s)
+
+    def package_sent(self, sent_s: float) -> None:
+        """The output package of the cycle counted last left for the feeding client at ``sent_s`` (monotonic)."""
+        if self.cycles.count:
+            self.cycles.data[self.cycles.count - 1, 4] = sent_s
 
     def watchdog(self, now_s: float, controller_time_s: float) -> bool:
         """Without an RTDE connection owning the input: True (and disabled) when enabled and no value arrived for

@@ -231,7 +231,7 @@ class URControllerProcess:
         """Every value the controller received (rows: arrival monotonic s, controller time s, Fx..Tz) and every
         controller cycle counted while enabled (rows: controller time s, fed 0/1, age of the held value s)."""
         reply = self.control("external_ft_records")
-        return {"received": np.array(reply["received"]).reshape(-1, 8), "cycles": np.array(reply["cycles"]).reshape(-1, 4)}
+        return {"received": np.array(reply["received"]).reshape(-1, 8), "cycles": np.array(reply["cycles"]).reshape(-1, 5)}
 
     def set_time_scale(self, time_scale: float) -> None:
         self.control(f"set time_scale {float(time_scale)!r}")
