@@ -52,9 +52,10 @@ from scipy import signal
 
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from drivers.ur_ft_input import ControllerCycle
-from drivers.ur_stream import ROW_COLUMNS, StateWindow
+from drivers.ur_stream import OFFSET_COLUMN, ROW_COLUMNS, StateWindow
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
+from ftacq.dynamics.timing import ControllerClock
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
 from procedures.dynamic_compensation import DynamicCompensator
@@ -81,8 +82,6 @@ SENSOR_HOLD_S = 0.0003
 ``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU)."""
 STATE_CYCLES = 256
 """Controller cycles of joint state kept for the dynamic model (0.5 s at 500 Hz)."""
-CLOCK_DRIFT_ALLOWANCE = 1e-4
-"""Rate (s/s, 100 ppm) at which the controller-to-host clock offset may rise: more than two clocks drift apart."""
 ROBOT_STATE_RATE_HZ = 125.0
 """RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
 the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
@@ -204,34 +203,27 @@ def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
 
 class CycleStates:
     """The controller cycles' joint states as a robot state stream (``window``, as drivers.ur_stream.URStateStream)
-    for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, each on the
-    host clock as its controller timestamp plus the lower envelope of (arrival − timestamp), which may rise by
-    :data:`CLOCK_DRIFT_ALLOWANCE` of the elapsed controller time (a package that waited in a queue does not move
-    it; a host clock running faster than the controller's is followed). Written and read by the feed thread."""
+    for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, on the host
+    clock as the RTDE state stream puts them (:class:`ftacq.dynamics.timing.ControllerClock`: the lower envelope of
+    arrival − timestamp, following the clocks' drift, one package at a time). Written and read by the feed
+    thread."""
 
     def __init__(self, capacity: int = STATE_CYCLES) -> None:
         self._rows = np.zeros((capacity, ROW_COLUMNS))  # laid out as drivers.ur_stream's kept rows
         self._count = 0
-        self._offset: float | None = None
-        self._offset_at = 0.0
+        self.clock = ControllerClock()
 
     def append(self, cycle: ControllerCycle) -> None:
-        raw = cycle.received_s - cycle.timestamp_s
-        if self._offset is None:
-            self._offset = raw
-        else:
-            allowance = CLOCK_DRIFT_ALLOWANCE * max(cycle.timestamp_s - self._offset_at, 0.0)
-            self._offset = min(raw, self._offset + allowance)
-        self._offset_at = cycle.timestamp_s
         row = self._rows[self._count % len(self._rows)]
         row[0], row[1] = cycle.received_s, cycle.timestamp_s
         row[2:8], row[8:14], row[14:20], row[20:26] = cycle.q, cycle.qd, cycle.target_qd, cycle.target_qdd
+        row[OFFSET_COLUMN] = self.clock.observe_one(cycle.received_s, cycle.timestamp_s)
         self._count += 1
 
     def window(self, last: int) -> StateWindow:
         n = min(self._count, len(self._rows), last)
         rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
-        return StateWindow.from_rows(rows, self._offset or 0.0)
+        return StateWindow.from_rows(rows)
 
 
 class _Log:
