@@ -17,7 +17,8 @@ Timing (docs/bridge.md "Timing"): the value answering one output package must re
 interfaces do with their ``rt_priority``; refused without CAP_SYS_NICE or an rtprio limit, then it runs at normal priority and
 :attr:`BridgeSummary.feed_priority` says why); the interpreter's thread switch interval is shortened to
 :data:`SWITCH_INTERVAL_S` while feeding, so the feed thread gets the interpreter within that when its package
-arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`.
+arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`. Both are given back when
+the run ends, on every path (the driver's previous hold, as ``prefer_low_latency`` returned it).
 
 Dynamic model: procedures.dynamic_compensation.DynamicCompensator, as in ``ftacq monitor``, with the controller
 cycles this bridge receives as its robot state stream (:class:`CycleStates`): the rigid-body model once per cycle
@@ -78,8 +79,8 @@ controller's socket between cycles, so it takes a core only for its ~0.3 ms of w
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter's thread switch interval while feeding, s (Python's default 5 ms is longer than a cycle)."""
 SENSOR_HOLD_S = 0.0003
-"""Longest the sensor driver may hold received samples before they are readable, s (drivers/sensor.py
-``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU)."""
+"""Longest the sensor driver may hold received samples before they are readable while feeding, s (drivers/sensor.py
+``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU, and is given back after the run)."""
 STATE_CYCLES = 256
 """Controller cycles of joint state kept for the dynamic model (0.5 s at 500 Hz)."""
 ROBOT_STATE_RATE_HZ = 125.0
@@ -394,15 +395,16 @@ class Bridge:
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
                                 sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,
                                 compensation=self.compensation)
-        self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
+        # both given back in the finally: the driver and the interpreter outlive this run
+        previous_hold_s = self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
         switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(min(switch_interval_s, self.settings.switch_interval_s))
         start_s = time.monotonic()
-        self._thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
-        self._thread.start()
+        self._thread = thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
         enabled = False
         published = 0
         try:
+            thread.start()
             self._wait_first_write(start_s)
             if self.switch is not None and self._trip is None:
                 self.switch.set_payload(self.plan.payload_kg, self.plan.payload_cog_m)
@@ -428,10 +430,11 @@ class Bridge:
             if enabled:
                 summary.disabled = self._disable()
             self._stop_feeding.set()
-            if self._thread is not None:
-                self._thread.join(2 * self.settings.cycle_timeout_s + 1.0)
+            if thread.ident is not None:  # started
+                thread.join(2 * self.settings.cycle_timeout_s + 1.0)
             self._publish(published)
             sys.setswitchinterval(switch_interval_s)
+            self.sensor.prefer_low_latency(previous_hold_s)
             summary.duration_s = time.monotonic() - start_s
             summary.feed_priority = self.feed_priority
             summary.trip = self._trip
