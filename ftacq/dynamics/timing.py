@@ -64,11 +64,13 @@ class ControllerClock:
         stamps ((N,) or one stamp for the whole read). Return each package's offset (N,) as known after it (host
         time = timestamp + offset), and update :attr:`offset_s`."""
         timestamp = np.asarray(timestamp_s, dtype=float).reshape(-1)
-        arrival = np.broadcast_to(np.asarray(arrival_s, dtype=float), timestamp.shape)
+        arrival = np.asarray(arrival_s, dtype=float)
         if timestamp.size == 0:
             return np.empty(0)
-        back = np.nonzero(np.diff(timestamp, prepend=self._last_timestamp_s) < 0)[0]
-        if back.size:  # another session: the mapping starts again at each timestamp that went backwards
+        if timestamp[0] < self._last_timestamp_s or (timestamp[1:] < timestamp[:-1]).any():
+            # another session: the mapping starts again at each timestamp that went backwards
+            arrival = np.broadcast_to(arrival, timestamp.shape)
+            back = np.flatnonzero(np.diff(timestamp, prepend=self._last_timestamp_s) < 0)
             parts = np.split(np.arange(timestamp.size), back)
             out = [self._observe_run(arrival[parts[0]], timestamp[parts[0]])] if parts[0].size else []
             for part in parts[1:]:
