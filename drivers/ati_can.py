@@ -205,6 +205,9 @@ class AtiCanSensor(SensorBase):
 
     The constructor does no I/O; ``start()`` opens the bus, reads firmware, selects the calibration, reads the
     matrix, counts per unit, units and serial number, and starts polling.
+
+    Each polled sample is readable the moment its reply frames are in (the poll thread wakes the reader), so
+    :meth:`prefer_low_latency` has nothing to shorten: it keeps and reports the hold asked for (the base's).
     """
 
     def __init__(

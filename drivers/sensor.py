@@ -188,8 +188,9 @@ class ForceTorqueSensor(Protocol):
     def health(self) -> SensorHealth:
         """Return a snapshot of the stream's health counters."""
 
-    def prefer_low_latency(self, max_hold_s: float) -> None:
-        """Make received samples readable at most ``max_hold_s`` seconds after they arrive (a hint; see
+    def prefer_low_latency(self, max_hold_s: float | None) -> float | None:
+        """Make received samples readable at most ``max_hold_s`` seconds after they arrive (None: the driver's own
+        hold again); return the hold asked before, for the caller to put back (a hint; see
         :meth:`SensorBase.prefer_low_latency`)."""
 
     def close(self) -> None:
@@ -253,6 +254,7 @@ class SensorBase:
         self._closed = False
         self._thread_error: BaseException | None = None
         self._lifecycle_lock = threading.Lock()
+        self._max_hold_s: float | None = None
 
     # ------------------------------------------------------------------ hooks
 
@@ -265,10 +267,26 @@ class SensorBase:
         """Tare the sensor at the current load (device-specific)."""
         raise NotImplementedError
 
-    def prefer_low_latency(self, max_hold_s: float) -> None:
+    @property
+    def max_hold_s(self) -> float | None:
+        """The longest hold (s) a reader asked for with :meth:`prefer_low_latency`; None: the driver's own."""
+        return self._max_hold_s
+
+    def prefer_low_latency(self, max_hold_s: float | None) -> float | None:
         """Hint from a reader that acts on the newest sample each cycle (``ftacq bridge``): make received samples
-        readable at most ``max_hold_s`` (s) after they arrive. Drivers that hold samples back to save CPU honour
-        it (at some CPU cost); the others already deliver at once and ignore it."""
+        readable at most ``max_hold_s`` (s) after they arrive; None gives the driver's own hold back. Returns the
+        hold asked before (None: the driver's own), which the reader passes back when it is done: a shorter hold
+        costs CPU (more wake-ups a second) for as long as it stays, and the driver outlives the reader (the
+        monitor after a bridge run, a dashboard). Drivers that hold samples back to save CPU apply it in
+        :meth:`_apply_hold` (at once, and when they open); the others already deliver at once and only keep the
+        value."""
+        previous = self._max_hold_s
+        self._max_hold_s = None if max_hold_s is None else max(0.0, float(max_hold_s))
+        self._apply_hold()
+        return previous
+
+    def _apply_hold(self) -> None:
+        """Make :attr:`max_hold_s` (None: the driver's own hold) the longest received samples wait (hook)."""
 
     def _open(self) -> None:
         raise NotImplementedError

@@ -8,9 +8,12 @@ on arrival with the host's ``time.monotonic()``, to a fixed-size ring of numpy r
 
 Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``
 (rad, rad/s, rad/s²).
-The controller's timestamp maps onto the host clock through the lower envelope of (arrival − timestamp)
-(:func:`ftacq.dynamics.timing.device_to_host_clock`): :meth:`URStateStream.window` returns host times free of
-receive jitter. Every call has a deadline; a controller that stops sending is reported by :attr:`stale`.
+The controller's timestamp maps onto the host clock through the lower envelope of (arrival − timestamp), allowed to
+follow the two clocks' drift (:class:`ftacq.dynamics.timing.ControllerClock`; each row keeps the offset known when it
+arrived, and :meth:`URStateStream.window` settles them with the rows after, :func:`ftacq.dynamics.timing.settled_offsets`):
+host times free of receive jitter, also after hours of streaming. Each read of the socket (often several packages)
+is parsed, mapped and stored as one numpy batch. Every call has a deadline; a controller that stops sending is
+reported by :attr:`stale`.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ftacq.dynamics.timing import ControllerClock, settled_offsets
 from ftacq.errors import DeviceConnectionError, DeviceError
 
 log = logging.getLogger(__name__)
@@ -38,8 +42,12 @@ RECEIVE_TIMEOUT_S = 1.0
 JOIN_TIMEOUT_S = 2.0
 DEFAULT_CAPACITY = 1 << 18
 """Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
-ROW_COLUMNS = 26
-"""Columns of one kept state row: arrival (host s), timestamp (controller s), q (6), q̇ (6), target q̇ (6), target q̈ (6)."""
+ROW_COLUMNS = 27
+"""Columns of one kept state row: arrival (host s), timestamp (controller s), q (6), q̇ (6), target q̇ (6), target q̈ (6),
+offset (host − controller s, as :class:`ftacq.dynamics.timing.ControllerClock` knew it when the row arrived)."""
+OFFSET_COLUMN = ROW_COLUMNS - 1
+_DATA_PACKAGE = np.dtype([("size", ">u2"), ("type", "u1"), ("recipe", "u1"), ("values", ">f8", (OFFSET_COLUMN - 1,))])
+"""One RTDE data package of the output recipe (header, recipe id, the outputs' doubles), as it is on the wire."""
 
 
 @dataclass(frozen=True)
@@ -60,11 +68,12 @@ class StateWindow:
         return int(self.time_s.shape[0])
 
     @classmethod
-    def from_rows(cls, rows: np.ndarray, offset_s: float) -> "StateWindow":
-        """The window of rows laid out as :data:`ROW_COLUMNS` (arrival, timestamp, q, q̇, target q̇, target q̈),
-        on the host clock as timestamp + ``offset_s``."""
-        return cls(rows[:, 1] + offset_s, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26],
-                   rows[:, 14:20])
+    def from_rows(cls, rows: np.ndarray) -> "StateWindow":
+        """The window of rows laid out as :data:`ROW_COLUMNS` (arrival, timestamp, q, q̇, target q̇, target q̈,
+        offset), oldest first, on the host clock as timestamp + the row's offset settled with the rows after it
+        (:func:`ftacq.dynamics.timing.settled_offsets`)."""
+        time_s = rows[:, 1] + settled_offsets(rows[:, 1], rows[:, OFFSET_COLUMN])
+        return cls(time_s, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
 
 
 class URStateStream:
@@ -84,7 +93,8 @@ class URStateStream:
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self._offset = np.inf
+        self.clock = ControllerClock()
+        """The controller's timestamp on the host clock (written by the reader thread only)."""
         self._last_arrival = 0.0
         self.error: str | None = None
 
@@ -153,9 +163,6 @@ class URStateStream:
         return self
 
     def _read_loop(self, sock: socket.socket) -> None:
-        values = struct.Struct(">" + "d" * (ROW_COLUMNS - 1))
-        package_size = _HEADER.size + 1 + values.size
-        rows, capacity = self._rows, self._rows.shape[0]
         buffer = b""
         while not self._stop.is_set():
             try:
@@ -173,22 +180,24 @@ class URStateStream:
                 return
             arrival = time.monotonic()
             buffer += chunk
-            offset = 0
-            while len(buffer) - offset >= _HEADER.size:
-                size, package_type = _HEADER.unpack_from(buffer, offset)
-                if size < _HEADER.size or len(buffer) - offset < size:
-                    break
-                if package_type == _U and size == package_size:
-                    row = values.unpack_from(buffer, offset + _HEADER.size + 1)
-                    with self._lock:
-                        slot = rows[self._count % capacity]
-                        slot[0] = arrival
-                        slot[1:] = row
-                        self._count += 1
-                        self._offset = min(self._offset, arrival - row[0])
-                        self._last_arrival = arrival
-                offset += max(size, _HEADER.size)
-            buffer = buffer[offset:]
+            values, used = _data_packages(buffer)
+            buffer = buffer[used:]
+            if len(values):
+                self._store(values, arrival)
+
+    def _store(self, values: np.ndarray, arrival_s: float) -> None:
+        """Keep one read's data packages (their output values, oldest first), all stamped ``arrival_s`` (host s)."""
+        offsets = self.clock.observe(arrival_s, values[:, 0])
+        capacity = self._rows.shape[0]
+        n = len(values)
+        kept = min(n, capacity)  # a read longer than the ring keeps its newest rows
+        with self._lock:
+            index = np.arange(self._count + n - kept, self._count + n) % capacity
+            self._rows[index, 0] = arrival_s
+            self._rows[index, 1:OFFSET_COLUMN] = values[n - kept:]
+            self._rows[index, OFFSET_COLUMN] = offsets[n - kept:]
+            self._count += n
+            self._last_arrival = arrival_s
 
     # ------------------------------------------------------------------ reading
     @property
@@ -204,17 +213,18 @@ class URStateStream:
     def window(self, since_s: float | None = None, last: int | None = None) -> StateWindow:
         """Return the samples kept (or those with host time ≥ ``since_s``, or the ``last`` N), oldest first."""
         with self._lock:
-            count, offset = self._count, self._offset
+            count = self._count
             capacity = self._rows.shape[0]
             n = min(count, capacity)
             if last is not None:
                 n = min(n, last)
             index = np.arange(count - n, count) % capacity
             rows = self._rows[index]
-        offset = offset if np.isfinite(offset) else 0.0
+        window = StateWindow.from_rows(rows)
         if since_s is not None:
-            rows = rows[rows[:, 1] + offset >= since_s]
-        return StateWindow.from_rows(rows, offset)
+            # host times keep the rows' order, so this is the newest rows: settled as in the whole window
+            window = StateWindow.from_rows(rows[window.time_s >= since_s])
+        return window
 
     def wait_for_samples(self, count: int, timeout_s: float) -> bool:
         """Wait until at least ``count`` samples were received in total; False after ``timeout_s``."""
@@ -245,6 +255,31 @@ class URStateStream:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _data_packages(buffer: bytes) -> tuple[np.ndarray, int]:
+    """The output values (n, :data:`OFFSET_COLUMN` − 1) of the complete data packages at the start of ``buffer``,
+    and the bytes used (other packages are skipped; an incomplete one is left for the next read). A run of data
+    packages, the usual read, is one ``np.frombuffer``: no Python object per package."""
+    runs: list[np.ndarray] = []
+    offset, size = 0, _DATA_PACKAGE.itemsize
+    while len(buffer) - offset >= _HEADER.size:
+        whole = (len(buffer) - offset) // size
+        if whole:
+            packages = np.frombuffer(buffer, _DATA_PACKAGE, count=whole, offset=offset)
+            data = (packages["size"] == size) & (packages["type"] == _U)
+            run = whole if data.all() else int(np.argmin(data))
+            if run:
+                runs.append(packages["values"][:run])
+                offset += run * size
+                continue
+        package_size, _ = _HEADER.unpack_from(buffer, offset)
+        if package_size < _HEADER.size or len(buffer) - offset < package_size:
+            break
+        offset += package_size
+    if not runs:
+        return np.empty((0, _DATA_PACKAGE["values"].shape[0])), offset
+    return (runs[0] if len(runs) == 1 else np.concatenate(runs)).astype(float), offset
 
 
 __all__ = ["URStateStream", "StateWindow", "OUTPUTS"]

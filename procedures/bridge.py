@@ -17,7 +17,8 @@ Timing (docs/bridge.md "Timing"): the value answering one output package must re
 interfaces do with their ``rt_priority``; refused without CAP_SYS_NICE or an rtprio limit, then it runs at normal priority and
 :attr:`BridgeSummary.feed_priority` says why); the interpreter's thread switch interval is shortened to
 :data:`SWITCH_INTERVAL_S` while feeding, so the feed thread gets the interpreter within that when its package
-arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`.
+arrives; and the sensor driver is asked to hold samples at most :data:`SENSOR_HOLD_S`. Both are given back when
+the run ends, on every path (the driver's previous hold, as ``prefer_low_latency`` returned it).
 
 Dynamic model: procedures.dynamic_compensation.DynamicCompensator, as in ``ftacq monitor``, with the controller
 cycles this bridge receives as its robot state stream (:class:`CycleStates`): the rigid-body model once per cycle
@@ -52,9 +53,10 @@ from scipy import signal
 
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from drivers.ur_ft_input import ControllerCycle
-from drivers.ur_stream import ROW_COLUMNS, StateWindow
+from drivers.ur_stream import OFFSET_COLUMN, ROW_COLUMNS, StateWindow
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
+from ftacq.dynamics.timing import ControllerClock
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
 from procedures.dynamic_compensation import DynamicCompensator
@@ -77,12 +79,10 @@ controller's socket between cycles, so it takes a core only for its ~0.3 ms of w
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter's thread switch interval while feeding, s (Python's default 5 ms is longer than a cycle)."""
 SENSOR_HOLD_S = 0.0003
-"""Longest the sensor driver may hold received samples before they are readable, s (drivers/sensor.py
-``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU)."""
+"""Longest the sensor driver may hold received samples before they are readable while feeding, s (drivers/sensor.py
+``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU, and is given back after the run)."""
 STATE_CYCLES = 256
 """Controller cycles of joint state kept for the dynamic model (0.5 s at 500 Hz)."""
-CLOCK_DRIFT_ALLOWANCE = 1e-4
-"""Rate (s/s, 100 ppm) at which the controller-to-host clock offset may rise: more than two clocks drift apart."""
 ROBOT_STATE_RATE_HZ = 125.0
 """RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
 the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
@@ -204,34 +204,27 @@ def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
 
 class CycleStates:
     """The controller cycles' joint states as a robot state stream (``window``, as drivers.ur_stream.URStateStream)
-    for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, each on the
-    host clock as its controller timestamp plus the lower envelope of (arrival − timestamp), which may rise by
-    :data:`CLOCK_DRIFT_ALLOWANCE` of the elapsed controller time (a package that waited in a queue does not move
-    it; a host clock running faster than the controller's is followed). Written and read by the feed thread."""
+    for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, on the host
+    clock as the RTDE state stream puts them (:class:`ftacq.dynamics.timing.ControllerClock`: the lower envelope of
+    arrival − timestamp, following the clocks' drift, one package at a time). Written and read by the feed
+    thread."""
 
     def __init__(self, capacity: int = STATE_CYCLES) -> None:
         self._rows = np.zeros((capacity, ROW_COLUMNS))  # laid out as drivers.ur_stream's kept rows
         self._count = 0
-        self._offset: float | None = None
-        self._offset_at = 0.0
+        self.clock = ControllerClock()
 
     def append(self, cycle: ControllerCycle) -> None:
-        raw = cycle.received_s - cycle.timestamp_s
-        if self._offset is None:
-            self._offset = raw
-        else:
-            allowance = CLOCK_DRIFT_ALLOWANCE * max(cycle.timestamp_s - self._offset_at, 0.0)
-            self._offset = min(raw, self._offset + allowance)
-        self._offset_at = cycle.timestamp_s
         row = self._rows[self._count % len(self._rows)]
         row[0], row[1] = cycle.received_s, cycle.timestamp_s
         row[2:8], row[8:14], row[14:20], row[20:26] = cycle.q, cycle.qd, cycle.target_qd, cycle.target_qdd
+        row[OFFSET_COLUMN] = self.clock.observe_one(cycle.received_s, cycle.timestamp_s)
         self._count += 1
 
     def window(self, last: int) -> StateWindow:
         n = min(self._count, len(self._rows), last)
         rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
-        return StateWindow.from_rows(rows, self._offset or 0.0)
+        return StateWindow.from_rows(rows)
 
 
 class _Log:
@@ -402,15 +395,16 @@ class Bridge:
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
                                 sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,
                                 compensation=self.compensation)
-        self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
+        # both given back in the finally: the driver and the interpreter outlive this run
+        previous_hold_s = self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
         switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(min(switch_interval_s, self.settings.switch_interval_s))
         start_s = time.monotonic()
-        self._thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
-        self._thread.start()
+        self._thread = thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
         enabled = False
         published = 0
         try:
+            thread.start()
             self._wait_first_write(start_s)
             if self.switch is not None and self._trip is None:
                 self.switch.set_payload(self.plan.payload_kg, self.plan.payload_cog_m)
@@ -436,10 +430,11 @@ class Bridge:
             if enabled:
                 summary.disabled = self._disable()
             self._stop_feeding.set()
-            if self._thread is not None:
-                self._thread.join(2 * self.settings.cycle_timeout_s + 1.0)
+            if thread.ident is not None:  # started
+                thread.join(2 * self.settings.cycle_timeout_s + 1.0)
             self._publish(published)
             sys.setswitchinterval(switch_interval_s)
+            self.sensor.prefer_low_latency(previous_hold_s)
             summary.duration_s = time.monotonic() - start_s
             summary.feed_priority = self.feed_priority
             summary.trip = self._trip

@@ -143,6 +143,14 @@ def test_reading_changes_with_pose(sensor, pose, physics):
     assert np.linalg.norm(down[:3] - up[:3]) == pytest.approx(2 * weight_n, rel=1e-3)
 
 
+def test_low_latency_hint_is_kept_and_reported(sensor):
+    # every polled sample is readable at once: nothing to shorten, but the hold asked for is reported and given back
+    assert sensor.max_hold_s is None
+    assert sensor.prefer_low_latency(0.0003) is None and sensor.max_hold_s == 0.0003
+    assert sensor.prefer_low_latency(None) == 0.0003 and sensor.max_hold_s is None
+    assert len(fresh_samples(sensor, 3)) >= 3
+
+
 def test_batch_columns_counts_and_sequence(sensor, fake):
     batch = fresh_samples(sensor, 50)
     assert batch.wrench.shape == (len(batch), 6) and batch.counts.shape == (len(batch), 6)

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from drivers.netft.receiver import COALESCE_S
 from drivers.robot import MotionLimits
 from drivers.sensor import open_sensor
 from drivers.ur import URRobot
@@ -79,8 +80,11 @@ def test_bridge_feeds_the_contact_wrench_every_cycle_and_disables_at_the_end(cel
     cell.set_contact(CONTACT)
     events = []
     bridge = Bridge(sensor, client, robot, plan, cell.truth.calibration(), UR5E, LOADED, listeners=(events.append,))
+    assert sensor.max_hold_s is None
     summary = bridge.run(duration_s=1.5)
     assert summary.trip is None and summary.disabled and not summary.interrupted, summary.trip
+    # the driver's own receive hold is back (the bridge shortened it to SENSOR_HOLD_S while feeding)
+    assert sensor.max_hold_s is None and sensor._receiver.coalesce_s == COALESCE_S
     state = cell.controller.external_ft()
     calls = state["enable_calls"]
     assert [c["enable"] for c in calls[-2:]] == [True, False]

@@ -370,3 +370,21 @@ def test_sensor_urls_from_random_pieces_raise_only_input_errors() -> None:
     for bad in (None, 42, b"netft://x"):
         with pytest.raises(InputError):
             parse_sensor_url(bad)
+
+
+def test_a_low_latency_hold_applies_on_open_and_is_given_back(fake) -> None:
+    from drivers.netft.receiver import COALESCE_S
+
+    sensor = NetFTSensor.from_url(fake.url)
+    assert sensor.max_hold_s is None
+    assert sensor.prefer_low_latency(0.0003) is None  # asked before the start: applied when the receiver opens
+    with sensor:
+        receiver = sensor._receiver
+        assert receiver is not None and receiver.coalesce_s == 0.0003
+        assert sensor.prefer_low_latency(0.0001) == 0.0003 and receiver.coalesce_s == 0.0001
+        assert sensor.prefer_low_latency(0.0003) == 0.0001 and receiver.coalesce_s == 0.0003  # longer again
+        assert sensor.prefer_low_latency(None) == 0.0003  # the driver's own hold back: one wake-up a millisecond
+        assert receiver.coalesce_s == COALESCE_S and sensor.max_hold_s is None
+        assert sensor.prefer_low_latency(0.5) is None and receiver.coalesce_s == COALESCE_S  # never longer
+        assert sensor.prefer_low_latency(-1.0) == 0.5 and receiver.coalesce_s == 0.0
+        assert len(sensor.read(timeout_s=READ_TIMEOUT_S)) > 0

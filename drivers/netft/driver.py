@@ -49,7 +49,7 @@ from drivers.netft.protocol import (
     rdt_command,
     status_text,
 )
-from drivers.netft.receiver import POLL_S, RdtReceiver
+from drivers.netft.receiver import COALESCE_S, POLL_S, RdtReceiver
 from drivers.netft.sequence import REORDER_WINDOW_S, SequenceTracker
 from drivers.sensor import SensorBase, SensorHealth, SensorInfo, WrenchBatch, check_range, query_items
 from drivers.units import canonical_unit
@@ -157,7 +157,6 @@ class NetFTSensor(SensorBase):
         self._address: tuple | None = None
         self._family: int = socket.AF_INET
         self._receiver: RdtReceiver | None = None
-        self._receive_hold_s: float | None = None
 
     # ------------------------------------------------------------------ construction from a URL
 
@@ -180,12 +179,14 @@ class NetFTSensor(SensorBase):
     def label(self) -> str:
         return f"Net F/T {self.host}:{self.rdt_port}"
 
-    def prefer_low_latency(self, max_hold_s: float) -> None:
-        """Shorten the receive thread's pause after a wake-up (drivers/netft/receiver.py ``COALESCE_S``, 1 ms) to
-        ``max_hold_s``: the newest record is readable sooner, for more wake-ups (CPU) per second."""
-        self._receive_hold_s = max(0.0, float(max_hold_s))
-        if self._receiver is not None:
-            self._receiver.coalesce_s = min(self._receiver.coalesce_s, self._receive_hold_s)
+    def _apply_hold(self) -> None:
+        """The receive thread's pause after a wake-up (drivers/netft/receiver.py ``COALESCE_S``, 1 ms: the datagrams
+        arriving meanwhile are drained by one wake-up) at most :attr:`max_hold_s`: the newest record is readable
+        sooner, for more wake-ups (CPU) per second; None gives ``COALESCE_S`` back."""
+        receiver = self._receiver
+        if receiver is not None:
+            hold = self.max_hold_s
+            receiver.coalesce_s = COALESCE_S if hold is None else min(COALESCE_S, hold)
 
     def _open(self) -> None:
         """Discover units and counts per unit (HTTP and TCP, cross-checked), set the rate if asked, open the
@@ -202,10 +203,9 @@ class NetFTSensor(SensorBase):
         self._apply(found)
         receiver = RdtReceiver(self.host, self._address, self._family, self.timeout_s, self._resend,
                                self.accept_any_port)
-        if self._receive_hold_s is not None:
-            receiver.coalesce_s = min(receiver.coalesce_s, self._receive_hold_s)
         receiver.open()
         self._receiver = receiver
+        self._apply_hold()
         self.info.extra["receive_buffer_bytes"] = receiver.receive_buffer_bytes
         self._started = True
         receiver.start()
