@@ -47,7 +47,9 @@ def test_stream_keeps_every_sample_of_a_real_time_move():
     # the host's clock: a drift), so the host times keep the controller's order
     assert np.all(window.time_s <= window.arrival_s + 1e-12)
     offset = window.time_s - window.controller_time_s
-    assert np.all(np.abs(np.diff(offset)) <= CLOCK_DRIFT_ALLOWANCE * np.diff(window.controller_time_s) + 1e-12)
+    # (a settled offset lowered from a later row moves by exactly the allowance: 1 ns for the rounding of host times
+    # of ~1e4 s)
+    assert np.all(np.abs(np.diff(offset)) <= CLOCK_DRIFT_ALLOWANCE * np.diff(window.controller_time_s) + 1e-9)
     assert np.all(np.diff(window.time_s) > 0)
     moving = np.abs(window.qd).max(axis=1) > 0
     assert moving.sum() > 0.2 / 0.002  # the move lasts ≈ 1.1 s
