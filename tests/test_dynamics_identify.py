@@ -1,5 +1,5 @@
 """The dynamic model (Pinocchio) against the simulated cell's physics, the identification's exactness on noise-free
-synthetic motion, physical consistency, the lag estimate, compensation while moving, and calibration files."""
+synthetic motion, the live predictor (RNEA) against the regressor, physical consistency, the lag estimate, compensation while moving, and calibration files."""
 
 import json
 from dataclasses import replace
@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from ftacq.calfile import calibration_to_dict, load_calibration, save_calibration
-from ftacq.dynamics import (MotionRecord, SensorDynamics, compensate_moving, identify_dynamics, predict_moving,
-                            pseudo_inertia)
+from ftacq.dynamics import (MotionRecord, SensorDynamics, WrenchPredictor, compensate_moving, identify_dynamics,
+                            predict_moving, pseudo_inertia)
+from ftacq.dynamics.model import calibration_parameters, gravity_vector
 from ftacq.errors import InputError
 from ftacq.kinematics import ur_model
 from tests.fakes.ur_motion import JointMove
@@ -79,6 +80,18 @@ def test_pinocchio_model_predicts_the_simulated_wrench():
     dynamics = SensorDynamics.for_calibration(MODEL, calibration)
     expected = SensorPhysics(truth, SettablePose(), robot=MODEL).noiseless_wrench_moving(q, qd, qdd)
     np.testing.assert_allclose(predict_moving(dynamics, calibration, q, qd, qdd), expected, atol=1e-9, rtol=0)
+
+
+def test_wrench_predictor_equals_the_regressor_times_the_parameters():
+    truth = CellTruth(base_tilt_deg=(1.5, -2.0))
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    dynamics = SensorDynamics.for_calibration(MODEL, calibration)
+    rng = np.random.default_rng(5)
+    q, qd, qdd = rng.uniform(-3, 3, (200, 6)), rng.uniform(-2, 2, (200, 6)), rng.uniform(-5, 5, (200, 6))
+    bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+    expected = dynamics.regressor(q, qd, qdd, gravity_vector(calibration)) @ calibration_parameters(calibration) + bias
+    np.testing.assert_allclose(WrenchPredictor(dynamics, calibration)(q, qd, qdd), expected, rtol=0, atol=1e-12)
+
 
 
 def test_noise_free_identification_is_exact():
