@@ -11,6 +11,7 @@ from ftacq.calfile import calibration_to_dict, load_calibration, save_calibratio
 from ftacq.dynamics import (MotionRecord, SensorDynamics, WrenchPredictor, compensate_moving, identify_dynamics,
                             predict_moving, pseudo_inertia)
 from ftacq.dynamics.model import calibration_parameters, gravity_vector
+from ftacq.dynamics.timing import interpolate_rows
 from ftacq.errors import InputError
 from ftacq.kinematics import ur_model
 from tests.fakes.ur_motion import JointMove
@@ -147,6 +148,24 @@ def test_compensate_moving_interpolates_robot_states_onto_sensor_samples():
     assert np.abs(static).max() > 1.0
     with pytest.raises(ValueError, match="static only"):
         compensate_moving(truth.calibration(), record.wrench, record.q, record.qd, record.qdd, robot=MODEL)
+
+
+def test_interpolate_rows_is_linear_interpolation_held_at_the_ends():
+    rng = np.random.default_rng(3)
+    times = np.cumsum(rng.uniform(0.001, 0.003, 40))
+    times[7] = times[6]  # a repeated time (zero span)
+    values = rng.normal(size=(40, 6))
+    at = np.sort(rng.uniform(times[0] - 0.01, times[-1] + 0.01, 300))
+    at[:3] = times[6], times[0], times[-1]
+    got = interpolate_rows(at, times, values)
+    index = np.clip(np.searchsorted(times, at, side="right") - 1, 0, len(times) - 2)
+    span = times[index + 1] - times[index]
+    fraction = np.clip((at - times[index]) / np.where(span > 0, span, 1.0), 0.0, 1.0)[:, None]
+    np.testing.assert_array_equal(got, values[index] + fraction * (values[index + 1] - values[index]))
+    keep = np.abs(at[:, None] - times[[6, 7]]).min(axis=1) > 0
+    for column in range(6):
+        np.testing.assert_allclose(got[keep, column], np.interp(at[keep], times, values[:, column]), atol=1e-12)
+
 
 
 def test_calibration_file_version_2_keeps_the_inertia_and_version_1_loads_as_static(tmp_path):
