@@ -6,7 +6,8 @@ Two threads::
     "ftacq-bridge-feed"   per controller cycle (the controller's output package is the clock):
                           take the sensor's new samples → bias-removed (raw feed) or compensated: the dynamic
                           model (gravity and the tool's inertial wrench) when the calibration has inertia, else
-                          the static model (the flange orientation from this cycle's actual_q) → Butterworth
+                          the static model (the flange orientation from this cycle's actual_q, Pinocchio's
+                          forward kinematics: ftacq.kinematics.FlangeRotation) → Butterworth
                           low-pass (state carried across batches) → the newest filtered value through the feed
                           convention → checks → write external_force_torque
     caller's thread       enables the input (payload, enable call), waits for the end (--seconds, Ctrl-C, a
@@ -56,7 +57,7 @@ from drivers.ur_stream import ROW_COLUMNS, StateWindow
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
-from ftacq.kinematics import URModel, forward_kinematics
+from ftacq.kinematics import FlangeRotation, URModel
 from procedures.dynamic_compensation import DynamicCompensator
 from procedures.events import Event, FedWrenches, Listener, Notice
 from procedures.excitation import counts_samples
@@ -287,6 +288,8 @@ class Bridge:
                                               sample_rate_hz=self.sensor_rate_hz)
         else:
             self.compensation = "static"
+        self._flange_rotation = FlangeRotation(model)
+        """base_R_flange from a cycle's actual_q (Pinocchio), for the static model."""
         self.feed_priority = "normal"
         self._stop_feeding = threading.Event()
         self._done = threading.Event()
@@ -309,8 +312,7 @@ class Bridge:
             compensated = self.dynamic.compensate(batch, None)
             if compensated is not None:
                 return compensated
-        base_R_flange = forward_kinematics(self.model, cycle.q)[:3, :3]
-        return self.calibration.compensate(batch.wrench, base_R_flange.T)
+        return self.calibration.compensate(batch.wrench, self._flange_rotation(cycle.q).T)
 
     def _ask_realtime(self) -> None:
         """SCHED_FIFO for the calling thread (the feed), if allowed; :attr:`feed_priority` says what happened."""
