@@ -41,6 +41,7 @@ the disable cannot arrive within 0.1 s the controller's own watchdog pauses the 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import sys
 import threading
@@ -230,8 +231,13 @@ class CycleStates:
         self._count += 1
 
     def window(self, last: int) -> StateWindow:
-        n = min(self._count, len(self._rows), last)
-        rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
+        capacity = len(self._rows)
+        n = min(self._count, capacity, last)
+        start = (self._count - n) % capacity
+        if start + n <= capacity:
+            rows = self._rows[start:start + n].copy()
+        else:
+            rows = np.concatenate([self._rows[start:], self._rows[:start + n - capacity]])
         return StateWindow.from_rows(rows, self._offset or 0.0)
 
 
@@ -352,15 +358,17 @@ class Bridge:
                 except DeviceError as error:
                     self._trip_now(f"sensor error: {error}")
                     return
-                if batch is not None and len(batch):
-                    if np.any(batch.saturated):
-                        self._trip_now(f"the sensor reports saturation or an error status "
-                                       f"({int(np.count_nonzero(batch.saturated))} of {len(batch)} samples)")
+                samples = 0 if batch is None else len(batch)
+                if batch is not None and samples:
+                    saturated = np.count_nonzero(batch.saturated)
+                    if saturated:
+                        self._trip_now(f"the sensor reports saturation or an error status ({saturated} of "
+                                       f"{samples} samples)")
                         return
                     filtered = self.filter(self._sensor_frame(batch, cycle))
                     held, newest_s = filtered[-1], float(batch.time_s[-1])
-                    self._samples += len(batch)
-                    row[4] = len(batch)
+                    self._samples += samples
+                    row[4] = samples
                 row[3] = newest_s
                 if held is None:
                     continue  # nothing measured yet: nothing to feed (the input is not enabled before the first)
@@ -372,8 +380,8 @@ class Bridge:
                     return
                 fed = self.plan.fed_wrench(held)
                 if previous is not None:
-                    jump_f = float(np.linalg.norm(fed[:3] - previous[:3]))
-                    jump_t = float(np.linalg.norm(fed[3:] - previous[3:]))
+                    fx, fy, fz, tx, ty, tz = (fed - previous).tolist()
+                    jump_f, jump_t = math.hypot(fx, fy, fz), math.hypot(tx, ty, tz)
                     if jump_f > settings.jump_force_n or jump_t > settings.jump_torque_nm:
                         self._trip_now(f"the fed wrench jumped by {jump_f:.1f} N / {jump_t:.2f} N·m in one "
                                        f"controller cycle (limits {settings.jump_force_n:g} N / "
