@@ -6,7 +6,8 @@ Two threads::
     "ftacq-bridge-feed"   per controller cycle (the controller's output package is the clock):
                           take the sensor's new samples → bias-removed (raw feed) or compensated: the dynamic
                           model (gravity and the tool's inertial wrench) when the calibration has inertia, else
-                          the static model (the flange orientation from this cycle's actual_q) → Butterworth
+                          the static model (the flange orientation from this cycle's actual_q, Pinocchio's
+                          forward kinematics: ftacq.kinematics.FlangeRotation) → Butterworth
                           low-pass (state carried across batches) → the newest filtered value through the feed
                           convention → checks → write external_force_torque
     caller's thread       enables the input (payload, enable call), waits for the end (--seconds, Ctrl-C, a
@@ -41,6 +42,7 @@ the disable cannot arrive within 0.1 s the controller's own watchdog pauses the 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import sys
 import threading
@@ -58,7 +60,7 @@ from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
 from ftacq.dynamics.timing import ControllerClock
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
-from ftacq.kinematics import URModel, forward_kinematics
+from ftacq.kinematics import FlangeRotation, URModel
 from procedures.dynamic_compensation import DynamicCompensator
 from procedures.events import Event, FedWrenches, Listener, Notice
 from procedures.excitation import counts_samples
@@ -222,8 +224,13 @@ class CycleStates:
         self._count += 1
 
     def window(self, last: int) -> StateWindow:
-        n = min(self._count, len(self._rows), last)
-        rows = self._rows[np.arange(self._count - n, self._count) % len(self._rows)]
+        capacity = len(self._rows)
+        n = min(self._count, capacity, last)
+        start = (self._count - n) % capacity
+        if start + n <= capacity:
+            rows = self._rows[start:start + n].copy()
+        else:
+            rows = np.concatenate([self._rows[start:], self._rows[:start + n - capacity]])
         return StateWindow.from_rows(rows)
 
 
@@ -280,6 +287,8 @@ class Bridge:
                                               sample_rate_hz=self.sensor_rate_hz)
         else:
             self.compensation = "static"
+        self._flange_rotation = FlangeRotation(model)
+        """base_R_flange from a cycle's actual_q (Pinocchio), for the static model."""
         self.feed_priority = "normal"
         self._stop_feeding = threading.Event()
         self._done = threading.Event()
@@ -302,8 +311,7 @@ class Bridge:
             compensated = self.dynamic.compensate(batch, None)
             if compensated is not None:
                 return compensated
-        base_R_flange = forward_kinematics(self.model, cycle.q)[:3, :3]
-        return self.calibration.compensate(batch.wrench, base_R_flange.T)
+        return self.calibration.compensate(batch.wrench, self._flange_rotation(cycle.q).T)
 
     def _ask_realtime(self) -> None:
         """SCHED_FIFO for the calling thread (the feed), if allowed; :attr:`feed_priority` says what happened."""
@@ -343,15 +351,17 @@ class Bridge:
                 except DeviceError as error:
                     self._trip_now(f"sensor error: {error}")
                     return
-                if batch is not None and len(batch):
-                    if np.any(batch.saturated):
-                        self._trip_now(f"the sensor reports saturation or an error status "
-                                       f"({int(np.count_nonzero(batch.saturated))} of {len(batch)} samples)")
+                samples = 0 if batch is None else len(batch)
+                if batch is not None and samples:
+                    saturated = np.count_nonzero(batch.saturated)
+                    if saturated:
+                        self._trip_now(f"the sensor reports saturation or an error status ({saturated} of "
+                                       f"{samples} samples)")
                         return
                     filtered = self.filter(self._sensor_frame(batch, cycle))
                     held, newest_s = filtered[-1], float(batch.time_s[-1])
-                    self._samples += len(batch)
-                    row[4] = len(batch)
+                    self._samples += samples
+                    row[4] = samples
                 row[3] = newest_s
                 if held is None:
                     continue  # nothing measured yet: nothing to feed (the input is not enabled before the first)
@@ -363,8 +373,8 @@ class Bridge:
                     return
                 fed = self.plan.fed_wrench(held)
                 if previous is not None:
-                    jump_f = float(np.linalg.norm(fed[:3] - previous[:3]))
-                    jump_t = float(np.linalg.norm(fed[3:] - previous[3:]))
+                    fx, fy, fz, tx, ty, tz = (fed - previous).tolist()
+                    jump_f, jump_t = math.hypot(fx, fy, fz), math.hypot(tx, ty, tz)
                     if jump_f > settings.jump_force_n or jump_t > settings.jump_torque_nm:
                         self._trip_now(f"the fed wrench jumped by {jump_f:.1f} N / {jump_t:.2f} N·m in one "
                                        f"controller cycle (limits {settings.jump_force_n:g} N / "

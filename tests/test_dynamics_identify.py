@@ -1,5 +1,5 @@
 """The dynamic model (Pinocchio) against the simulated cell's physics, the identification's exactness on noise-free
-synthetic motion, physical consistency, the lag estimate, compensation while moving, and calibration files."""
+synthetic motion, the live predictor (RNEA) against the regressor, physical consistency, the lag estimate, compensation while moving, and calibration files."""
 
 import json
 from dataclasses import replace
@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 from ftacq.calfile import calibration_to_dict, load_calibration, save_calibration
-from ftacq.dynamics import (MotionRecord, SensorDynamics, compensate_moving, identify_dynamics, predict_moving,
-                            pseudo_inertia)
+from ftacq.dynamics import (MotionRecord, SensorDynamics, WrenchPredictor, compensate_moving, identify_dynamics,
+                            predict_moving, pseudo_inertia)
+from ftacq.dynamics.model import calibration_parameters, gravity_vector
+from ftacq.dynamics.timing import interpolate_rows
 from ftacq.errors import InputError
 from ftacq.kinematics import ur_model
 from tests.fakes.ur_motion import JointMove
@@ -81,6 +83,18 @@ def test_pinocchio_model_predicts_the_simulated_wrench():
     np.testing.assert_allclose(predict_moving(dynamics, calibration, q, qd, qdd), expected, atol=1e-9, rtol=0)
 
 
+def test_wrench_predictor_equals_the_regressor_times_the_parameters():
+    truth = CellTruth(base_tilt_deg=(1.5, -2.0))
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    dynamics = SensorDynamics.for_calibration(MODEL, calibration)
+    rng = np.random.default_rng(5)
+    q, qd, qdd = rng.uniform(-3, 3, (200, 6)), rng.uniform(-2, 2, (200, 6)), rng.uniform(-5, 5, (200, 6))
+    bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+    expected = dynamics.regressor(q, qd, qdd, gravity_vector(calibration)) @ calibration_parameters(calibration) + bias
+    np.testing.assert_allclose(WrenchPredictor(dynamics, calibration)(q, qd, qdd), expected, rtol=0, atol=1e-12)
+
+
+
 def test_noise_free_identification_is_exact():
     truth = CellTruth()
     result = identify_dynamics(static_calibration(truth), record_for(truth), MODEL, lag_s=0.0)
@@ -134,6 +148,24 @@ def test_compensate_moving_interpolates_robot_states_onto_sensor_samples():
     assert np.abs(static).max() > 1.0
     with pytest.raises(ValueError, match="static only"):
         compensate_moving(truth.calibration(), record.wrench, record.q, record.qd, record.qdd, robot=MODEL)
+
+
+def test_interpolate_rows_is_linear_interpolation_held_at_the_ends():
+    rng = np.random.default_rng(3)
+    times = np.cumsum(rng.uniform(0.001, 0.003, 40))
+    times[7] = times[6]  # a repeated time (zero span)
+    values = rng.normal(size=(40, 6))
+    at = np.sort(rng.uniform(times[0] - 0.01, times[-1] + 0.01, 300))
+    at[:3] = times[6], times[0], times[-1]
+    got = interpolate_rows(at, times, values)
+    index = np.clip(np.searchsorted(times, at, side="right") - 1, 0, len(times) - 2)
+    span = times[index + 1] - times[index]
+    fraction = np.clip((at - times[index]) / np.where(span > 0, span, 1.0), 0.0, 1.0)[:, None]
+    np.testing.assert_array_equal(got, values[index] + fraction * (values[index + 1] - values[index]))
+    keep = np.abs(at[:, None] - times[[6, 7]]).min(axis=1) > 0
+    for column in range(6):
+        np.testing.assert_allclose(got[keep, column], np.interp(at[keep], times, values[:, column]), atol=1e-12)
+
 
 
 def test_calibration_file_version_2_keeps_the_inertia_and_version_1_loads_as_static(tmp_path):

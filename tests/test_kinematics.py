@@ -8,7 +8,7 @@ import pytest
 
 from ftacq.errors import InputError
 from ftacq.kinematics import (
-    FLANGE_FRAME, UR_MODELS, dh_transforms, forward_kinematics, pinocchio_dh_frames, pinocchio_model,
+    FLANGE_FRAME, UR_MODELS, FlangeRotation, dh_transforms, forward_kinematics, pinocchio_dh_frames, pinocchio_model,
     pinocchio_model_from_urdf,
 )
 
@@ -29,6 +29,18 @@ def test_pinocchio_fk_equals_dh_fk(name):
         np.testing.assert_allclose(frames, dh_transforms(model, q), atol=FK_TOLERANCE, rtol=0)
         np.testing.assert_allclose(data.oMf[flange_id].homogeneous, forward_kinematics(model, q),
                                    atol=FK_TOLERANCE, rtol=0)
+
+
+@pytest.mark.parametrize("name", ["UR5e", "UR10"])
+def test_flange_rotation_equals_dh_fk_and_is_a_copy(name):
+    model = UR_MODELS[name]
+    flange_rotation = FlangeRotation(model)
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        q = rng.uniform(-2 * np.pi, 2 * np.pi, 6)
+        rotation = flange_rotation(q)
+        np.testing.assert_allclose(rotation, forward_kinematics(model, q)[:3, :3], atol=1e-15, rtol=0)
+        assert not np.shares_memory(rotation, flange_rotation(q + 0.1))
 
 
 @pytest.mark.parametrize("name", ["UR5e", "UR20"])

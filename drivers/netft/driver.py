@@ -153,6 +153,7 @@ class NetFTSensor(SensorBase):
         self._saturated_count = self._status_error_count = self._last_status = 0
         self._scale = np.zeros(6)
         self._error_mask, self._saturation_mask = STATUS_MAPS["netft"]
+        self._error_bits, self._saturation_bits = np.uint32(self._error_mask), np.uint32(self._saturation_mask)
         # connection
         self._address: tuple | None = None
         self._family: int = socket.AF_INET
@@ -230,6 +231,7 @@ class NetFTSensor(SensorBase):
         self._scale = scaling.counts_to_si
         self.status_map = found.status_map
         self._error_mask, self._saturation_mask = STATUS_MAPS[self.status_map]
+        self._error_bits, self._saturation_bits = np.uint32(self._error_mask), np.uint32(self._saturation_mask)
         rate = found.rate_hz
         self.timeout_s = self.requested_timeout_s or max(DEFAULT_TIMEOUT_S, 10.0 / rate if rate > 0 else 1.0)
         api, calibration_page = found.api, found.calibration_page
@@ -403,9 +405,12 @@ class NetFTSensor(SensorBase):
                 return
             status = records["status"].astype(np.uint32)
             counts = records["counts"].astype(np.int64)
-            errors = (status & np.uint32(self._error_mask)) != 0
-            self._saturated_count += int(np.count_nonzero(status & np.uint32(self._saturation_mask)))
-            self._status_error_count += int(np.count_nonzero(errors))
+            flagged = np.bitwise_and(status, self._error_bits)
+            errors = flagged.astype(bool)
+            error_count = np.count_nonzero(flagged)
+            if error_count:  # saturation bits are error bits in both maps
+                self._saturated_count += int(np.count_nonzero(np.bitwise_and(status, self._saturation_bits)))
+                self._status_error_count += int(error_count)
             self._last_status = int(status[-1])
             batch = WrenchBatch(time_s=times, wrench=counts * self._scale, counts=counts, status=status,
                                 sequence=records["rdt_sequence"].astype(np.int64), saturated=errors)

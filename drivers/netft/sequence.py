@@ -171,10 +171,13 @@ class SequenceTracker:
         if (last is None or len(self._held) or self._active_since is not None or self._bias_pending
                 or self._fresh_stream or (self._starts and self._starts[0][0] < end_index)):
             return False
-        if rdt[0] != ((last + 1) & UINT32_MASK) or (len(rdt) > 1 and not bool(np.all(np.diff(rdt) == 1))):
+        if rdt[0] != ((last + 1) & UINT32_MASK) or (len(rdt) > 1 and np.count_nonzero(rdt[1:] - rdt[:-1] != 1)):
             return False
         ft = records["ft_sequence"].astype(np.int64)
-        step = np.diff(ft, prepend=self._last_ft) & UINT32_MASK
+        step = np.empty_like(ft)  # np.diff(ft, prepend=last ft), without its Python-level overhead
+        step[0] = ft[0] - self._last_ft
+        np.subtract(ft[1:], ft[:-1], out=step[1:])
+        step &= UINT32_MASK
         counters = self.counters
         counters.stalled += int(np.count_nonzero(step == 0))
         backward = int(np.count_nonzero(step >= HALF_RANGE))

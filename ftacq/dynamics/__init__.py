@@ -1,6 +1,6 @@
 """The tool in motion: its inertia identified from a recorded motion, and its inertial wrench removed live.
 
-- :mod:`ftacq.dynamics.model`: Pinocchio's sensor-frame motion and body regressor; the predicted wrench.
+- :mod:`ftacq.dynamics.model`: Pinocchio's sensor-frame motion and body regressor; the predicted wrench (RNEA).
 - :mod:`ftacq.dynamics.identify`: physically consistent least squares, 1σ, conditioning, held-out error, lag.
 - :mod:`ftacq.dynamics.timing`: one host clock for sensor and robot samples; resampling between their rates.
 - :mod:`ftacq.dynamics.compensate`: :func:`compensate_moving`, the batch compensation every stream uses.
@@ -8,9 +8,9 @@
 
 from ftacq.dynamics.compensate import compensate_moving
 from ftacq.dynamics.identify import DynamicsResult, MotionRecord, estimate_lag, identify_dynamics
-from ftacq.dynamics.model import SensorDynamics, inertial_parameters, predict_moving, pseudo_inertia
+from ftacq.dynamics.model import SensorDynamics, WrenchPredictor, inertial_parameters, predict_moving, pseudo_inertia
 from ftacq.dynamics.timing import box_average, device_to_host_clock, interpolate_rows
 
 __all__ = ["compensate_moving", "DynamicsResult", "MotionRecord", "estimate_lag", "identify_dynamics",
-           "SensorDynamics", "inertial_parameters", "predict_moving", "pseudo_inertia", "box_average",
+           "SensorDynamics", "WrenchPredictor", "inertial_parameters", "predict_moving", "pseudo_inertia", "box_average",
            "device_to_host_clock", "interpolate_rows"]

@@ -37,8 +37,10 @@ def joint_acceleration(time_s: np.ndarray, actual_qd: np.ndarray, target_qd: np.
                        target_qdd: np.ndarray, tolerance_rad_s: float = TRACKING_TOLERANCE_RAD_S
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Return (q̈ (M, 6), tracking (M,) bool: True where target_qdd was used) for robot samples (M, 6)."""
-    tracking = np.all(np.abs(np.asarray(target_qd) - np.asarray(actual_qd)) <= tolerance_rad_s, axis=1)
-    if np.all(tracking):
+    deviation = np.subtract(target_qd, actual_qd, dtype=float)
+    np.abs(deviation, out=deviation)
+    tracking = np.logical_and.reduce(deviation <= tolerance_rad_s, axis=1)  # np.all without its Python layer
+    if np.logical_and.reduce(tracking):
         return np.asarray(target_qdd, dtype=float), tracking
     derivative = filtered_derivative(time_s, actual_qd)
     return np.where(tracking[:, None], target_qdd, derivative), tracking

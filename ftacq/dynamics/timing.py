@@ -152,13 +152,34 @@ def box_average(time_s: np.ndarray, values: np.ndarray, at_s: np.ndarray, width_
 
 def interpolate_rows(at_s: np.ndarray, time_s: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Linear interpolation of each column of ``values`` (M, k) sampled at sorted ``time_s`` (M,) onto ``at_s`` (N,);
-    held constant beyond the ends (the newest robot state is used for sensor samples newer than it)."""
+    held constant beyond the ends (the newest robot state is used for sensor samples newer than it). Returns a new
+    (N, k) array.
+
+    Called per sensor batch on the live path (a dozen samples): ufuncs with ``out=`` rather than ``np.clip`` and
+    fancy indexing, the same arithmetic (``v[i] + f (v[i+1] − v[i])``)."""
     time_s = np.asarray(time_s, dtype=float)
     values = np.asarray(values, dtype=float).reshape(time_s.shape[0], -1)
     at_s = np.asarray(at_s, dtype=float)
     if time_s.shape[0] == 1:
         return np.repeat(values, at_s.shape[0], axis=0)
-    index = np.clip(np.searchsorted(time_s, at_s, side="right") - 1, 0, time_s.shape[0] - 2)
-    span = time_s[index + 1] - time_s[index]
-    fraction = np.clip((at_s - time_s[index]) / np.where(span > 0, span, 1.0), 0.0, 1.0)[:, None]
-    return values[index] + fraction * (values[index + 1] - values[index])
+    index = np.searchsorted(time_s, at_s, side="right")
+    index -= 1
+    np.maximum(index, 0, out=index)
+    np.minimum(index, time_s.shape[0] - 2, out=index)
+    following = index + 1
+    start = time_s.take(index)
+    span = time_s.take(following)
+    span -= start
+    flat = np.greater(span, 0.0)
+    np.logical_not(flat, out=flat)
+    np.copyto(span, 1.0, where=flat)  # as np.where(span > 0, span, 1.0), NaN included
+    fraction = np.subtract(at_s, start, out=start)
+    fraction /= span
+    np.maximum(fraction, 0.0, out=fraction)
+    np.minimum(fraction, 1.0, out=fraction)
+    lower = values.take(index, axis=0)
+    out = values.take(following, axis=0)
+    out -= lower
+    out *= fraction[:, None]
+    out += lower
+    return out
