@@ -16,10 +16,10 @@ Printed figures (all from what the simulated controller recorded, not from what 
 
 - controller cycles counted while enabled, fed / missed (a cycle is fed when a new value arrived since the
   previous output package to the feeding connection; the simulated controller reads what reached its socket at the
-  start of each cycle, as a real one does). Each missed cycle is put down to the bridge when the bridge took longer
-  than one cycle from receiving the previous package to writing its answer, otherwise to the way there and back
-  (both processes on one loaded 2-core machine: the simulated controller is a Python process, not a real-time
-  one); the simulated controller's own tick jitter is printed beside it;
+  start of each cycle, as a real one does). Each missed cycle is put down to one cause (:func:`attribute_misses`):
+  the simulated controller's own delay, a machine stall seen by benchmarks/stall_probe.py, no answer, the way to
+  the bridge, the bridge, the way back (all processes share one 2-core machine: the simulated controller is a
+  Python process, not a real-time one); the simulated controller's package spacing is printed beside it;
 - the bridge's answer time (package received → value written, this process) p50 / p99 / max, the feed thread's
   scheduling (SCHED_FIFO where allowed, docs/bridge.md "Timing");
 - latency sensor sample → controller: from the driver's receive stamp of the newest sample a value includes to the
@@ -37,6 +37,7 @@ Printed figures (all from what the simulated controller recorded, not from what 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import select
@@ -106,6 +107,7 @@ def world(args: argparse.Namespace) -> int:
         robot = ur_model("UR5e")  # the sensor reads the rigid tool's inertial wrench from the controller's joint state
     physics = SensorPhysics(CellTruth(), pose, seed=1, robot=robot)
     fake = FakeNetFT(physics, host="127.0.0.1", rate_hz=SENSOR_RATE_HZ)
+    gc.freeze()  # a real box streams without collector pauses (as tests/fakes/netft.py's main)
     fake.start()
     control = socket.create_connection((args.host, args.control_port), timeout=5.0)
     replies = control.makefile("r")
@@ -287,22 +289,10 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     missed = len(cycles) - fed_cycles
     period_s = 1.0 / summary.controller_rate_hz
     answer_ms = summary.answer_time_s() * 1000.0
-    # each missed cycle: did the bridge answer the package before it within one cycle?
-    row_of_time = {float(t): i for i, t in enumerate(log[:, 0])}
     stall = np.array(stalls["late"]).reshape(-1, 2)
-    stall_start, stall_end = stall[:, 0], stall[:, 0] + stall[:, 1]
     big = stall[:, 1] > STALL_S
-    bridge_late = unanswered = machine = simulator = 0
-    for k in np.flatnonzero(cycles[1:, 1] == 0) + 1:
-        i = row_of_time.get(float(cycles[k - 1, 0]))
-        if cycles[k, 3] - cycles[k - 1, 4] < period_s / 2:
-            simulator += 1  # the simulated controller sent the package less than half a cycle before the next one
-        elif np.any(big & (stall_end > cycles[k - 1, 3]) & (stall_start < cycles[k, 3])):
-            machine += 1  # the probe's real-time thread was held off the CPU between the package and the cycle
-        elif i is None or not np.isfinite(log[i, 2]):
-            unanswered += 1  # the package never reached the feed loop, or it wrote nothing (stopped, no sample yet)
-        elif log[i, 2] - log[i, 1] > period_s:
-            bridge_late += 1
+    causes = attribute_misses(cycles, log, stall, period_s)
+    simulator, machine = causes["simulator"], causes["machine"]
     send_gap_ms = np.diff(cycles[:, 3]) * 1000.0
     if args.explain_misses:
         explain_misses(cycles, log, received)
@@ -339,13 +329,13 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     print(f"  machine stalls (a SCHED_FIFO 99 probe woken {STALL_S * 1e3:g} ms late or more, "
           f"benchmarks/stall_probe.py): {int(big.sum())}, longest {stall[:, 1].max(initial=0) * 1e3:.2f} ms, "
           f"{stall[big, 1].sum() * 1e3:.0f} ms in all")
-    print(f"  missed cycles with the package sent less than half a cycle before the next cycle (the simulated "
-          f"controller's own delay between a cycle's start and its package): {simulator}; during a machine stall: "
-          f"{machine}; put down to the bridge (answer later than one cycle): "
-          f"{bridge_late}; not answered (the feed had stopped or not begun): {unanswered}; to the way there and back: "
-          f"{missed - simulator - machine - bridge_late - unanswered}; simulated controller's package spacing p1 / p99 "
-          f"{np.percentile(send_gap_ms, 1):.2f} / {np.percentile(send_gap_ms, 99):.2f} ms (real controller: "
-          f"{period_s * 1000:g} ms)")
+    print(f"  missed cycles put down to: the simulated controller's own delay (its package sent less than half a "
+          f"cycle before the next cycle) {causes['simulator']}; a machine stall {causes['machine']}; not answered (the "
+          f"feed had stopped or not begun) {causes['unanswered']}; the way to the bridge (package received more than "
+          f"half a cycle after it left) {causes['way_there']}; the bridge (wrote after the next cycle began, or took "
+          f"longer than a cycle) {causes['bridge']}; the way back {causes['way_back']}; simulated controller's package "
+          f"spacing p1 / p99 {np.percentile(send_gap_ms, 1):.2f} / {np.percentile(send_gap_ms, 99):.2f} ms (real "
+          f"controller: {period_s * 1000:g} ms)")
     print(f"  bridge answer time (package received -> value written): p50 {np.percentile(answer_ms, 50):.2f} ms, p99 "
           f"{np.percentile(answer_ms, 99):.2f} ms, max {answer_ms.max():.2f} ms; feed thread {summary.feed_priority}; "
           f"compensation {summary.compensation}")
@@ -374,6 +364,35 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     ok = missed - simulator - machine <= GOALS["missed"] and p99 <= GOALS["latency_p99_ms"] and cpu < GOALS["cpu_percent"]
     print(f"  goals (0 missed but for the simulator's and the machine's stalls, p99 <= {GOALS['latency_p99_ms']:g} ms, < {GOALS['cpu_percent']:g} % CPU): "
           f"{'met' if ok else 'NOT met'}")
+
+
+def attribute_misses(cycles: np.ndarray, log: np.ndarray, stall: np.ndarray, period_s: float) -> dict[str, int]:
+    """Each missed cycle k, put down to the first that applies, on the one monotonic clock: the simulated
+    controller (the package of cycle k-1 left less than half a cycle before cycle k), a machine stall (the probe's
+    real-time thread held off :data:`STALL_S` or more between that package and cycle k), not answered, the way to
+    the bridge (received more than half a cycle after it left), the bridge (it wrote after cycle k began, or took
+    longer than a cycle), the way back (written in time, arrived late)."""
+    causes = dict.fromkeys(("simulator", "machine", "unanswered", "way_there", "bridge", "way_back"), 0)
+    row_of_time = {float(t): i for i, t in enumerate(log[:, 0])}
+    stall_start, stall_end = stall[:, 0], stall[:, 0] + stall[:, 1]
+    big = stall[:, 1] > STALL_S
+    for k in np.flatnonzero(cycles[1:, 1] == 0) + 1:
+        i = row_of_time.get(float(cycles[k - 1, 0]))
+        sent, next_cycle = cycles[k - 1, 4], cycles[k, 3]
+        if next_cycle - sent < period_s / 2:
+            cause = "simulator"
+        elif np.any(big & (stall_end > cycles[k - 1, 3]) & (stall_start < next_cycle)):
+            cause = "machine"
+        elif i is None or not np.isfinite(log[i, 2]):
+            cause = "unanswered"  # the package never reached the feed loop, or it wrote nothing (stopped, no sample)
+        elif log[i, 1] - sent > period_s / 2:
+            cause = "way_there"
+        elif log[i, 2] > next_cycle or log[i, 2] - log[i, 1] > period_s:
+            cause = "bridge"
+        else:
+            cause = "way_back"
+        causes[cause] += 1
+    return causes
 
 
 def explain_misses(cycles: np.ndarray, log: np.ndarray, received: np.ndarray) -> None:

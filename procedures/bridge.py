@@ -41,6 +41,7 @@ the disable cannot arrive within 0.1 s the controller's own watchdog pauses the 
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import os
@@ -409,6 +410,9 @@ class Bridge:
         previous_hold_s = self.sensor.prefer_low_latency(self.settings.sensor_hold_s)
         switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(min(switch_interval_s, self.settings.switch_interval_s))
+        # everything alive now (modules, drivers, the models) out of the cyclic collector's reach while feeding: a
+        # full collection walking them holds the interpreter for 20-45 ms, longer than the staleness limit
+        gc.freeze()
         start_s = time.monotonic()
         self._thread = thread = threading.Thread(target=self._feed, name="ftacq-bridge-feed", daemon=True)
         enabled = False
@@ -443,6 +447,7 @@ class Bridge:
             if thread.ident is not None:  # started
                 thread.join(2 * self.settings.cycle_timeout_s + 1.0)
             self._publish(published)
+            gc.unfreeze()
             sys.setswitchinterval(switch_interval_s)
             self.sensor.prefer_low_latency(previous_hold_s)
             summary.duration_s = time.monotonic() - start_s

@@ -1,9 +1,10 @@
 """What a bridge run (procedures/bridge.py) changes for its length and gives back on every path: the sensor driver's
 hold (``prefer_low_latency``: a short hold costs CPU for as long as it stays) and the interpreter's thread switch
-interval. Stand-ins for the sensor and the controller's input: no network, no sleeps."""
+interval, and the cyclic garbage collector's reach (``gc.freeze`` while feeding). Stand-ins for the sensor and the controller's input: no network, no sleeps."""
 
 from __future__ import annotations
 
+import gc
 import sys
 import threading
 from types import SimpleNamespace
@@ -41,7 +42,11 @@ class _SilentController:
 
     frequency_hz = 500.0
 
+    def __init__(self) -> None:
+        self.frozen_at_cycle: list[int] = []  # gc.get_freeze_count() when the feed thread asks for a cycle
+
     def next_cycle(self, timeout_s: float = 0.1):
+        self.frozen_at_cycle.append(gc.get_freeze_count())
         raise DeviceConnectionError("robot controller: connection closed")
 
     def write(self, wrench) -> None:
@@ -57,10 +62,11 @@ class _BrokenSwitch:
         raise AssertionError("the input is not enabled before the first value is written")
 
 
-def _bridge(sensor: _Sensor) -> Bridge:
+def _bridge(sensor: _Sensor, controller: _SilentController | None = None) -> Bridge:
     truth = CellTruth()
     plan = plan_feed(truth.calibration(), "compensated", np.array([0.0, 0.0, 0.035]), sensor_body_kg=0.3)
-    return Bridge(sensor, _SilentController(), _BrokenSwitch(), plan, truth.calibration(), ur_model("UR5e"))
+    return Bridge(sensor, controller or _SilentController(), _BrokenSwitch(), plan, truth.calibration(),
+                  ur_model("UR5e"))
 
 
 @pytest.mark.parametrize("before", [None, 0.002], ids=["driver-default", "another-reader"])
@@ -75,6 +81,14 @@ def test_a_run_gives_the_sensor_its_previous_hold_back(before):
     assert sys.getswitchinterval() == switch_interval_s
 
 
+def test_the_objects_alive_at_the_start_are_out_of_the_collectors_reach_while_feeding():
+    controller = _SilentController()
+    frozen_before = gc.get_freeze_count()
+    _bridge(_Sensor(), controller).run(duration_s=5.0)
+    assert controller.frozen_at_cycle and min(controller.frozen_at_cycle) > frozen_before + 1000  # the process's
+    assert gc.get_freeze_count() == frozen_before  # given back
+
+
 class _RefusedThread(threading.Thread):
     def start(self) -> None:
         raise RuntimeError("can't start new thread")
@@ -83,7 +97,7 @@ class _RefusedThread(threading.Thread):
 def test_the_hold_is_given_back_when_the_feed_thread_cannot_start(monkeypatch):
     sensor = _Sensor()
     bridge = _bridge(sensor)
-    switch_interval_s = sys.getswitchinterval()
+    switch_interval_s, frozen_before = sys.getswitchinterval(), gc.get_freeze_count()
     # the bridge module's threads only (pytest's and xdist's own keep the real ones)
     monkeypatch.setattr(bridge_module, "threading", SimpleNamespace(Thread=_RefusedThread, Event=threading.Event,
                                                                     get_native_id=threading.get_native_id))
@@ -91,3 +105,4 @@ def test_the_hold_is_given_back_when_the_feed_thread_cannot_start(monkeypatch):
         bridge.run(duration_s=1.0)
     assert sensor.applied == [SENSOR_HOLD_S, None] and sensor.max_hold_s is None
     assert sys.getswitchinterval() == switch_interval_s
+    assert gc.get_freeze_count() == frozen_before

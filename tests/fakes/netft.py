@@ -37,6 +37,7 @@ counters as one JSON line.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import select
@@ -344,6 +345,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
+    gc.freeze()  # a real box streams without collector pauses: the setup's objects out of the collector's reach
     fake.start()
     try:
         print(json.dumps({"host": args.host, "rdt_port": fake.rdt_port, "tcp_port": fake.tcp_port,
