@@ -23,7 +23,10 @@ Printed figures (all from what the simulated controller recorded, not from what 
 - the bridge's answer time (package received → value written, this process) p50 / p99 / max, the feed thread's
   scheduling (SCHED_FIFO where allowed, docs/bridge.md "Timing");
 - latency sensor sample → controller: from the driver's receive stamp of the newest sample a value includes to the
-  controller's arrival stamp of that value (one CLOCK_MONOTONIC for all processes), p50 / p99 / max;
+  controller's arrival stamp of that value (one CLOCK_MONOTONIC for all processes), p50 / p99 / max, over the values
+  that carry samples received since the previous cycle (a value that repeats the held one because nothing came in,
+  e.g. while the simulated sensor's process waits for a core, has no new sample to time; its age is in the
+  staleness);
 - staleness: at each controller cycle, the age of the newest sensor sample in the value the controller holds;
 - fed-wrench error against the simulated contact (the truth at the newest sample's time, through the convention),
   without a push and during pushes, excluding :data:`SETTLE_S` after each push starts or ends (the filter's step
@@ -279,8 +282,11 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     cycles = records["cycles"]
     n = min(len(written), len(received))
     same = np.array_equal(written[-n:, 5:], received[-n:, 2:]) if n else False
-    # latency: newest sample (driver receive stamp) → controller arrival
-    latency_ms = (received[-n:, 0] - written[-n:, 3]) * 1000.0
+    # latency: newest sample (driver receive stamp) → controller arrival, over the values that carry new samples (a
+    # value repeated because no sample arrived since the previous cycle has no sample to time: its age counts in the
+    # staleness below)
+    carries = written[-n:, 4] > 0
+    latency_ms = (received[-n:, 0] - written[-n:, 3])[carries] * 1000.0
     # staleness at each controller cycle: age of the held value + its latency
     held = np.searchsorted(received[-n:, 1], cycles[:, 0], side="right") - 1
     valid = held >= 0
@@ -340,7 +346,8 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
           f"{np.percentile(answer_ms, 99):.2f} ms, max {answer_ms.max():.2f} ms; feed thread {summary.feed_priority}; "
           f"compensation {summary.compensation}")
     print(f"  latency sensor sample -> controller: p50 {np.percentile(latency_ms, 50):.2f} ms, p99 "
-          f"{np.percentile(latency_ms, 99):.2f} ms, max {latency_ms.max():.2f} ms (plus the filter's "
+          f"{np.percentile(latency_ms, 99):.2f} ms, max {latency_ms.max():.2f} ms over the {len(latency_ms)} values with "
+          f"new samples ({n - len(latency_ms)} repeated a held value: no sample came in that cycle) (plus the filter's "
           f"{summary.filter_delay_s * 1000:.2f} ms group delay)")
     print(f"  staleness at each controller cycle: p50 {np.percentile(staleness_ms, 50):.2f} ms, p99 "
           f"{np.percentile(staleness_ms, 99):.2f} ms, max {staleness_ms.max():.2f} ms (bridge limit "
