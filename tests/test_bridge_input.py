@@ -13,6 +13,7 @@ from ftacq.bridge_convention import FT_RTDE_INPUT_ENABLE, FeedPlan, controller_t
 from ftacq.kinematics import flange_pose, ur_model
 from ftacq.so3 import rotation_from_rotvec
 from tests.conftest import wait_until
+from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_process import URControllerProcess
 
 rtde_control = pytest.importorskip("rtde_control")
@@ -184,3 +185,17 @@ def test_controller_pauses_the_program_when_the_input_stops():
                 assert fake.state()["runtime_state"] == 4  # PAUSED
         finally:
             control.disconnect()
+
+
+def test_first_cycle_after_the_enable_reads_the_value_that_arrived_before_it():
+    """The feeder answers every package, the enable call lands between a value and the next cycle: that cycle is
+    fed (the value is new since the previous cycle), the one after it without a new value is missed."""
+    period_s = 0.002
+    ft = ExternalFTInput()
+    assert not ft.count_cycle(0.0, 0.0, period_s)  # disabled: not counted
+    ft.receive(np.ones(6), arrival_s=0.001, controller_time_s=0.001)
+    ft.enable(FT_RTDE_INPUT_ENABLE, True, 0.2, np.zeros(3), np.zeros(3), controller_time_s=0.0015, now_s=0.0015)
+    ft.count_cycle(0.002, 0.002, period_s)
+    assert (ft.summary()["cycles_fed"], ft.summary()["cycles_missed"]) == (1, 0)
+    ft.count_cycle(0.004, 0.004, period_s)
+    assert (ft.summary()["cycles_fed"], ft.summary()["cycles_missed"]) == (1, 1)

@@ -90,7 +90,8 @@ class ExternalFTInput:
         self.sensor_mass_kg = float(sensor_mass_kg)
         self.measuring_offset_m = np.array(measuring_offset_m, dtype=float)
         self.sensor_cog_m = np.array(sensor_cog_m, dtype=float)
-        self._new_since_cycle = False
+        # a value that arrived since the previous cycle stays new: the first cycle after the enable reads it, as
+        # any cycle would (the feeder answered that cycle's package before the enable call landed)
         self._unfed_s = 0.0
         if enable:
             self.last_arrival_s = max(self.last_arrival_s or now_s, now_s)  # the watchdog counts from the enable
