@@ -44,7 +44,6 @@ from __future__ import annotations
 import gc
 import logging
 import math
-import os
 import sys
 import threading
 import time
@@ -65,6 +64,7 @@ from ftacq.kinematics import FlangeRotation, URModel
 from procedures.dynamic_compensation import DynamicCompensator
 from procedures.events import Event, FedWrenches, Listener, Notice
 from procedures.excitation import counts_samples
+from procedures.realtime import ask_realtime
 
 log = logging.getLogger(__name__)
 
@@ -89,6 +89,11 @@ STATE_CYCLES = 256
 ROBOT_STATE_RATE_HZ = 125.0
 """RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
 the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
+LOG_CHUNK_ROWS = 8192
+"""Rows per chunk of the per-cycle log (16 s at 500 Hz, 0.7 MB)."""
+LOG_KEEP_S = 600.0
+"""The run's summary keeps the per-cycle log of the newest 10 minutes (26 MB at 500 Hz); the counts, the late
+answers and the largest sample age cover the whole run."""
 PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
@@ -129,6 +134,7 @@ class BridgeSettings:
     realtime_priority: int = REALTIME_PRIORITY
     switch_interval_s: float = SWITCH_INTERVAL_S
     sensor_hold_s: float = SENSOR_HOLD_S
+    log_keep_s: float = LOG_KEEP_S
 
 
 @dataclass
@@ -151,6 +157,11 @@ class BridgeSummary:
     feed_priority: str = ""
     """How the feed thread was scheduled, e.g. "SCHED_FIFO 80" or "normal (…why…)"."""
     log: np.ndarray = field(default_factory=lambda: np.empty((0, len(LOG_COLUMNS))))
+    """The newest ``log_keep_s`` of the run (all of a shorter run): ``cycles - len(log)`` older rows were dropped."""
+    late_answers: int = 0
+    """Values written later than one controller cycle after their package arrived, over the whole run."""
+    max_sample_age_s: float = float("nan")
+    """The oldest newest-sample age at a write, over the whole run, s."""
 
     def written_rows(self) -> np.ndarray:
         """The log rows of cycles that were answered with a value."""
@@ -236,20 +247,57 @@ class CycleStates:
 
 
 class _Log:
-    """Growing (rows, 11) float log, one row per controller cycle (preallocated in chunks)."""
+    """One row per controller cycle (:data:`LOG_COLUMNS`) in fixed chunks of :data:`LOG_CHUNK_ROWS`, so that the
+    feed thread never copies what it logged: a log grown by doubling copied it all at once, under the interpreter
+    lock, in the feed thread: 40 ms after 2.5 min of feeding, 170 ms after 10 min, 330 ms after 20 min (a staleness
+    trip, and UR's 0.1 s watchdog pausing the program). Only the newest ``keep_rows`` (at least; whole chunks) are
+    kept; older chunks are dropped when a new one starts. Row ``i`` of the run lives in chunk ``i // chunk_rows``.
 
-    def __init__(self, capacity: int) -> None:
-        self.data = np.full((max(capacity, 1024), len(LOG_COLUMNS)), np.nan)
+    The feed thread calls :meth:`row`; any thread may call :meth:`rows` (it reads one consistent snapshot of the
+    kept chunks)."""
+
+    def __init__(self, keep_rows: int, chunk_rows: int | None = None) -> None:
+        self.chunk_rows = int(chunk_rows or LOG_CHUNK_ROWS)
+        self.keep_chunks = max(2, -(-int(keep_rows) // self.chunk_rows) + 1)
+        self._current = self._new_chunk()
+        self._kept: tuple[int, tuple[np.ndarray, ...]] = (0, (self._current,))
+        """(index of the oldest kept chunk, the kept chunks): replaced whole, never changed in place."""
         self.count = 0
+        """Rows handed out so far (the whole run)."""
         self.complete = 0
         """Rows before this one are filled in (the publisher reads only those)."""
 
+    def _new_chunk(self) -> np.ndarray:
+        return np.full((self.chunk_rows, len(LOG_COLUMNS)), np.nan)
+
     def row(self) -> np.ndarray:
-        if self.count == len(self.data):
-            self.data = np.concatenate([self.data, np.full_like(self.data, np.nan)])
-        row = self.data[self.count]
+        """The next row, to be filled in by the caller (the feed thread)."""
+        offset = self.count % self.chunk_rows
+        if offset == 0 and self.count:
+            self._current = self._new_chunk()  # 0.7 MB at the default size: about 0.1 ms, once every 16 s
+            first, chunks = self._kept
+            chunks = chunks + (self._current,)
+            if len(chunks) > self.keep_chunks:
+                first, chunks = first + 1, chunks[1:]
+            self._kept = (first, chunks)
         self.count += 1
-        return row
+        return self._current[offset]
+
+    @property
+    def first_kept(self) -> int:
+        """Index of the oldest row still kept."""
+        return self._kept[0] * self.chunk_rows
+
+    def rows(self, start: int, stop: int) -> np.ndarray:
+        """A copy of rows ``start`` to ``stop`` (run indices), less those already dropped."""
+        first, chunks = self._kept
+        size = self.chunk_rows
+        start = max(start, first * size)
+        if stop <= start:
+            return np.empty((0, len(LOG_COLUMNS)))
+        parts = [chunks[k - first][max(start - k * size, 0):min(stop - k * size, size)]
+                 for k in range(start // size, (stop - 1) // size + 1)]
+        return np.concatenate(parts)
 
 
 class Bridge:
@@ -314,24 +362,9 @@ class Bridge:
                 return compensated
         return self.calibration.compensate(batch.wrench, self._flange_rotation(cycle.q).T)
 
-    def _ask_realtime(self) -> None:
-        """SCHED_FIFO for the calling thread (the feed), if allowed; :attr:`feed_priority` says what happened."""
-        priority = self.settings.realtime_priority
-        if priority <= 0:
-            self.feed_priority = "normal (real-time priority not asked)"
-            return
-        if not hasattr(os, "sched_setscheduler"):
-            self.feed_priority = "normal (no SCHED_FIFO on this system)"
-            return
-        try:
-            os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority))
-            self.feed_priority = f"SCHED_FIFO {priority}"
-        except (OSError, ValueError) as error:  # EPERM without CAP_SYS_NICE / rtprio limit
-            self.feed_priority = f"normal (SCHED_FIFO {priority} refused: {getattr(error, 'strerror', None) or error})"
-
     def _feed(self) -> None:
         settings = self.settings
-        self._ask_realtime()
+        self.feed_priority = ask_realtime(settings.realtime_priority)
         held: np.ndarray | None = None
         newest_s = -np.inf
         previous: np.ndarray | None = None
@@ -401,8 +434,8 @@ class Bridge:
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> BridgeSummary:
         """Feed until ``duration_s``, ``stop``, Ctrl-C or a watchdog trip; the input is disabled on every path."""
         stop = stop or threading.Event()
-        expected = int((duration_s or 60.0) * self.controller_rate_hz * 1.2) + 1024
-        self._log = _Log(expected)
+        self._log = _Log(int(self.settings.log_keep_s * self.controller_rate_hz))
+        self._late_answers, self._max_sample_age_s = 0, float("nan")
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
                                 sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,
                                 compensation=self.compensation)
@@ -454,7 +487,8 @@ class Bridge:
             summary.feed_priority = self.feed_priority
             summary.trip = self._trip
             summary.cycles, summary.written, summary.samples = self._log.count, self._written, self._samples
-            summary.log = self._log.data[:self._log.count].copy()
+            summary.log = self._log.rows(self._log.first_kept, self._log.count)
+            summary.late_answers, summary.max_sample_age_s = self._late_answers, self._max_sample_age_s
             if self._trip:
                 text = f"watchdog: {self._trip}; feed stopped, input {'disabled' if summary.disabled else 'NOT disabled'}"
             else:
@@ -482,13 +516,19 @@ class Bridge:
             return False
 
     def _publish(self, published: int) -> int:
+        """Hand the rows completed since ``published`` to the listeners and count them into the whole run's late
+        answers and largest sample age (the per-cycle log keeps only the newest ``log_keep_s``)."""
         count = self._log.complete
-        if count <= published or not self.listeners:
+        if count <= published:
             return count
-        rows = self._log.data[published:count]
+        rows = self._log.rows(published, count)
         rows = rows[np.isfinite(rows[:, 2])]
-        self._notify(FedWrenches(time_s=rows[:, 2].copy(), fed=rows[:, 5:].copy(), cycles=count - published,
-                                 written=len(rows)))
+        if len(rows):
+            self._late_answers += int(np.count_nonzero(rows[:, 2] - rows[:, 1] > 1.0 / self.controller_rate_hz))
+            self._max_sample_age_s = float(np.fmax(self._max_sample_age_s, np.max(rows[:, 2] - rows[:, 3])))
+        if self.listeners:
+            self._notify(FedWrenches(time_s=rows[:, 2], fed=rows[:, 5:], cycles=count - published,
+                                     written=len(rows)))
         return count
 
     def _notify(self, event: Event) -> None:

@@ -188,6 +188,7 @@ def _check(client, robot, plan, model, calibration) -> int:
 def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> int:
     from drivers.sensor import open_sensor
     from procedures.bridge import Bridge, BridgeSettings
+    from procedures.realtime import softirq_advice, softirq_threads
 
     sensor = open_sensor(sensor_url)
     stack.callback(sensor.close)
@@ -206,16 +207,20 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
     if args.realtime_priority is not None:
         settings = replace(settings, realtime_priority=args.realtime_priority)
     bridge = Bridge(sensor, client, robot, plan, calibration, model, settings, listeners=tuple(listeners))
+    advice = softirq_advice(softirq_threads())
+    if advice:
+        print(f"ftacq bridge: hint: {advice}", file=sys.stderr)
     print(f"ftacq bridge: sensor {sensor_url} at {bridge.sensor_rate_hz:.0f} Hz, {bridge.compensation} compensation, "
           f"low-pass {bridge.cutoff_hz:g} Hz (delay {bridge.filter.delay_s * 1000:.1f} ms); feeding (Ctrl-C to stop)",
           file=sys.stderr)
     summary = bridge.run(duration_s=args.seconds)
     staleness = summary.staleness_s()
     p50, p99 = (np.percentile(staleness, [50, 99]) * 1000 if len(staleness) else (np.nan, np.nan))
-    late = int(np.count_nonzero(summary.answer_time_s() > 1.0 / summary.controller_rate_hz))
+    newest = f" (the newest {len(summary.log)} cycles)" if len(summary.log) < summary.cycles else ""
     print(f"ftacq bridge: {summary.written} values written in {summary.cycles} controller cycles over "
-          f"{summary.duration_s:.1f} s; answered later than one cycle: {late}; feed thread {summary.feed_priority}; "
-          f"newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms; filter delay "
+          f"{summary.duration_s:.1f} s; answered later than one cycle: {summary.late_answers}; feed thread "
+          f"{summary.feed_priority}; newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms{newest}, max "
+          f"{summary.max_sample_age_s * 1000:.1f} ms; filter delay "
           f"{summary.filter_delay_s * 1000:.1f} ms; external input "
           f"{'disabled' if summary.disabled else 'NOT disabled (the controller pauses the program by itself)'}"
           + ("; stopped by Ctrl-C" if summary.interrupted else ""))
