@@ -248,17 +248,24 @@ class CycleStates:
 
 class _Log:
     """One row per controller cycle (:data:`LOG_COLUMNS`) in fixed chunks of :data:`LOG_CHUNK_ROWS`, so that the
-    feed thread never copies what it logged: a log grown by doubling copied it all at once, under the interpreter
-    lock, in the feed thread: 40 ms after 2.5 min of feeding, 170 ms after 10 min, 330 ms after 20 min (a staleness
-    trip, and UR's 0.1 s watchdog pausing the program). Only the newest ``keep_rows`` (at least; whole chunks) are
-    kept; older chunks are dropped when a new one starts. Row ``i`` of the run lives in chunk ``i // chunk_rows``.
+    feed thread never copies what it logged: a log grown by doubling copied it all at once, in the feed thread:
+    30 ms after 2.5 min of feeding, 90 ms after 5, 130 ms after 10, 250 ms after 20 (benchmarks/bridge_log.py),
+    every cycle meanwhile missed, and from 10 min on longer than UR's 0.1 s watchdog on the input, which pauses
+    the program. Only the newest ``keep_rows`` (at least; whole chunks) are
+    kept: when a new chunk starts, the oldest is dropped and its memory reused, so a long run allocates nothing.
+    Row ``i`` of the run lives in chunk ``i // chunk_rows``.
 
     The feed thread calls :meth:`row`; any thread may call :meth:`rows` (it reads one consistent snapshot of the
-    kept chunks)."""
+    kept chunks; a reader more than ``keep_rows`` behind the feed could see a dropped chunk being reused: the
+    publisher reads the rows of the last 0.1 s)."""
 
-    def __init__(self, keep_rows: int, chunk_rows: int | None = None) -> None:
+    def __init__(self, keep_rows: int, chunk_rows: int | None = None, expected_rows: int | None = None) -> None:
         self.chunk_rows = int(chunk_rows or LOG_CHUNK_ROWS)
         self.keep_chunks = max(2, -(-int(keep_rows) // self.chunk_rows) + 1)
+        expected_chunks = -(-int(keep_rows if expected_rows is None else expected_rows) // self.chunk_rows) + 1
+        self._spares = [self._new_chunk() for _ in range(min(self.keep_chunks, expected_chunks) - 1)]
+        """Chunks allocated before feeding (here, in the caller's thread): a fresh 0.7 MB costs the thread that
+        first writes it up to 2 ms of page faults on the development machine."""
         self._current = self._new_chunk()
         self._kept: tuple[int, tuple[np.ndarray, ...]] = (0, (self._current,))
         """(index of the oldest kept chunk, the kept chunks): replaced whole, never changed in place."""
@@ -274,12 +281,14 @@ class _Log:
         """The next row, to be filled in by the caller (the feed thread)."""
         offset = self.count % self.chunk_rows
         if offset == 0 and self.count:
-            self._current = self._new_chunk()  # 0.7 MB at the default size: about 0.1 ms, once every 16 s
             first, chunks = self._kept
-            chunks = chunks + (self._current,)
-            if len(chunks) > self.keep_chunks:
-                first, chunks = first + 1, chunks[1:]
-            self._kept = (first, chunks)
+            if len(chunks) < self.keep_chunks:
+                self._current = self._spares.pop() if self._spares else self._new_chunk()
+            else:  # drop the oldest chunk and reuse its memory (a refill: 0.1 ms)
+                self._current, first, chunks = chunks[0], first + 1, chunks[1:]
+                self._kept = (first, chunks)
+                self._current.fill(np.nan)
+            self._kept = (first, chunks + (self._current,))
         self.count += 1
         return self._current[offset]
 
@@ -342,7 +351,7 @@ class Bridge:
         self._stop_feeding = threading.Event()
         self._done = threading.Event()
         self._trip: str | None = None
-        self._log = _Log(0)
+        self._log = _Log(0, expected_rows=0)
         self._samples = 0
         self._written = 0
         self._thread: threading.Thread | None = None
@@ -434,7 +443,8 @@ class Bridge:
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> BridgeSummary:
         """Feed until ``duration_s``, ``stop``, Ctrl-C or a watchdog trip; the input is disabled on every path."""
         stop = stop or threading.Event()
-        self._log = _Log(int(self.settings.log_keep_s * self.controller_rate_hz))
+        self._log = _Log(int(self.settings.log_keep_s * self.controller_rate_hz),
+                         expected_rows=None if duration_s is None else int(duration_s * self.controller_rate_hz * 1.2))
         self._late_answers, self._max_sample_age_s = 0, float("nan")
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
                                 sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,

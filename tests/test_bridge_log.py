@@ -25,12 +25,15 @@ def test_rows_live_in_chunks_that_are_never_reallocated_and_the_oldest_are_dropp
     first_chunk_row[:] = 0.0
     for i in range(1, 16):  # 4 chunks: nothing dropped yet
         log.row()[:] = i
+    chunks = {id(chunk) for chunk in log._kept[1]}
+    assert len(chunks) == 4
     assert first_chunk_row[0] == 0.0 and log.rows(0, 1)[0, 0] == 0.0
     first_chunk_row[1] = -1.0  # the row handed out is the one kept: not a copy
     assert log.rows(0, 1)[0, 1] == -1.0
     for i in range(16, 43):
         log.row()[:] = i
     assert log.count == 43
+    assert {id(chunk) for chunk in log._kept[1]} == chunks  # the dropped chunks' memory reused: nothing allocated
     assert log.first_kept == 28  # chunks 7..10 kept: rows 28..43
     kept = log.rows(0, log.count)
     np.testing.assert_array_equal(kept[:, 0], np.arange(28, 43))
