@@ -40,6 +40,7 @@ Printed figures (all from what the simulated controller recorded, not from what 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import os
@@ -169,6 +170,9 @@ def main() -> int:
                         help="relax the bridge's staleness limit (default: the product's) so that a loaded machine "
                              "does not end the run early; the figures say so")
     parser.add_argument("--cycle-timeout-s", type=float, default=None, help="relax the lost-cycle limit likewise")
+    parser.add_argument("--softirq-priority", type=int, default=0, metavar="N",
+                        help="run the kernel's network threads (ksoftirqd) at SCHED_FIFO N during the run (needs root; "
+                             "put back afterwards), as docs/bridge.md advises for a real cell; 0: leave them as they are")
     parser.add_argument("--explain-misses", action="store_true",
                         help="print the timeline of every missed cycle (package sent, received and answered by the "
                              "bridge, answer arrived, next cycle), ms")
@@ -181,7 +185,40 @@ def main() -> int:
     if args.world:
         return world(args)
     seconds = args.seconds or (QUICK_SECONDS if args.quick else FULL_SECONDS)
+    with softirq_priority(args.softirq_priority) as softirq:
+        return bench(args, seconds, softirq)
 
+
+@contextlib.contextmanager
+def softirq_priority(priority: int):
+    """``--softirq-priority``: SCHED_FIFO ``priority`` for the ksoftirqd threads at normal priority, put back at the
+    end; yields how they run (for the report)."""
+    from procedures.realtime import softirq_threads
+
+    changed = []
+    try:
+        if priority > 0:
+            for thread in softirq_threads():
+                if thread.realtime_priority == 0:
+                    try:
+                        os.sched_setscheduler(thread.pid, os.SCHED_FIFO, os.sched_param(priority))
+                    except OSError as error:
+                        sys.exit(f"--softirq-priority: cannot change {thread.name} (pid {thread.pid}): {error.strerror}")
+                    changed.append(thread.pid)
+        threads = softirq_threads()
+        priorities = sorted({t.realtime_priority for t in threads})
+        yield ("not visible" if not threads else
+               ", ".join("normal priority" if p == 0 else f"SCHED_FIFO {p}" for p in priorities)
+               + (" (--softirq-priority)" if changed else ""))
+    finally:
+        for pid in changed:
+            try:
+                os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
+            except OSError:
+                pass
+
+
+def bench(args: argparse.Namespace, seconds: float, softirq: str) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
@@ -251,7 +288,8 @@ def main() -> int:
             stalls = json.loads(prober.communicate("", timeout=10)[0])
     shared.close()
     report(args, seconds, summary, state, records, plan, cpu_s, wall_s, ready["t0"], health, truth,
-           WrenchFilter(bridge.cutoff_hz, SENSOR_RATE_HZ), settings, stalls)
+           WrenchFilter(bridge.cutoff_hz, SENSOR_RATE_HZ), settings, stalls,
+           f"kernel network threads (ksoftirqd) {softirq}")
     return 0
 
 
@@ -272,7 +310,7 @@ def move_back_and_forth(robot, bridge, q0: np.ndarray, stop: threading.Event) ->
 
 
 def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, health, truth, wrench_filter,
-           settings, stalls) -> None:
+           settings, stalls, scheduling) -> None:
     log = summary.log
     if summary.written == 0:
         print(f"ftacq bridge benchmark: nothing was written ({summary.trip})")
@@ -294,7 +332,10 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     fed_cycles = int(cycles[:, 1].sum())
     missed = len(cycles) - fed_cycles
     period_s = 1.0 / summary.controller_rate_hz
-    answer_ms = summary.answer_time_s() * 1000.0
+    # the answers to the packages of the cycles counted while enabled (the first ones, before the enable call, warm
+    # up the models and feed nothing the controller uses)
+    enabled = written[:, 0] >= cycles[0, 0]
+    answer_ms = (written[enabled, 2] - written[enabled, 1]) * 1000.0
     stall = np.array(stalls["late"]).reshape(-1, 2)
     big = stall[:, 1] > STALL_S
     causes = attribute_misses(cycles, log, stall, period_s)
@@ -322,11 +363,12 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     pushing = contact_at(elapsed)[:, 2] != 0
     noise = np.array(truth.force_noise_n + truth.torque_noise_nm)
     rng = np.random.default_rng(0)
-    filtered_noise = wrench_filter(rng.standard_normal((70000, 6)) * noise)[1000:].std(axis=0)
+    # the sensor's noise through the filter and the convention (the fed frame mixes the sensor's axes)
+    filtered_noise = plan.fed_wrench(wrench_filter(rng.standard_normal((70000, 6)) * noise))[1000:].std(axis=0)
     print(f"ftacq bridge benchmark: {seconds:g} s, feed {plan.feed}, sensor {SENSOR_RATE_HZ:g} Hz, controller "
           f"{summary.controller_rate_hz:g} Hz, low-pass {summary.cutoff_hz:g} Hz (group delay "
           f"{summary.filter_delay_s * 1000:.2f} ms), arm {arm_motion(args)}, push "
-          f"{np.linalg.norm(CONTACT[:3]):.1f} N every {CONTACT_EVERY_S:g} s")
+          f"{np.linalg.norm(CONTACT[:3]):.1f} N every {CONTACT_EVERY_S:g} s; {scheduling}")
     span_s = float(cycles[-1, 0] - cycles[0, 0]) if len(cycles) > 1 else float("nan")
     print(f"  controller cycles while enabled {len(cycles)}: fed {fed_cycles}, missed {missed} "
           f"({(len(cycles) - 1) / span_s:.0f} cycles/s of controller time); values received {state['received']}, "
@@ -342,7 +384,7 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
           f"longer than a cycle) {causes['bridge']}; the way back {causes['way_back']}; simulated controller's package "
           f"spacing p1 / p99 {np.percentile(send_gap_ms, 1):.2f} / {np.percentile(send_gap_ms, 99):.2f} ms (real "
           f"controller: {period_s * 1000:g} ms)")
-    print(f"  bridge answer time (package received -> value written): p50 {np.percentile(answer_ms, 50):.2f} ms, p99 "
+    print(f"  bridge answer time while enabled (package received -> value written): p50 {np.percentile(answer_ms, 50):.2f} ms, p99 "
           f"{np.percentile(answer_ms, 99):.2f} ms, max {answer_ms.max():.2f} ms; feed thread {summary.feed_priority}; "
           f"compensation {summary.compensation}")
     print(f"  latency sensor sample -> controller: p50 {np.percentile(latency_ms, 50):.2f} ms, p99 "
@@ -360,8 +402,9 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
             rms = np.sqrt(np.mean(error[mask] ** 2, axis=0))
             print(f"  fed-wrench error {label} ({mask.sum()} values): RMS force {np.round(rms[:3], 4).tolist()} N, "
                   f"torque {np.round(rms[3:], 5).tolist()} N·m; max |F| error "
-                  f"{np.linalg.norm(error[mask][:, :3], axis=1).max():.3f} N")
-        print(f"  filtered sensor noise (truth's 1σ through the filter): force {np.round(filtered_noise[:3], 4).tolist()}"
+                  f"{np.linalg.norm(error[mask][:, :3], axis=1).max():.3f} N; RMS / filtered noise "
+                  f"{np.round(rms / filtered_noise, 2).tolist()}")
+        print(f"  filtered sensor noise in the fed frame (truth's 1σ through the filter and the convention): force {np.round(filtered_noise[:3], 4).tolist()}"
               f" N, torque {np.round(filtered_noise[3:], 5).tolist()} N·m; at rest the truth's calibration is exact "
               "(1σ band 0)")
     print(f"  sensor: {health.received} samples, {health.lost} lost; CPU of this process {100 * cpu_s / wall_s:.1f} % "
