@@ -4,9 +4,9 @@ and how the kernel threads that deliver network packets (``ksoftirqd/N``, one pe
 Why the second matters: a packet's last step into a socket is the kernel's network softirq. Under load the kernel
 hands that work to ``ksoftirqd``, a thread at normal priority, which then waits its turn behind every other busy
 program. A controller package can then reach the feed thread milliseconds late however high the feed thread's own
-priority: on the development machine, 5-17 of 30 000 cycles a minute were missed that way with ``ksoftirqd`` at
-normal priority, none with ``ksoftirqd`` at SCHED_FIFO 60 (benchmarks/README.md, controller bridge). A PREEMPT_RT
-kernel runs these threads (and the network card's interrupt threads) at SCHED_FIFO by default.
+priority: on the development machine, one-minute runs missed 0-11 cycles that way with ``ksoftirqd`` at normal
+priority (5.3 on average), 0-3 with it at SCHED_FIFO 60 (0.4 on average; benchmarks/README.md, controller bridge).
+A PREEMPT_RT kernel runs these threads (and the network card's interrupt threads) at SCHED_FIFO by default.
 """
 
 from __future__ import annotations
