@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import gc
 import json
 import os
@@ -225,7 +226,7 @@ def bench(args: argparse.Namespace, seconds: float, softirq: str) -> int:
     from drivers.ur_ft_input import URForceTorqueInput
     from ftacq.bridge_convention import plan_feed
     from ftacq.kinematics import ur_model
-    from procedures.bridge import ROBOT_STATE_RATE_HZ, Bridge, BridgeSettings, WrenchFilter
+    from procedures.bridge import LOG_KEEP_S, ROBOT_STATE_RATE_HZ, Bridge, BridgeSettings, WrenchFilter
     from procedures.plan import home_configuration_rad
     from tests.fakes.ur_process import URControllerProcess
     from tests.fakes.world import CellTruth, SharedPose
@@ -257,11 +258,11 @@ def bench(args: argparse.Namespace, seconds: float, softirq: str) -> int:
             sensor = open_sensor(ready["url"])
             sensor.start()
             plan = plan_feed(calibration, args.feed, SENSOR_OFFSET_M, sensor_body_kg=SENSOR_BODY_KG)
-            settings = BridgeSettings()
+            settings = BridgeSettings(log_keep_s=max(LOG_KEEP_S, 1.2 * seconds))  # the figures cover the whole run
             if args.max_staleness_s:
-                settings = BridgeSettings(max_staleness_s=args.max_staleness_s, cycle_timeout_s=settings.cycle_timeout_s)
+                settings = dataclasses.replace(settings, max_staleness_s=args.max_staleness_s)
             if args.cycle_timeout_s:
-                settings = BridgeSettings(max_staleness_s=settings.max_staleness_s, cycle_timeout_s=args.cycle_timeout_s)
+                settings = dataclasses.replace(settings, cycle_timeout_s=args.cycle_timeout_s)
             if args.max_staleness_s or args.cycle_timeout_s:
                 controller.control("set external_ft_watchdog 1.0")  # as rtde_set_watchdog would
             bridge = Bridge(sensor, client, robot, plan, calibration, ur_model("UR5e"), settings,
@@ -275,13 +276,15 @@ def bench(args: argparse.Namespace, seconds: float, softirq: str) -> int:
                 summary = bridge.run(duration_s=seconds)
                 stop_moving.set()
                 cpu_s, wall_s = time.process_time() - cpu0, time.monotonic() - wall0
-                state = controller.external_ft()
-                records = controller.external_ft_records()
                 health = sensor.health()
             finally:  # ur-rtde's clients reconnect forever once the controller is gone: close them first
                 sensor.close()
                 client.close()
                 robot.close()
+            # only now: after a long run the simulated controller takes seconds to hand its records over, and
+            # ur-rtde's control interface, still open, went into reconnecting and segfaulted twice (660 s, 900 s)
+            state = controller.external_ft()
+            records = controller.external_ft_records()
         finally:
             world_process.stdin.close()
             world_process.wait(10)
