@@ -92,7 +92,7 @@ the controller every cycle, so they need not (each costs ~5 % of a core at 500 H
 LOG_CHUNK_ROWS = 8192
 """Rows per chunk of the per-cycle log (16 s at 500 Hz, 0.7 MB)."""
 LOG_KEEP_S = 600.0
-"""The run's summary keeps the per-cycle log of the newest 10 minutes (26 MB at 500 Hz); the counts, the late
+"""The run's summary keeps the per-cycle log of the newest 10 minutes (27 MB at 500 Hz); the counts, the late
 answers and the largest sample age cover the whole run."""
 PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
@@ -286,7 +286,7 @@ class _Log:
                 self._current = self._spares.pop() if self._spares else self._new_chunk()
             else:  # drop the oldest chunk and reuse its memory (a refill: 0.1 ms)
                 self._current, first, chunks = chunks[0], first + 1, chunks[1:]
-                self._kept = (first, chunks)
+                self._kept = (first, chunks)  # dropped before the refill: a reader's new snapshot no longer has it
                 self._current.fill(np.nan)
             self._kept = (first, chunks + (self._current,))
         self.count += 1
