@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ftacq.mounts import MOUNTS
+
 MAX_RESIDUAL_ROWS = 100
 """Longer records list only the poses with the largest residuals (outliers always included)."""
 
@@ -83,9 +85,10 @@ def format_identification_report(result, validation: dict | None = None) -> str:
     add(f"  base_tilt (α, β)  deg  {alpha:+.4f} ± {tilt_sigma[0]:.4f}, {beta:+.4f} ± {tilt_sigma[1]:.4f}")
     if "mount" in meta:
         rel = meta["base_tilt_relative_deg"]
+        kind = "nominal" if meta["mount"] in MOUNTS else "declared"
         add(
-            f"  tilt relative to a nominal {meta['mount']} mount: α {rel[0]:+.4f}°, β {rel[1]:+.4f}° "
-            f"(gravity {meta['tilt_from_mount_deg']:.4f}° off nominal)"
+            f"  tilt relative to the {kind} {meta['mount']} mount: α {rel[0]:+.4f}°, β {rel[1]:+.4f}° "
+            f"(gravity {meta['tilt_from_mount_deg']:.4f}° off the {kind} direction)"
         )
     else:
         add(f"  nearest nominal mount: {meta.get('nearest_mount')} ({meta.get('tilt_from_nearest_mount_deg', 0.0):.3f}° off)")

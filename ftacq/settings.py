@@ -25,7 +25,7 @@ import numpy as np
 
 from ftacq.errors import ConfigError
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
-from ftacq.mounts import MOUNTS
+from ftacq.mounts import MOUNT_FORMS, check_mount
 from ftacq.validation import shown
 
 KINDS = ("float", "int", "bool", "str", "vec3", "poses")
@@ -53,6 +53,8 @@ class Setting:
         example: shown, commented out, in the template for an optional key.
         model_high: an upper bound depending on the robot model (used instead of ``high`` when the model is
             known), with ``model_high_why`` saying where it comes from.
+        parse: for a str key without fixed choices: returns the value normalised or raises ValueError;
+            ``forms`` says in words what it accepts.
     """
 
     kind: str
@@ -67,6 +69,8 @@ class Setting:
     example: Any = None
     model_high: Callable[[URModel], float] | None = None
     model_high_why: str = ""
+    parse: Callable[[str], str] | None = None
+    forms: str = ""
     section: str = ""
     name: str = ""
 
@@ -88,6 +92,8 @@ class Setting:
         """The allowed values in words, e.g. ``a number in [0.001, 3.14159] for the UR5e (…)``."""
         if self.choices:
             return "one of " + ", ".join(self.choices)
+        if self.forms:
+            return self.forms
         kind = {"float": "a number", "int": "an integer", "vec3": "3 numbers each"}.get(self.kind, "a value")
         high = self.high_for(model)
         if self.low is None or high is None:
@@ -118,6 +124,11 @@ class Setting:
                     if choice.lower() == value.strip().lower():
                         return choice
                 raise ConfigError(f"{where} = {shown(value)}: must be {self.range_text()}")
+            if self.parse is not None:
+                try:
+                    return self.parse(value)
+                except ValueError as error:
+                    raise ConfigError(f"{where} = {shown(value)}: must be {self.range_text()} ({error})") from None
             return value.strip()
         if self.kind == "vec3":
             items = _as_list(value)
@@ -184,7 +195,7 @@ def _number_text(value: float | None, up: bool = False) -> str:
 def setting(default: T, help: str, *, kind: str | None = None, unit: str = "", low: float | None = None,
             high: float | None = None, choices: tuple[str, ...] | None = None, optional: bool = False,
             edit: bool = False, example: Any = None, model_high: Callable[[URModel], float] | None = None,
-            model_high_why: str = "") -> T:
+            model_high_why: str = "", parse: Callable[[str], str] | None = None, forms: str = "") -> T:
     """Declare one key of a section class (a dataclass field carrying its :class:`Setting`).
 
     ``kind`` defaults from the default's type (bool, int, float, str); give it for vec3 and poses keys.
@@ -194,7 +205,7 @@ def setting(default: T, help: str, *, kind: str | None = None, unit: str = "", l
     if kind not in KINDS:
         raise TypeError(f"setting {help!r}: kind {kind!r} is not one of {KINDS}")
     declared = Setting(kind, default, help, unit, low, high, choices, optional, edit, example, model_high,
-                       model_high_why)
+                       model_high_why, parse, forms)
     return field(default=default, metadata={SETTING: declared})
 
 
@@ -271,7 +282,9 @@ class RobotConfig:
 
     host: str = setting("192.168.1.10", "IP address or host name of the UR controller (RTDE)", edit=True)
     model: str = setting("UR5e", "UR model", choices=tuple(UR_MODELS), edit=True)
-    mount: str = setting("floor", "nominal mounting of the robot base", choices=MOUNTS, edit=True)
+    mount: str = setting("floor", "mounting of the robot base: a nominal mount, a tilt (α about base x, then β about "
+                         "base y, degrees, paper eq. 47) or the gravity direction in the base frame", edit=True,
+                         parse=check_mount, forms=MOUNT_FORMS)
     joint_speed_rad_s: float = setting(
         0.5, "moveJ joint speed", unit="rad/s", low=1e-3, high=MAX_JOINT_SPEED_RAD_S,
         model_high=_slowest_joint_speed, model_high_why="its slowest joint's rated speed")

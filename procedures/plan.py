@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from ftacq.errors import PlanError
+from ftacq.mounts import mount_of
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
 from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
@@ -192,7 +193,8 @@ def reach_m(model: URModel) -> float:
 
 
 def _default_fraction(model: URModel, mount: str) -> tuple[float, float, float]:
-    return MODEL_CENTER_FRACTION.get((model.name, mount), DEFAULT_CENTER_FRACTION[mount])
+    nominal = mount_of(mount).nominal  # a tilted mount takes the default of the nominal mount nearest its gravity
+    return MODEL_CENTER_FRACTION.get((model.name, nominal), DEFAULT_CENTER_FRACTION[nominal])
 
 
 def default_center_m(model: URModel | str, mount: str = "floor") -> np.ndarray:

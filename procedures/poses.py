@@ -53,15 +53,16 @@ def pose_from(base_R_flange: np.ndarray, position_m: np.ndarray) -> np.ndarray:
 
 
 def tool_down_rotation(mount: str = "floor") -> np.ndarray:
-    """Return the nominal ``base_R_flange`` with the tool (flange z) pointing down for ``mount``.
+    """Return the nominal ``base_R_flange`` with the tool (flange z) pointing down (along gravity) for ``mount``.
 
-    Floor: Rx(π) (flange x along base x). Wall (gravity along −x_base): flange z = −x_base, flange x = −z_base.
-    Ceiling (gravity along +z_base): the identity.
+    Flange x is the base axis nearest the mounting surface's "forward": base x projected off gravity when gravity
+    is nearer base z than the horizontal (floor: Rx(π); ceiling: the identity), else −z_base projected (wall,
+    gravity along −x_base: flange z = −x_base, flange x = −z_base). Any tilt (``tilted:A,B``) gets the same rule.
     """
     z_axis = np.array(mount_of(mount).down_base)  # the tool points along gravity
-    if z_axis[2] != 0.0:  # floor: Rx(π) (flange x along base x); ceiling: the identity
-        return np.diag([1.0, z_axis[2], z_axis[2]])
-    x_axis = np.array([0.0, 0.0, -1.0])
+    reference = np.array([1.0, 0.0, 0.0]) if abs(z_axis[2]) > 0.7 else np.array([0.0, 0.0, -1.0])
+    x_axis = reference - (reference @ z_axis) * z_axis
+    x_axis /= np.linalg.norm(x_axis)
     return np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
 
 

@@ -168,7 +168,7 @@ EDIT_MARK = "EDIT"
 def _comment(key: Setting, model: str) -> str:
     unit = f" [{key.unit}]" if key.unit else ""
     edit = f"{EDIT_MARK}: " if key.edit else ""
-    shown_range = key.kind in ("float", "int", "vec3") or key.choices
+    shown_range = key.kind in ("float", "int", "vec3") or key.choices or key.forms
     return f"# {edit}{key.help}{unit}" + (f"; {key.range_text(model)}" if shown_range else "")
 
 

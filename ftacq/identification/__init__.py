@@ -42,7 +42,7 @@ from ftacq.identification.srom import DEFAULT_SPECIAL_TOLERANCE_DEG, match_speci
 from ftacq.identification.tilt import nearest_mount, relative_tilt_deg, tilt_deg, tilt_jacobian_deg
 from ftacq.identification.torque import torque_least_squares
 from ftacq.identification.wahba import wahba
-from ftacq.mounts import MOUNTS
+from ftacq.mounts import MOUNT_FORMS, MOUNTS, check_mount
 from ftacq.posefile import PoseRecord
 
 METHODS = ("auto", "srom", "lrom")
@@ -226,7 +226,8 @@ def identify(
 
     Args:
         record: still poses with their mean wrenches (contact-free, except for poses to be named outliers).
-        mount: "floor", "wall" or "ceiling" to also report the tilt relative to that nominal mount.
+        mount: "floor", "wall", "ceiling" or a spec (``tilted:ALPHA,BETA``, ``gravity:X,Y,Z``, ftacq.mounts) to
+            also report the tilt relative to that mount.
         method: "auto" (SROM when all 24 special orientations are present, else LROM), "srom" or "lrom".
         refine: run the joint robust refinement (True) or stop at the closed form (False).
         special_tolerance_deg: how close (geodesic angle) a pose must be to a cube rotation to count as special.
@@ -240,8 +241,11 @@ def identify(
     """
     if method not in METHODS:
         raise IdentificationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    if mount is not None and mount not in MOUNTS:
-        raise IdentificationError(f"unknown mount {mount!r}; choose one of {', '.join(MOUNTS)}")
+    if mount is not None:
+        try:
+            mount = check_mount(mount)
+        except ValueError:
+            raise IdentificationError(f"unknown mount {mount!r}; give {MOUNT_FORMS}") from None
     special_tolerance_deg = diagnostics.check_special_tolerance(special_tolerance_deg)
     # every number checked before any linear algebra: extreme values can make LAPACK spin for minutes
     diagnostics.check_record_values(record.pose, record.wrench, record.labels, record.std, record.count)
@@ -427,7 +431,8 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         if total > diagnostics.NOMINAL_TILT_WARN_DEG:
             warnings.append(
                 f"the base is tilted {total:.1f}° from a nominal {mount} mount (nearest nominal mount: {nearest}); "
-                "is --mount right?"
+                "is --mount right? If the base is mounted so, declare it: --gravity-direction "
+                + ",".join(f"{v:.3f}" for v in params.gravity_base / np.linalg.norm(params.gravity_base))
             )
     if standard_error is not None:
         noise_text = "measured std/√count"

@@ -3,14 +3,17 @@
 gravity_base = −m g [cos α sin β, −sin α, cos α cos β] (eq. 47); m g = ‖gravity_base‖ (the paper squares
 it), β = atan2(−f_x, −f_z), α = atan2(f_y, √(f_x² + f_z²)), branch cos α ≥ 0, β in (−180°, 180°].
 Nominal mounts (as tests/fakes/world.CellTruth.with_mount): floor (α, β) = (0, 0), wall (0, 90°),
-ceiling (0, 180°). Relative to a nominal mount R_Y(β_n): α_rel = α, β_rel = β − β_n wrapped.
+ceiling (0, 180°); any other mount is a spec of :func:`ftacq.mounts.mount_of` (``tilted:A,B``, ``gravity:X,Y,Z``).
+The gravity direction is −R_y(β) R_x(α) e_z, so the tilt relative to a mount (α_n, β_n) is the tilt of the
+measured direction expressed in the nominal frame, (R_y(β_n) R_x(α_n))ᵀ d; for α_n = 0 that is α_rel = α,
+β_rel = β − β_n wrapped.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ftacq.mounts import MOUNT_TABLE
+from ftacq.mounts import MOUNT_TABLE, mount_of
 
 MOUNT_TILT_DEG = {name: mount.tilt_deg for name, mount in MOUNT_TABLE.items()}
 """Nominal (α, β) in degrees of each mount name (from :data:`ftacq.mounts.MOUNT_TABLE`)."""
@@ -44,19 +47,19 @@ def tilt_jacobian_deg(gravity_base: np.ndarray) -> np.ndarray:
 
 
 def relative_tilt_deg(gravity_base: np.ndarray, mount: str) -> tuple[float, float, float]:
-    """Return (α_rel, β_rel, total angle) in degrees of the base's tilt from a nominal mount.
+    """Return (α_rel, β_rel, total angle) in degrees of the base's tilt from a mount (a name or a spec).
 
-    The total angle is the angle between the measured and the nominal gravity direction in the base frame.
+    The total angle is the angle between the measured and the mount's gravity direction in the base frame.
     """
-    alpha, beta = tilt_deg(gravity_base)
-    alpha_n, beta_n = MOUNT_TILT_DEG[mount]
-    nominal = -np.array(
-        [np.cos(np.radians(alpha_n)) * np.sin(np.radians(beta_n)), -np.sin(np.radians(alpha_n)),
-         np.cos(np.radians(alpha_n)) * np.cos(np.radians(beta_n))]
-    )
+    alpha_n, beta_n = np.radians(mount_of(mount).tilt_deg)
+    ca, sa, cb, sb = np.cos(alpha_n), np.sin(alpha_n), np.cos(beta_n), np.sin(beta_n)
+    base_R_nominal = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]]) @ \
+        np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
     direction = np.asarray(gravity_base, dtype=float) / np.linalg.norm(gravity_base)
+    nominal = base_R_nominal @ np.array([0.0, 0.0, -1.0])
     total = float(np.degrees(np.arccos(np.clip(direction @ nominal, -1.0, 1.0))))
-    return alpha - alpha_n, float(wrap_deg(beta - beta_n)), total
+    alpha_rel, beta_rel = tilt_deg(base_R_nominal.T @ direction)
+    return alpha_rel, beta_rel, total
 
 
 def nearest_mount(gravity_base: np.ndarray) -> tuple[str, float]:

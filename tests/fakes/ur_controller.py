@@ -1,7 +1,7 @@
 """Simulated Universal Robots controller that the unmodified ur-rtde client drives, in its own process.
 
     python -m tests.fakes.ur_controller --host 127.0.0.2 [--model UR5e] [--time-scale 1.0] [--pose-shm NAME]
-        [--initial-q q0 .. q5] [--mount floor|wall|ceiling] [--version 5.11.1.108318]
+        [--initial-q q0 .. q5] [--mount floor|wall|ceiling|tilted:A,B|gravity:X,Y,Z] [--version 5.11.1.108318]
 
 Listens on the controller's fixed ports of ``--host``: 30004 (RTDE), 29999 (UR Dashboard Server), 30003 (script), and on a
 line-based control port (port 0, reported) for tests. Prints one line when listening::
@@ -671,7 +671,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--time-scale", type=float, default=1.0, help="0 = instant moves, 1 = real time")
     parser.add_argument("--pose-shm", default=None, help="SharedPose block to publish the flange pose into")
     parser.add_argument("--initial-q", type=float, nargs=6, default=None, metavar="Q", help="initial joint angles, rad")
-    parser.add_argument("--mount", choices=("floor", "wall", "ceiling"), default="floor")
+    parser.add_argument("--mount", default="floor", help="floor, wall, ceiling, tilted:ALPHA,BETA or gravity:X,Y,Z")
     parser.add_argument("--version", type=parse_version, default=(5, 11, 1, 108318), help="controller version")
     parser.add_argument("--serial-number", default="20235500123")
     return parser

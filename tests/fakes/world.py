@@ -123,9 +123,11 @@ class CellTruth:
         )
 
     def with_mount(self, mount: str) -> "CellTruth":
-        """Return this truth with the base tilt of a nominal mount: floor (0, 0), wall (0, 90), ceiling (0, 180)."""
-        tilt = {"floor": (0.0, 0.0), "wall": (0.0, 90.0), "ceiling": (0.0, 180.0)}[mount]
-        return replace(self, base_tilt_deg=tilt)
+        """Return this truth with the base tilt of a mount: floor (0, 0), wall (0, 90), ceiling (0, 180), or a spec
+        of ftacq.mounts (``tilted:ALPHA,BETA``, ``gravity:X,Y,Z``)."""
+        from ftacq.mounts import mount_of
+
+        return replace(self, base_tilt_deg=tuple(mount_of(mount).tilt_deg))
 
 
 class PoseSource(Protocol):

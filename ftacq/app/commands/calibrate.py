@@ -22,7 +22,7 @@ from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.app.confirm import confirm_motion
 from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
-from ftacq.mounts import MOUNTS
+from ftacq.mounts import MOUNT_FORMS, MOUNTS
 
 if TYPE_CHECKING:
     from procedures.events import Listener
@@ -70,8 +70,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help=f"simulated time runs X times faster than real time (0 = instant moves; default "
                           f"{DEFAULT_SIM_TIME_SCALE:g}); settle and averaging times shrink by the same factor")
     sim.add_argument("--model", default="UR5e", help="simulated UR model without --config (default %(default)s)")
-    sim.add_argument("--mount", choices=MOUNTS, default=MOUNTS[0],
-                     help="simulated mount without --config (default %(default)s)")
+    sim.add_argument("--mount", default=MOUNTS[0], metavar="MOUNT",
+                     help=f"simulated mount without --config: {MOUNT_FORMS} (default %(default)s)")
     sim.add_argument("--sim-wrong-tool", action="store_true",
                      help="fault: the validation poses are measured with a part (0.2 kg) left in the gripper, "
                           "unknown to ftacq; the verdict must be FAIL")

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ftacq.app.helptext import examples
-from ftacq.mounts import MOUNTS
+from ftacq.mounts import MOUNT_FORMS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -23,16 +23,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "Nothing is written if the input is bad."
         ),
         **examples("ftacq identify runs/20260101-120000/poses.csv -o calibration.json",
-                   "ftacq identify poses.csv -o calibration.json --mount ceiling",
-                   "ftacq identify poses.csv -o closed-form.json --no-refine  # the paper's closed form only"),
+                   "ftacq identify poses.csv -o calibration.json --mount tilted:62,-37  # a base tilted 62°",
+                   "ftacq identify poses.csv -o calibration.json --gravity-direction 1,0,0  # wall, gravity along +x"),
     )
     parser.add_argument("poses", metavar="POSES.csv", nargs="?",
                         help="pose record CSV (see docs/formats.md); optional with --motion and --calibration")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", required=True, help="calibration file to write")
-    parser.add_argument(
-        "--mount",
-        choices=MOUNTS,
-        help="nominal robot mount: also report the base tilt relative to it",
+    mounting = parser.add_mutually_exclusive_group()
+    mounting.add_argument(
+        "--mount", metavar="MOUNT",
+        help=f"the robot's mount, to also report the base tilt relative to it: {MOUNT_FORMS}; tilted:ALPHA,BETA "
+             "is gravity = -[cos α sin β, -sin α, cos α cos β] in the base frame (degrees; floor 0,0, wall 0,90, "
+             "ceiling 0,180)",
+    )
+    mounting.add_argument(
+        "--gravity-direction", metavar="X,Y,Z",
+        help="the mount as the direction of gravity in the robot base frame (any length), e.g. 0.539,0.699,-0.470",
     )
     parser.add_argument(
         "--method",
@@ -105,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
                  low_exclusive=True, high_exclusive=True)
     check_output_file(args.output, "-o/--output")
+    mount = mount_option(args.mount, args.gravity_direction)
     path = Path(args.poses)
     record = read_pose_csv(path)
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
@@ -115,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = identify(
             fit_record,
-            mount=args.mount,
+            mount=mount,
             method=args.method,
             refine=not args.no_refine,
             special_tolerance_deg=args.special_tolerance_deg,
@@ -140,6 +147,20 @@ def run(args: argparse.Namespace) -> int:
     print("")
     print(format_verdict(verdict))
     return 1 if verdict.status == FAIL else 0
+
+
+def mount_option(mount: str | None, gravity_direction: str | None) -> str | None:
+    """The mount spec of ``--mount`` or ``--gravity-direction`` (InputError naming the option when malformed)."""
+    from ftacq.errors import InputError
+    from ftacq.mounts import check_mount, gravity_spec
+
+    try:
+        if gravity_direction is not None:
+            return gravity_spec(gravity_direction)
+        return None if mount is None else check_mount(mount)
+    except ValueError as error:
+        option = "--gravity-direction" if gravity_direction is not None else "--mount"
+        raise InputError(f"{option}: {error}") from None
 
 
 def _verdict(result, held_out_record, record):
