@@ -161,15 +161,29 @@ and ``ros2`` the ROS 2 parameters of :mod:`ftacq.exports`)."""
 def write_calibration(path: str | os.PathLike, calibration: Calibration, format: str = "json") -> None:
     """Write ``calibration`` in ``format`` (a key of :data:`WRITERS`) atomically: never a half-written file.
 
-    Raises InputError naming the format and the known ones.
+    The calibration is first put through the reader's own checks (:func:`check_readable`): ftacq never writes a
+    calibration that ``compensate``, ``monitor`` or ``tare`` would refuse.
+
+    Raises InputError naming the format and the known ones, or what the reader would refuse (nothing written).
     """
     try:
         writer = WRITERS[format]
     except KeyError:
         raise InputError(f"calibration format {format!r}: unknown (known: {', '.join(WRITERS)})") from None
+    check_readable(calibration, path)
     text = writer(calibration)
     with atomic_write(path) as handle:
         handle.write(text)
+
+
+def check_readable(calibration: Calibration, path: str | os.PathLike = "<calibration>") -> None:
+    """Raise InputError when :func:`load_calibration` would refuse this calibration once written to ``path``:
+    the one validity check shared by the writer and the reader (:func:`calibration_from_dict`)."""
+    try:
+        calibration_from_dict(calibration_to_dict(calibration), path)
+    except InputError as error:
+        raise InputError(f"{path}: not written, ftacq would refuse to read it back: "
+                         f"{str(error).removeprefix(f'{Path(path)}: ')}") from None
 
 
 def save_calibration(path: str | os.PathLike, calibration: Calibration) -> None:

@@ -17,15 +17,17 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
 from ftacq.errors import InputError
 from ftacq.fileio import atomic_write
 from ftacq.so3 import rotation_from_rotvec
+from ftacq.units import FORCE_UNITS, TORQUE_UNITS, canonical_unit
 
 POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
 """Required columns: flange pose [m, rad] in the base frame, mean wrench [N, N·m] in the sensor frame."""
@@ -71,6 +73,8 @@ class PoseRecord:
         labels: pose names (default ``P1``, ``P2``, … in row order).
         sets: pose-set names ("A", "E", "V", or "" when unknown).
         extra: other optional numeric columns by name, each (N,) (NaN where a cell was empty).
+        units: the units the file was in, ``{"force": "N", "torque": "N-mm"}`` (converted to SI on reading);
+            empty when the record was not read from a file.
     """
 
     pose: np.ndarray
@@ -80,6 +84,7 @@ class PoseRecord:
     labels: tuple[str, ...] = ()
     sets: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
+    units: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         pose = np.array(self.pose, dtype=float).reshape(-1, 6)
@@ -144,6 +149,7 @@ class PoseRecord:
             labels=tuple(self.labels[i] for i in index),
             sets=tuple(self.sets[i] for i in index),
             extra={name: values[index] for name, values in self.extra.items()},
+            units=dict(self.units),
         )
 
 
@@ -161,11 +167,13 @@ def _parse_float(text: str, path: Path, line: int, column: str) -> float:
 
 
 def read_csv_table(
-    path: str | os.PathLike, required: Iterable[str]
+    path: str | os.PathLike, required: Iterable[str],
+    header_map: Callable[[list[str], int], list[str]] | None = None,
 ) -> tuple[list[str], list[list[str]], list[int]]:
     """Read a CSV file with a header: return (lower-case header, rows of stripped cells, 1-based line numbers).
 
-    Blank lines and lines starting with ``#`` are skipped.
+    Blank lines and lines starting with ``#`` are skipped. ``header_map(header, line)`` may rename the
+    lower-case header's columns (e.g. strip a unit suffix) before the duplicate and required checks.
 
     Raises InputError (naming the file, line and column) when the file cannot be read, is empty, has a
     duplicated or missing required column, or a row with the wrong number of cells.
@@ -185,6 +193,8 @@ def read_csv_table(
         raise InputError(f"{path}: empty file: expected a header line with columns {','.join(required)}")
     header_line, header = numbered[0]
     header = [c.strip().lower() for c in header]
+    if header_map is not None:
+        header = header_map(header, header_line)
     seen: dict[str, int] = {}
     for position, name in enumerate(header):
         if not name:
@@ -239,13 +249,122 @@ def _unique_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def read_pose_csv(path: str | os.PathLike) -> PoseRecord:
-    """Read a pose record CSV (see the module docstring). Raises InputError naming file, line, column, value, why."""
+
+# ----------------------------------------------------------------------------------------------- units
+
+_UNIT_COLUMN = re.compile(r"^(std_)?([ft][xyz])_(.+)$")
+"""A wrench or std column with a unit suffix: ``tx_nmm``, ``std_fx_n`` (header already in lower case)."""
+_UNIT_COMMENT = re.compile(r"^#\s*(force|torque)[\s_-]*unit\s*[:=]\s*(\S+)\s*$", re.IGNORECASE)
+"""A header comment declaring a unit: ``# torque_unit: N-mm``."""
+SI_UNITS = {"force": "N", "torque": "N-m"}
+
+
+def _kind(channel: str) -> str:
+    return "force" if channel.startswith("f") else "torque"
+
+
+def _unit_name(text: str, kind: str, where: str) -> str:
+    try:
+        return canonical_unit(text, kind)
+    except ValueError:
+        names = ", ".join(FORCE_UNITS if kind == "force" else TORQUE_UNITS)
+        raise InputError(f"{where}: unknown {kind} unit {text!r} (known: {names})") from None
+
+
+def declared_units(path: Path) -> dict[str, tuple[str, str]]:
+    """Return the units the comment lines before the header declare: kind → (unit name, where it was said)."""
+    out: dict[str, tuple[str, str]] = {}
+    try:
+        with open(path, encoding="utf-8-sig") as handle:
+            for number, line in enumerate(handle, start=1):
+                text = line.strip()
+                if not text:
+                    continue
+                if not text.startswith("#"):
+                    break
+                match = _UNIT_COMMENT.match(text)
+                if match:
+                    kind = match.group(1).lower()
+                    where = f"{path}: line {number}"
+                    out[kind] = (_unit_name(match.group(2), kind, where), where)
+    except (OSError, UnicodeDecodeError):
+        return out  # read_csv_table names the problem
+    return out
+
+
+def _resolve_units(path: Path, header: list[str], header_line: int, options: dict[str, str | None]
+                   ) -> tuple[list[str], dict[str, float], dict[str, str]]:
+    """Strip the unit suffixes of the header; return (header, SI factor per wrench column, unit per kind).
+
+    Per kind (force, torque) the unit is the columns' suffix, else the option, else the header comment, else
+    SI; two of them that disagree, or columns of one kind in different units, are refused.
+    """
+    declared = declared_units(path)
+    suffix_units: dict[str, dict[str, str]] = {"force": {}, "torque": {}}
+    renamed = []
+    for name in header:
+        match = _UNIT_COLUMN.match(name)
+        if match and name not in POSE_COLUMNS:
+            kind = _kind(match.group(2))
+            unit = _unit_name(match.group(3), kind, f"{path}: line {header_line}, column {name!r}")
+            suffix_units[kind][name] = unit
+            name = (match.group(1) or "") + match.group(2)
+        renamed.append(name)
+    units: dict[str, str] = {}
+    for kind in ("force", "torque"):
+        sources: list[tuple[str, str]] = []
+        if suffix_units[kind]:
+            by_unit = sorted(set(suffix_units[kind].values()))
+            if len(by_unit) > 1:
+                raise InputError(f"{path}: line {header_line}: {kind} columns in different units "
+                                 f"({', '.join(f'{c} in {u}' for c, u in suffix_units[kind].items())})")
+            suffixed = {(_UNIT_COLUMN.match(c).group(1) or "") + _UNIT_COLUMN.match(c).group(2)  # type: ignore[union-attr]
+                        for c in suffix_units[kind]}
+            plain = [n for n in renamed if n not in suffixed and n.removeprefix("std_") in WRENCH_COLUMNS
+                     and _kind(n.removeprefix("std_")) == kind]
+            if plain:
+                raise InputError(f"{path}: line {header_line}: column {plain[0]!r} has no unit suffix while "
+                                 f"{next(iter(suffix_units[kind]))!r} has one: give every {kind} column its unit")
+            sources.append((by_unit[0], f"column {next(iter(suffix_units[kind]))!r}"))
+        option = options.get(kind)
+        if option is not None:
+            sources.append((_unit_name(option, kind, f"--{kind}-unit"), f"--{kind}-unit {option}"))
+        if kind in declared:
+            sources.append((declared[kind][0], declared[kind][1].removeprefix(f"{path}: ")))
+        if len({unit for unit, _ in sources}) > 1:
+            raise InputError(f"{path}: the {kind} unit is declared twice and differently: "
+                             + "; ".join(f"{unit} ({where})" for unit, where in sources))
+        units[kind] = sources[0][0] if sources else SI_UNITS[kind]
+    factor = {}
+    for channel in WRENCH_COLUMNS:
+        kind = _kind(channel)
+        factor[channel] = (FORCE_UNITS if kind == "force" else TORQUE_UNITS)[units[kind]]
+    return renamed, factor, units
+
+
+def read_pose_csv(path: str | os.PathLike, *, force_unit: str | None = None,
+                  torque_unit: str | None = None) -> PoseRecord:
+    """Read a pose record CSV (see the module docstring). Raises InputError naming file, line, column, value, why.
+
+    Wrench (and std) columns are converted to N and N·m from the unit their suffix (``tx_Nmm``), ``force_unit`` /
+    ``torque_unit`` (names of :mod:`ftacq.units`) or a header comment (``# torque_unit: N-mm``) declares; SI when
+    none does. The units read are in the record's ``units``.
+    """
     path = Path(path)
-    header, rows, lines = read_csv_table(path, POSE_COLUMNS)
+    resolved: dict = {}
+
+    def strip_units(header: list[str], line: int) -> list[str]:
+        renamed, resolved["factor"], resolved["units"] = _resolve_units(
+            path, header, line, {"force": force_unit, "torque": torque_unit})
+        return renamed
+
+    header, rows, lines = read_csv_table(path, POSE_COLUMNS, strip_units)
     if not rows:
         raise InputError(f"{path}: no data rows after the header")
     required = np.column_stack([numeric_column(path, header, rows, lines, name) for name in POSE_COLUMNS])
+    factor = np.ones(12)
+    factor[6:] = [resolved["factor"][name] for name in WRENCH_COLUMNS]
+    required = required * factor
     optional: dict[str, np.ndarray] = {}
     for name in NUMERIC_OPTIONAL_COLUMNS:
         if name in header:
@@ -275,7 +394,7 @@ def read_pose_csv(path: str | os.PathLike) -> PoseRecord:
         if len(present_std) != 6:
             absent = [name for name in STD_COLUMNS if name not in optional]
             raise InputError(f"{path}: std columns must come as a set of six; missing {', '.join(absent)}")
-        std = np.column_stack([optional.pop(name) for name in STD_COLUMNS])
+        std = np.column_stack([optional.pop(name) for name in STD_COLUMNS]) * factor[6:]
         incomplete = np.flatnonzero(np.isnan(std).any(axis=1) & ~np.isnan(std).all(axis=1))
         if incomplete.size:
             k = int(incomplete[0])
@@ -302,6 +421,7 @@ def read_pose_csv(path: str | os.PathLike) -> PoseRecord:
         labels=labels,
         sets=sets,
         extra=optional,
+        units=resolved["units"],
     )
 
 

@@ -43,6 +43,7 @@ from ftacq.identification.tilt import nearest_mount, relative_tilt_deg, tilt_deg
 from ftacq.identification.torque import torque_least_squares
 from ftacq.identification.wahba import wahba
 from ftacq.mounts import MOUNT_FORMS, MOUNTS, check_mount
+from ftacq.plausibility import check_tool
 from ftacq.posefile import PoseRecord
 
 METHODS = ("auto", "srom", "lrom")
@@ -237,7 +238,8 @@ def identify(
     Raises:
         IdentificationError: a value that is not finite or beyond what a robot or sensor reports, a tolerance
             outside (0, 45)°, too few poses, a degenerate pose set, SROM forced without the 24 special
-            orientations, or a tool whose weight is lost in the noise.
+            orientations, a tool whose weight is lost in the noise, or a tool no wrist carries (a centre of mass or
+            mass beyond ftacq.plausibility's bounds: most likely a unit mistake, which the message names).
     """
     if method not in METHODS:
         raise IdentificationError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -250,9 +252,11 @@ def identify(
     # every number checked before any linear algebra: extreme values can make LAPACK spin for minutes
     diagnostics.check_record_values(record.pose, record.wrench, record.labels, record.std, record.count)
     try:
-        return _identify(record, mount, method, refine, special_tolerance_deg, orientation_error)
+        result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error)
     except np.linalg.LinAlgError as error:  # a last guard: LAPACK failing on a set that passed the checks above
         raise IdentificationError(f"the fit is numerically degenerate ({error}); check the record's values") from None
+    check_tool(result.calibration.mass_kg, result.calibration.center_of_mass)  # a unit mistake, named
+    return result
 
 
 def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, special_tolerance_deg: float,

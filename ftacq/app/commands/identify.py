@@ -40,6 +40,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--gravity-direction", metavar="X,Y,Z",
         help="the mount as the direction of gravity in the robot base frame (any length), e.g. 0.539,0.699,-0.470",
     )
+    units = parser.add_argument_group("units of the pose record (docs/formats.md; default N and N·m)")
+    units.add_argument("--force-unit", metavar="UNIT",
+                       help="unit of the force columns when the file does not say: N, kN, lbf, kgf, gf, klbf")
+    units.add_argument("--torque-unit", metavar="UNIT",
+                       help="unit of the torque columns when the file does not say: N-m, N-mm, lbf-in, lbf-ft, "
+                            "kgf-cm, kN-m (an ATI box set to N-mm records N-mm)")
     parser.add_argument(
         "--method",
         choices=("auto", "srom", "lrom"),
@@ -113,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, "-o/--output")
     mount = mount_option(args.mount, args.gravity_direction)
     path = Path(args.poses)
-    record = read_pose_csv(path)
+    record = read_pose_csv(path, force_unit=args.force_unit, torque_unit=args.torque_unit)
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
     validation = None
     fit_record = record
@@ -143,6 +149,10 @@ def run(args: argparse.Namespace) -> int:
         report += motion_report
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
     sys.stdout.write(report)
+    converted = {kind: unit for kind, unit in record.units.items() if unit not in ("N", "N-m")}
+    if converted:
+        print("units read: " + ", ".join(f"{kind} in {unit}" for kind, unit in converted.items())
+              + " (converted to N and N·m)")
     print(f"wrote {args.output}")
     print("")
     print(format_verdict(verdict))
