@@ -239,7 +239,7 @@ def numeric_column(
     return out
 
 
-def _unique_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
+def unique_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
     """Return the labels with repeats made unique by a suffix (``A01``, ``A01#2``, …) so outliers can be named."""
     seen: dict[str, int] = {}
     out = []
@@ -342,6 +342,24 @@ def _resolve_units(path: Path, header: list[str], header_line: int, options: dic
     return renamed, factor, units
 
 
+def unit_header_map(path: Path, force_unit: str | None, torque_unit: str | None,
+                    rename: Callable[[list[str]], list[str]] | None = None
+                    ) -> tuple[Callable[[list[str], int], list[str]], dict]:
+    """Return a ``header_map`` for :func:`read_csv_table` that strips the wrench columns' unit suffixes (after
+    ``rename``), and the dict it fills once the header is read: ``factor`` (SI per file unit of each wrench column
+    fx … tz) and ``units`` (kind → unit name)."""
+    resolved: dict = {}
+
+    def strip_units(header: list[str], line: int) -> list[str]:
+        if rename is not None:
+            header = rename(header)
+        renamed, resolved["factor"], resolved["units"] = _resolve_units(
+            path, header, line, {"force": force_unit, "torque": torque_unit})
+        return renamed
+
+    return strip_units, resolved
+
+
 def read_pose_csv(path: str | os.PathLike, *, force_unit: str | None = None,
                   torque_unit: str | None = None) -> PoseRecord:
     """Read a pose record CSV (see the module docstring). Raises InputError naming file, line, column, value, why.
@@ -351,13 +369,7 @@ def read_pose_csv(path: str | os.PathLike, *, force_unit: str | None = None,
     none does. The units read are in the record's ``units``.
     """
     path = Path(path)
-    resolved: dict = {}
-
-    def strip_units(header: list[str], line: int) -> list[str]:
-        renamed, resolved["factor"], resolved["units"] = _resolve_units(
-            path, header, line, {"force": force_unit, "torque": torque_unit})
-        return renamed
-
+    strip_units, resolved = unit_header_map(path, force_unit, torque_unit)
     header, rows, lines = read_csv_table(path, POSE_COLUMNS, strip_units)
     if not rows:
         raise InputError(f"{path}: no data rows after the header")
@@ -408,7 +420,7 @@ def read_pose_csv(path: str | os.PathLike, *, force_unit: str | None = None,
     if "label" in header:
         position = header.index("label")
         labels = tuple(row[position] or f"P{k + 1}" for k, row in enumerate(rows))
-        labels = _unique_labels(labels)
+        labels = unique_labels(labels)
     sets: tuple[str, ...] = ()
     if "set" in header:
         position = header.index("set")

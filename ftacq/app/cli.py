@@ -26,6 +26,7 @@ from ftacq.app.signals import sigterm_as_interrupt
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
 
 COMMAND_MODULES = (
+    "ftacq.app.commands.importing",
     "ftacq.app.commands.identify",
     "ftacq.app.commands.compensate",
     "ftacq.app.commands.sensor",

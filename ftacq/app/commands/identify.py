@@ -46,6 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     units.add_argument("--torque-unit", metavar="UNIT",
                        help="unit of the torque columns when the file does not say: N-m, N-mm, lbf-in, lbf-ft, "
                             "kgf-cm, kN-m (an ATI box set to N-mm records N-mm)")
+    units.add_argument("--wrench-frame", choices=("sensor", "base"), default="sensor",
+                       help="frame of the wrench columns: the sensor's (default; the pose record's) or the robot "
+                            "base frame (rotated into the flange frame before the fit); the verdict names a wrong one")
     parser.add_argument(
         "--method",
         choices=("auto", "srom", "lrom"),
@@ -120,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
     mount = mount_option(args.mount, args.gravity_direction)
     path = Path(args.poses)
     record = read_pose_csv(path, force_unit=args.force_unit, torque_unit=args.torque_unit)
+    if args.wrench_frame == "base":
+        from ftacq.imports.wrench_frame import sensor_from_base
+
+        record = sensor_from_base(record)
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
     validation = None
     fit_record = record
@@ -134,11 +141,15 @@ def run(args: argparse.Namespace) -> int:
             special_tolerance_deg=args.special_tolerance_deg,
         )
     except IdentificationError as error:
-        raise InputError(f"{path}: cannot identify a calibration: {error}") from error
+        from ftacq.imports.wrench_frame import frame_mismatch
+
+        hint = frame_mismatch(fit_record, args.wrench_frame)[0] if len(fit_record) >= MIN_POSES else None
+        raise InputError(f"{path}: cannot identify a calibration: {error}" + (f"; {hint}" if hint else "")) \
+            from error
     held_out_record = record.select(held_out) if fit_record is not record else None
     if held_out_record is not None:
         validation = validation_errors(result.calibration, held_out_record)
-    verdict = _verdict(result, held_out_record, record)
+    verdict = _verdict(result, held_out_record, record, fit_record, args.wrench_frame)
     calibration = with_provenance(  # a pose file does not say which sensor measured it
         result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
@@ -173,17 +184,20 @@ def mount_option(mount: str | None, gravity_direction: str | None) -> str | None
         raise InputError(f"{option}: {error}") from None
 
 
-def _verdict(result, held_out_record, record):
+def _verdict(result, held_out_record, record, fit_record=None, wrench_frame="sensor"):
     """Judge the identification: held-out poses (V, D), the drift seen by each D row against the pose it
-    revisits (label ``<first>-revisit``), conditioning and outliers (ftacq.verdict)."""
+    revisits (label ``<first>-revisit``), conditioning, outliers (ftacq.verdict) and the wrenches' frame
+    (ftacq.imports.wrench_frame)."""
     import numpy as np
 
     from ftacq.app.config import SamplingConfig
+    from ftacq.imports.wrench_frame import wrench_frame_finding
     from ftacq.posesets import DRIFT_SET
     from ftacq.verdict import drift_finding, identification_findings, judge
     from procedures.measured import DRIFT_SUFFIX
 
     findings = identification_findings(result, held_out_record)
+    findings.append(wrench_frame_finding(record if fit_record is None else fit_record, result, wrench_frame))
     labels = list(record.labels)
     for i, (label, set_name) in enumerate(zip(labels, record.sets)):
         first = label[: -len(DRIFT_SUFFIX)] if label.endswith(DRIFT_SUFFIX) else None
