@@ -49,8 +49,9 @@ from ftacq.posefile import (
     unit_header_map,
 )
 
-ORIENTATIONS = ("rotvec", "quaternion", "matrix", "joints")
-"""How a recording gives the flange orientation."""
+ORIENTATIONS = ("auto", "rotvec", "quaternion", "matrix", "joints")
+"""How a recording gives the flange orientation (``auto``: joints when a robot model is given, else the form whose
+default column names the header holds)."""
 DEFAULT_COLUMNS = {
     "rotvec": ("rx", "ry", "rz"),
     "quaternion": ("qx", "qy", "qz", "qw"),
@@ -140,6 +141,16 @@ def import_recording(path: str | os.PathLike, options: ImportOptions) -> ImportR
             raise InputError(f"{path}: {what}: missing column(s) {', '.join(absent)} (header is: {','.join(header)})")
         return np.column_stack([numeric_column(path, header, rows, lines, name.lower()) for name in names])
 
+    orientation = options.orientation
+    if orientation == "auto":
+        found = [kind for kind, names in DEFAULT_COLUMNS.items() if all(name in header for name in names)]
+        if options.robot is not None:
+            orientation = "joints"
+        elif len(found) == 1:
+            orientation = found[0]
+        else:
+            raise InputError(f"{path}: cannot tell the orientation from the header ({','.join(header)}): give "
+                             "--orientation (and --robot, --dh-table or --urdf for joint angles)")
     notes: list[str] = []
     wrench = columns(WRENCH_COLUMNS, "wrench") * np.array([resolved["factor"][c] for c in WRENCH_COLUMNS])
     converted = {kind: unit for kind, unit in resolved["units"].items() if unit not in ("N", "N-m")}
@@ -147,7 +158,7 @@ def import_recording(path: str | os.PathLike, options: ImportOptions) -> ImportR
         notes.append("units: " + ", ".join(f"{kind} in {unit}" for kind, unit in converted.items())
                      + " converted to N and N·m")
     joints = None
-    if options.orientation == "joints":
+    if orientation == "joints":
         assert options.robot is not None
         names = options.orientation_columns or tuple(
             sorted((n for n in header if _JOINT.match(n)), key=lambda n: int(_JOINT.match(n).group(1))))  # type: ignore[union-attr]
@@ -159,14 +170,14 @@ def import_recording(path: str | os.PathLike, options: ImportOptions) -> ImportR
         rotations, position = base_T_flange[:, :3, :3], base_T_flange[:, :3, 3]
         notes.append(f"flange poses from {len(names)} joint angles through the {options.robot.name} model")
     else:
-        names = options.orientation_columns or DEFAULT_COLUMNS[options.orientation]
-        values = columns(tuple(names), options.orientation)
-        if options.orientation == "quaternion":
+        names = options.orientation_columns or DEFAULT_COLUMNS[orientation]
+        values = columns(tuple(names), orientation)
+        if orientation == "quaternion":
             order = options.quaternion_order
             if options.orientation_columns is None:
                 order = "xyzw"  # the default names say which is which
             rotations = from_quaternions(values, order, str(path), lines)
-        elif options.orientation == "matrix":
+        elif orientation == "matrix":
             rotations = from_matrices(values, str(path), lines)
         else:
             rotations = from_rotation_vectors(values)
@@ -177,8 +188,11 @@ def import_recording(path: str | os.PathLike, options: ImportOptions) -> ImportR
             notes.append(f"no position columns ({','.join(options.position_columns)}): flange positions written as 0 "
                          "(the identification does not use them)")
     std = None
-    if all(name in header for name in STD_COLUMNS):
-        std = columns(STD_COLUMNS, "std") * np.array([resolved["factor"][c] for c in WRENCH_COLUMNS])
+    if all(name in header for name in STD_COLUMNS):  # kept only when every row gives all six
+        std = np.column_stack([numeric_column(path, header, rows, lines, name, optional=True)
+                               for name in STD_COLUMNS]) * np.array([resolved["factor"][c] for c in WRENCH_COLUMNS])
+        if np.isnan(std).any() or (std < 0).any():
+            std = None
     count = None
     if "count" in header:
         count = numeric_column(path, header, rows, lines, "count", optional=True)

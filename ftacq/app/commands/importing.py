@@ -78,22 +78,6 @@ def _names(text: str | None, option: str) -> tuple[str, ...] | None:
     return names
 
 
-def _guess_orientation(path: str, has_robot: bool) -> str:
-    """The orientation form the recording's header names (``joints`` whenever a robot model is given)."""
-    from ftacq.errors import InputError
-    from ftacq.imports import DEFAULT_COLUMNS
-    from ftacq.posefile import read_csv_table
-
-    if has_robot:
-        return "joints"
-    header = read_csv_table(path, ())[0]
-    found = [kind for kind, names in DEFAULT_COLUMNS.items() if all(name in header for name in names)]
-    if len(found) != 1:
-        raise InputError(f"{path}: cannot tell the orientation from the header ({','.join(header)}): give "
-                         "--orientation (and --robot, --dh-table or --urdf for joint angles)")
-    return found[0]
-
-
 def run(args: argparse.Namespace) -> int:
     """Import, write the pose record, print what was done; return the exit status."""
     from pathlib import Path
@@ -117,9 +101,6 @@ def run(args: argparse.Namespace) -> int:
         robot = dh_joint_model(read_dh_table(args.dh_table), f"DH table {Path(args.dh_table).name}")
     elif args.urdf:
         robot = urdf_joint_model(args.urdf, args.urdf_frame)
-    orientation = args.orientation
-    if orientation == AUTO:
-        orientation = _guess_orientation(args.recording, robot is not None)
     rename = {}
     for item in args.rename:
         old, sep, new = item.partition("=")
@@ -130,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if position is None or len(position) != 3:
         raise InputError(f"--position-columns {args.position_columns!r}: three column names")
     options = ImportOptions(
-        orientation=orientation, quaternion_order=args.quaternion_order,
+        orientation=args.orientation, quaternion_order=args.quaternion_order,
         orientation_columns=_names(args.orientation_columns, "--orientation-columns"),
         position_columns=(position[0], position[1], position[2]), robot=robot, wrench_frame=args.wrench_frame,
         force_unit=args.force_unit, torque_unit=args.torque_unit,
