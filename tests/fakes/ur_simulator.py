@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics
+from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from tests.fakes.rigid_body import flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
@@ -63,7 +64,15 @@ STEADY_SPEED_RAD_S = 1e-6
 STANDARD_GRAVITY_M_S2 = 9.81
 MOUNT_GRAVITY_M_S2 = {"floor": (0.0, 0.0, -STANDARD_GRAVITY_M_S2), "wall": (-STANDARD_GRAVITY_M_S2, 0.0, 0.0),
                       "ceiling": (0.0, 0.0, STANDARD_GRAVITY_M_S2)}
-"""The gravity vector in the base frame the controller assumes for each mount (RTDE ``target_gravity``), m/s²."""
+"""The gravity vector in the base frame the controller assumes for each nominal mount (RTDE ``target_gravity``),
+m/s²; any other mount spec: :func:`mount_gravity_m_s2`."""
+
+
+def mount_gravity_m_s2(mount: str) -> tuple[float, float, float]:
+    """The gravity vector (RTDE ``target_gravity``, m/s²) in the base frame for a mount name or spec."""
+    down = np.array(mount_of(mount).down_base)
+    return (float(STANDARD_GRAVITY_M_S2 * down[0]), float(STANDARD_GRAVITY_M_S2 * down[1]),
+            float(STANDARD_GRAVITY_M_S2 * down[2]))
 
 _PATH_LINE = re.compile(
     r"^\s*(movej|movel|movep)\(\s*(p?)\[([-+0-9.eE,\s]+)\]\s*,\s*a\s*=\s*([-+0-9.eE]+)\s*,\s*v\s*=\s*([-+0-9.eE]+)"
@@ -139,7 +148,7 @@ class URSimulator:
         self.qdd_before = np.zeros(6)
         self.tcp_offset = np.zeros(6)
         self.payload_kg, self.payload_cog, self.payload_inertia = 0.0, np.zeros(3), np.zeros(6)
-        self.gravity_m_s2 = {"floor": (0.0, 0.0, 9.82), "wall": (9.82, 0.0, 0.0), "ceiling": (0.0, 0.0, -9.82)}[mount]
+        self.gravity_m_s2 = tuple(-9.82 * np.array(mount_of(mount).down_base))  # floor (0, 0, 9.82)
         """set_gravity's vector: the acceleration away from the earth's centre, base frame (the installation's)."""
         self.robot_mode = ROBOT_MODE_RUNNING
         self.safety_mode = SAFETY_NORMAL
@@ -670,7 +679,7 @@ class URSimulator:
         Both from the joint state (q, q̇, q̈) of the motion profile, exactly: v_tcp = v_E + ω × (base_R_flange t),
         and the accelerometer, at the flange origin, reads the specific force base_R_flangeᵀ (a_E − g) (+g up at
         rest, as an accelerometer does)."""
-        gravity = np.array(MOUNT_GRAVITY_M_S2[self.mount])
+        gravity = np.array(mount_gravity_m_s2(self.mount))
         if not (np.any(self.qd) or np.any(self.qdd)):
             base_R_flange = rotation_from_rotvec(self._poses()[0][3:6])
             return np.zeros(6), base_R_flange.T @ -gravity
@@ -696,7 +705,7 @@ class URSimulator:
         moving = self.motion is not None
         running = self.robot_mode == ROBOT_MODE_RUNNING
         joint_mode = 253 if running else (255 if self.robot_mode == ROBOT_MODE_IDLE else 239)
-        gravity = MOUNT_GRAVITY_M_S2[self.mount]
+        gravity = mount_gravity_m_s2(self.mount)
         safety_ok = self.safety_mode == SAFETY_NORMAL
         tcp_force = (0.0,) * 6  # the built-in sensor is not simulated
         if self.external_ft.enabled:
