@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ftacq.identification.diagnostics import NOMINAL_TILT_WARN_DEG
 from ftacq.mounts import MOUNTS
 
 MAX_RESIDUAL_ROWS = 100
@@ -91,7 +92,11 @@ def format_identification_report(result, validation: dict | None = None) -> str:
             f"(gravity {meta['tilt_from_mount_deg']:.4f}° off the {kind} direction)"
         )
     else:
-        add(f"  nearest nominal mount: {meta.get('nearest_mount')} ({meta.get('tilt_from_nearest_mount_deg', 0.0):.3f}° off)")
+        off = meta.get("tilt_from_nearest_mount_deg", 0.0)
+        direction = np.asarray(cal.gravity_base) / max(float(np.linalg.norm(cal.gravity_base)), 1e-300)
+        declare = "" if off <= NOMINAL_TILT_WARN_DEG else (
+            "; a mount like this is declared with --gravity-direction " + ",".join(f"{v:.3f}" for v in direction))
+        add(f"  nearest nominal mount: {meta.get('nearest_mount')} ({off:.3f}° off{declare})")
     noise = meta.get("noise", {})
     if noise:
         rms = noise.get("rms_residual", [])

@@ -53,6 +53,11 @@ def test_a_62_degree_tilt_declared_as_gravity_direction_reads_as_level():
     # the same tilt as angles: α, β of the direction
     alpha, beta = tilt_from_down_deg(YUMI_DOWN / np.linalg.norm(YUMI_DOWN))
     assert identify(record, mount=f"tilted:{alpha:.4f},{beta:.4f}").calibration.metadata["tilt_from_mount_deg"] < 0.5
+    # no mount named: the report says how to declare the one measured
+    from ftacq.report import format_identification_report
+
+    report = format_identification_report(identify(record))
+    assert "nearest nominal mount: floor (61.9" in report and "--gravity-direction 0.539,0.699,-0.470" in report
     # a nominal mount instead: the warning gives the measured direction to declare
     floor = identify(record, mount="floor")
     warning = next(w for w in floor.warnings if "nominal floor mount" in w)
