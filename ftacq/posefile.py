@@ -8,6 +8,11 @@ Optional columns (read when present; an empty cell means "not given"): see :data
 ``std_*`` is the sample standard deviation of the samples averaged (same units as the channel) and
 ``count`` their number, so the standard error of the mean is ``std / sqrt(count)``.
 
+Units: N and N·m unless the file declares others per kind, by a column suffix (``tx_Nmm``), a comment line
+before the header (``# torque_unit: N-mm``) or the reader's ``force_unit`` / ``torque_unit`` (the command's
+``--torque-unit``); names from the one table in :mod:`ftacq.units`. Two declarations that disagree are refused;
+values are converted to SI on reading (``PoseRecord.units`` says what the file was in).
+
 The procedure writes one row at a time (``POSE_CSV_HEADER`` once, then :func:`format_pose_row` per pose)
 and fsyncs each row itself; :func:`write_pose_csv` writes a whole record atomically.
 """
@@ -17,7 +22,6 @@ from __future__ import annotations
 import csv
 import math
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
@@ -27,7 +31,7 @@ import numpy as np
 from ftacq.errors import InputError
 from ftacq.fileio import atomic_write
 from ftacq.so3 import rotation_from_rotvec
-from ftacq.units import FORCE_UNITS, TORQUE_UNITS, canonical_unit
+from ftacq.unitcolumns import unit_header_map
 
 POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
 """Required columns: flange pose [m, rad] in the base frame, mean wrench [N, N·m] in the sensor frame."""
@@ -248,116 +252,6 @@ def unique_labels(labels: tuple[str, ...]) -> tuple[str, ...]:
         out.append(label if seen[label] == 1 else f"{label}#{seen[label]}")
     return tuple(out)
 
-
-
-# ----------------------------------------------------------------------------------------------- units
-
-_UNIT_COLUMN = re.compile(r"^(std_)?([ft][xyz])_(.+)$")
-"""A wrench or std column with a unit suffix: ``tx_nmm``, ``std_fx_n`` (header already in lower case)."""
-_UNIT_COMMENT = re.compile(r"^#\s*(force|torque)[\s_-]*unit\s*[:=]\s*(\S+)\s*$", re.IGNORECASE)
-"""A header comment declaring a unit: ``# torque_unit: N-mm``."""
-SI_UNITS = {"force": "N", "torque": "N-m"}
-
-
-def _kind(channel: str) -> str:
-    return "force" if channel.startswith("f") else "torque"
-
-
-def _unit_name(text: str, kind: str, where: str) -> str:
-    try:
-        return canonical_unit(text, kind)
-    except ValueError:
-        names = ", ".join(FORCE_UNITS if kind == "force" else TORQUE_UNITS)
-        raise InputError(f"{where}: unknown {kind} unit {text!r} (known: {names})") from None
-
-
-def declared_units(path: Path) -> dict[str, tuple[str, str]]:
-    """Return the units the comment lines before the header declare: kind → (unit name, where it was said)."""
-    out: dict[str, tuple[str, str]] = {}
-    try:
-        with open(path, encoding="utf-8-sig") as handle:
-            for number, line in enumerate(handle, start=1):
-                text = line.strip()
-                if not text:
-                    continue
-                if not text.startswith("#"):
-                    break
-                match = _UNIT_COMMENT.match(text)
-                if match:
-                    kind = match.group(1).lower()
-                    where = f"{path}: line {number}"
-                    out[kind] = (_unit_name(match.group(2), kind, where), where)
-    except (OSError, UnicodeDecodeError):
-        return out  # read_csv_table names the problem
-    return out
-
-
-def _resolve_units(path: Path, header: list[str], header_line: int, options: dict[str, str | None]
-                   ) -> tuple[list[str], dict[str, float], dict[str, str]]:
-    """Strip the unit suffixes of the header; return (header, SI factor per wrench column, unit per kind).
-
-    Per kind (force, torque) the unit is the columns' suffix, else the option, else the header comment, else
-    SI; two of them that disagree, or columns of one kind in different units, are refused.
-    """
-    declared = declared_units(path)
-    suffix_units: dict[str, dict[str, str]] = {"force": {}, "torque": {}}
-    renamed = []
-    for name in header:
-        match = _UNIT_COLUMN.match(name)
-        if match and name not in POSE_COLUMNS:
-            kind = _kind(match.group(2))
-            unit = _unit_name(match.group(3), kind, f"{path}: line {header_line}, column {name!r}")
-            suffix_units[kind][name] = unit
-            name = (match.group(1) or "") + match.group(2)
-        renamed.append(name)
-    units: dict[str, str] = {}
-    for kind in ("force", "torque"):
-        sources: list[tuple[str, str]] = []
-        if suffix_units[kind]:
-            by_unit = sorted(set(suffix_units[kind].values()))
-            if len(by_unit) > 1:
-                raise InputError(f"{path}: line {header_line}: {kind} columns in different units "
-                                 f"({', '.join(f'{c} in {u}' for c, u in suffix_units[kind].items())})")
-            suffixed = {(_UNIT_COLUMN.match(c).group(1) or "") + _UNIT_COLUMN.match(c).group(2)  # type: ignore[union-attr]
-                        for c in suffix_units[kind]}
-            plain = [n for n in renamed if n not in suffixed and n.removeprefix("std_") in WRENCH_COLUMNS
-                     and _kind(n.removeprefix("std_")) == kind]
-            if plain:
-                raise InputError(f"{path}: line {header_line}: column {plain[0]!r} has no unit suffix while "
-                                 f"{next(iter(suffix_units[kind]))!r} has one: give every {kind} column its unit")
-            sources.append((by_unit[0], f"column {next(iter(suffix_units[kind]))!r}"))
-        option = options.get(kind)
-        if option is not None:
-            sources.append((_unit_name(option, kind, f"--{kind}-unit"), f"--{kind}-unit {option}"))
-        if kind in declared:
-            sources.append((declared[kind][0], declared[kind][1].removeprefix(f"{path}: ")))
-        if len({unit for unit, _ in sources}) > 1:
-            raise InputError(f"{path}: the {kind} unit is declared twice and differently: "
-                             + "; ".join(f"{unit} ({where})" for unit, where in sources))
-        units[kind] = sources[0][0] if sources else SI_UNITS[kind]
-    factor = {}
-    for channel in WRENCH_COLUMNS:
-        kind = _kind(channel)
-        factor[channel] = (FORCE_UNITS if kind == "force" else TORQUE_UNITS)[units[kind]]
-    return renamed, factor, units
-
-
-def unit_header_map(path: Path, force_unit: str | None, torque_unit: str | None,
-                    rename: Callable[[list[str]], list[str]] | None = None
-                    ) -> tuple[Callable[[list[str], int], list[str]], dict]:
-    """Return a ``header_map`` for :func:`read_csv_table` that strips the wrench columns' unit suffixes (after
-    ``rename``), and the dict it fills once the header is read: ``factor`` (SI per file unit of each wrench column
-    fx … tz) and ``units`` (kind → unit name)."""
-    resolved: dict = {}
-
-    def strip_units(header: list[str], line: int) -> list[str]:
-        if rename is not None:
-            header = rename(header)
-        renamed, resolved["factor"], resolved["units"] = _resolve_units(
-            path, header, line, {"force": force_unit, "torque": torque_unit})
-        return renamed
-
-    return strip_units, resolved
 
 
 def read_pose_csv(path: str | os.PathLike, *, force_unit: str | None = None,

@@ -11,7 +11,7 @@ in SI units. What the recording holds is said by :class:`ImportOptions`:
 - the flange position (``x y z``, m; with joint angles it comes from the model; absent: written as 0, the
   identification does not use it);
 - the wrench columns ``fx fy fz tx ty tz``, their units (column suffix, header comment or option, as the pose
-  record: :func:`ftacq.posefile.unit_header_map`) and their frame (``wrench_frame``: the sensor's, or the robot
+  record: :func:`ftacq.unitcolumns.unit_header_map`) and their frame (``wrench_frame``: the sensor's, or the robot
   base frame, converted by :mod:`ftacq.imports.wrench_frame`);
 - optional ``label``, ``set``, a time column (s) kept as ``t_start_s`` / ``t_end_s``, and ``rename`` for a
   recording whose columns have other names.
@@ -46,8 +46,8 @@ from ftacq.posefile import (
     numeric_column,
     read_csv_table,
     unique_labels,
-    unit_header_map,
 )
+from ftacq.unitcolumns import unit_header_map
 
 ORIENTATIONS = ("auto", "rotvec", "quaternion", "matrix", "joints")
 """How a recording gives the flange orientation (``auto``: joints when a robot model is given, else the form whose
