@@ -20,8 +20,9 @@ from ftacq import STANDARD_GRAVITY_M_S2
 from ftacq.errors import IdentificationError
 from ftacq.units import FORCE_UNITS, TORQUE_UNITS
 
-PLAUSIBLE_CENTER_OF_MASS_M = 2.0
-"""No wrist-mounted tool has its centre of mass further than this from the sensor."""
+PLAUSIBLE_CENTER_OF_MASS_M = 3.0
+"""No wrist-mounted tool has its centre of mass further than this from the sensor (the paper's own numerical
+examples, Table I, go to 2 m; a real tool's 10-300 mm read in N·mm as N·m lands at 10-300 m)."""
 PLAUSIBLE_MASS_KG = 500.0
 """No wrist sensor carries a tool heavier than this (the heaviest arms' payloads are a few hundred kg)."""
 

@@ -44,7 +44,7 @@ class SimulatedCell:
         truth: the ground truth (sensor rotation, biases, tool, base tilt, noise). With ``mount`` other than
             "floor" and a level truth, the truth's base tilt is set to the mount's (wall (0, 90°), ceiling (0, 180°)).
         sensor: "netft" (UDP RDT + TCP + HTTP on 127.0.0.1) or "can" (NETCANOEM on a virtual CAN channel).
-        model: UR model of the controller. mount: "floor", "wall" or "ceiling".
+        model: UR model of the controller. mount: "floor", "wall", "ceiling" or a spec of ftacq.mounts (tilted:A,B, gravity:X,Y,Z).
         time_scale: controller speed factor (0 = moves complete at once, 1 = real time, 10 = ten times faster).
         rate_hz: the sensor's sample rate (Net F/T streaming rate, or CAN poll rate suggested in the URL).
         seed: seed of the sensor noise. initial_q: start joint angles (rad); default the plan's home.
