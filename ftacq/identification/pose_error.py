@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ftacq.identification.robust import pool_channels
 from ftacq.identification.torque import skew
 
 CHANNELS = 6
@@ -273,5 +274,7 @@ def estimate_noise(
     if likelihood_ratio < ORIENTATION_LIKELIHOOD_RATIO:
         best_x = without
     tau2, var = best_x[:CHANNELS] * scatter_scale, float(best_x[CHANNELS]) * orientation_scale
+    if standard_error is None:  # noise from the residuals alone: pooled, so that no channel collapses (robust.py)
+        tau2 = pool_channels(tau2, dof_ratio * float(np.sum(np.asarray(pose_weight, dtype=float))))
     channel_variance = np.maximum(se2_all + rel2_all * tau2, floor2)
     return NoiseModel(channel_variance, np.sqrt(tau2), var, sensitivity, likelihood_ratio, fitted_variance)
