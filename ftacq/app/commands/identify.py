@@ -50,6 +50,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a pose within this angle (degrees) of a cube rotation counts as special (default 3)",
     )
     parser.add_argument(
+        "--drift",
+        choices=("auto", "none", "linear"),
+        default="auto",
+        help="model a linear drift of the sensor's zero over the recording (time from t_start_s/t_end_s, else the "
+        "row order): linear, none, or auto (when the residuals trend with time significantly and beyond CELL.toml "
+        "sampling.drift_warn_*; default). The calibration keeps the biases of the end of the recording",
+    )
+    parser.add_argument("--tolerance-force", type=float, metavar="N",
+                        help="model mismatch accepted with a WARN, RMS per axis, N (default: CELL.toml "
+                             "sampling.mismatch_tolerance_force_n, 0.1)")
+    parser.add_argument("--tolerance-torque", type=float, metavar="NM",
+                        help="... and for the torques, N·m (default: sampling.mismatch_tolerance_torque_nm, 0.005)")
+    parser.add_argument(
         "--use-validation",
         action="store_true",
         help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
@@ -104,9 +117,25 @@ def run(args: argparse.Namespace) -> int:
     # options and the output path first: nothing is computed for a run that cannot be kept
     check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
                  low_exclusive=True, high_exclusive=True)
+    from ftacq.settings import SamplingConfig
+
+    tolerance = (
+        SamplingConfig.mismatch_tolerance_force_n if args.tolerance_force is None
+        else check_number(args.tolerance_force, "--tolerance-force", low=0.0, high=1000.0),
+        SamplingConfig.mismatch_tolerance_torque_nm if args.tolerance_torque is None
+        else check_number(args.tolerance_torque, "--tolerance-torque", low=0.0, high=100.0),
+    )
+    if args.drift == "linear" and args.no_refine:
+        raise InputError("--drift linear is fitted by the refinement: drop --no-refine")
     check_output_file(args.output, "-o/--output")
     path = Path(args.poses)
     record = read_pose_csv(path)
+    from ftacq.identification.trend import ROW_INDEX_COLUMN
+
+    if ROW_INDEX_COLUMN not in record.extra:  # the row order survives the split: a drift's time axis without times
+        from dataclasses import replace
+
+        record = replace(record, extra={**record.extra, ROW_INDEX_COLUMN: np.arange(len(record), dtype=float)})
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
     validation = None
     fit_record = record
@@ -119,13 +148,14 @@ def run(args: argparse.Namespace) -> int:
             method=args.method,
             refine=not args.no_refine,
             special_tolerance_deg=args.special_tolerance_deg,
+            drift="none" if args.no_refine and args.drift == "auto" else args.drift,
         )
     except IdentificationError as error:
         raise InputError(f"{path}: cannot identify a calibration: {error}") from error
     held_out_record = record.select(held_out) if fit_record is not record else None
     if held_out_record is not None:
         validation = validation_errors(result.calibration, held_out_record)
-    verdict = _verdict(result, held_out_record, record)
+    verdict = _verdict(result, held_out_record, record, tolerance)
     calibration = with_provenance(  # a pose file does not say which sensor measured it
         result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
@@ -142,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if verdict.status == FAIL else 0
 
 
-def _verdict(result, held_out_record, record):
+def _verdict(result, held_out_record, record, tolerance):
     """Judge the identification: held-out poses (V, D), the drift seen by each D row against the pose it
     revisits (label ``<first>-revisit``), conditioning and outliers (ftacq.verdict)."""
     import numpy as np
@@ -152,7 +182,7 @@ def _verdict(result, held_out_record, record):
     from ftacq.verdict import drift_finding, identification_findings, judge
     from procedures.measured import DRIFT_SUFFIX
 
-    findings = identification_findings(result, held_out_record)
+    findings = identification_findings(result, held_out_record, tolerance)
     labels = list(record.labels)
     for i, (label, set_name) in enumerate(zip(labels, record.sets)):
         first = label[: -len(DRIFT_SUFFIX)] if label.endswith(DRIFT_SUFFIX) else None
