@@ -7,7 +7,7 @@ import pytest
 from ftacq.identification import identify
 from ftacq.identification import robust
 from ftacq.posefile import PoseRecord
-from tests.fakes.pose_records import random_orientations, simulate_record
+from tests.fakes.pose_records import random_orientations, real_like_record, simulate_record
 from tests.fakes.world import CellTruth
 
 
@@ -49,22 +49,11 @@ def test_the_noise_floor_is_the_rounding_error_of_a_quantised_file():
     np.testing.assert_allclose(robust.noise_floor(counts), 1 / 16 / np.sqrt(12), rtol=1e-6)
 
 
-def heavy_tailed_record(n: int, seed: int = 8) -> tuple[PoseRecord, CellTruth]:
-    """n poses as a real recording gives them: no std/count, Student-t (3 dof) noise, a small orientation error
-    and an unmodelled cable force that grows with the tilt (a residual excess no fit of the model removes)."""
-    truth = CellTruth()
-    rotations = random_orientations(n, seed=seed)
-    exact = simulate_record(truth, rotations, seed=seed, orientation_error_deg=0.05, noise=False)
-    rng = np.random.default_rng(seed)
-    wrench = exact.wrench + rng.standard_t(3, size=(n, 6)) * np.array([0.05, 0.05, 0.08, 0.002, 0.002, 0.0015])
-    wrench[:, :3] += 0.05 * (1.0 - rotations[:, 2, 2])[:, None] * np.array([0.3, -0.2, 1.0])
-    return PoseRecord(pose=exact.pose, wrench=wrench), truth
-
-
 def test_ten_thousand_real_like_poses_converge_in_bounded_iterations():
     # on main: the noise, the inlier set and the parameters chased each other for 40 re-weightings (81 LM
     # iterations, 47 s on a loaded machine) and the result said "did not converge"
-    record, truth = heavy_tailed_record(10_000)
+    truth = CellTruth()
+    record = real_like_record(truth, 10_000, seed=8)
     result = identify(record)
     assert result.converged
     assert result.iterations <= 20
