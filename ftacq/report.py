@@ -23,9 +23,12 @@ def _zyx_deg(rotation: np.ndarray) -> tuple[float, float, float]:
 def validation_errors(calibration, record) -> dict:
     """Return the compensation errors on held-out contact-free poses: labels, errors (M, 6), max |e| and RMS per axis.
 
-    ``record`` is a :class:`ftacq.posefile.PoseRecord`; the error is the compensated wrench (ideally 0).
+    ``record`` is a :class:`ftacq.posefile.PoseRecord`; the error is the compensated wrench (ideally 0), with the
+    bias of the pose's own time when the calibration models a bias drift (ftacq.identification.trend).
     """
-    errors = calibration.compensate(record.wrench, record.flange_R_base)
+    from ftacq.identification.trend import bias_drift_at
+
+    errors = calibration.compensate(record.wrench, record.flange_R_base) - bias_drift_at(calibration, record)
     return {
         "labels": list(record.labels),
         "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],

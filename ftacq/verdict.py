@@ -450,14 +450,11 @@ def identification_findings(result: Any, held_out: Any | None = None,
 def held_out_errors(result: Any, record: Any) -> np.ndarray:
     """Return the compensation error (M, 6) of held-out poses; with a modelled bias drift, the biases at each
     pose's time (the calibration holds those of the end of the recording)."""
+    from ftacq.identification.trend import bias_drift_at
+
     cal = result.calibration
     errors = np.asarray(cal.compensate(record.wrench, record.flange_R_base), dtype=float).reshape(-1, 6)
-    drift_model = cal.metadata.get("drift_model", {})
-    if drift_model.get("model") == "linear":
-        from ftacq.identification.trend import pose_times
-
-        errors = errors - pose_times(record, drift_model).drift_time[:, None] * np.asarray(drift_model["bias_rate"])
-    return errors
+    return errors - bias_drift_at(cal, record)
 
 
 # ------------------------------------------------------------------------------------------------ noise

@@ -141,4 +141,14 @@ def residual_trend(residual: np.ndarray, variance: np.ndarray, pose_weight: np.n
     return ResidualTrend(rate, rate_sigma, chi2, float(stats.chi2.sf(chi2, 6)), span, unit)
 
 
-__all__ = ["PoseTimes", "ResidualTrend", "pose_times", "residual_trend", "TREND_P", "ROW_INDEX_COLUMN"]
+def bias_drift_at(calibration, record: PoseRecord) -> np.ndarray:
+    """Return (M, 6) the modelled bias at each pose of ``record`` minus the calibration's (end-of-recording) bias:
+    zeros unless the calibration's ``drift_model`` is linear. Subtract it from the compensated wrench of a pose
+    measured during the recording (held-out poses) to judge it with the bias of its own time."""
+    model = dict(calibration.metadata.get("drift_model", {}) or {})
+    if model.get("model") != "linear":
+        return np.zeros((len(record), 6))
+    return pose_times(record, model).drift_time[:, None] * np.asarray(model["bias_rate"], dtype=float)
+
+
+__all__ = ["bias_drift_at", "PoseTimes", "ResidualTrend", "pose_times", "residual_trend", "TREND_P", "ROW_INDEX_COLUMN"]
