@@ -164,3 +164,28 @@ def test_a_fit_that_did_not_converge_is_a_verdict_line():
     stuck = {"converged": False, "reweightings": 40, "iterations": 120, "last_change_sigmas": 0.3}
     assert fit_finding(stuck).status == WARN and "did not converge" in fit_finding(stuck).summary
     assert fit_finding({**stuck, "last_change_sigmas": 4.0}).status == FAIL
+
+
+def test_identify_cli_fits_the_drift_writes_it_and_judges_held_out_poses_at_their_time(tmp_path, capsys):
+    from ftacq.app.cli import main
+    from ftacq.calfile import load_calibration
+    from ftacq.posefile import write_pose_csv
+
+    record, truth, _ = drifting_record(seed=3)
+    held = np.zeros(len(record), dtype=bool)
+    held[5::6] = True  # every sixth pose measured as a validation pose, spread over the run
+    sets = tuple("V" if h else s for h, s in zip(held, record.sets))
+    record = PoseRecord(pose=record.pose, wrench=record.wrench, std=record.std, count=record.count,
+                        labels=record.labels, sets=sets, extra=record.extra)
+    path = tmp_path / "poses.csv"
+    write_pose_csv(path, record)
+    out = tmp_path / "cal.json"
+    assert main(["identify", str(path), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "trend" in text and "modelled it" in text
+    calibration = load_calibration(out)
+    assert calibration.metadata["drift_model"]["model"] == "linear"
+    validation = next(f for f in calibration.metadata["verdict"]["findings"] if f["check"] == "validation")
+    assert validation["status"] == "PASS"  # the early V poses judged with the bias of their own time
+    assert main(["identify", str(path), "-o", str(tmp_path / "x.json"), "--drift", "linear", "--no-refine"]) == 2
+    assert "--drift linear" in capsys.readouterr().err
