@@ -330,7 +330,7 @@ def trend_finding(trend: Mapping[str, Any], drift_model: Mapping[str, Any]) -> F
         force, torque = float(np.linalg.norm(change[:3])), float(np.linalg.norm(change[3:]))
         rate_text = (f"{per_factor * np.linalg.norm(rate[:3]):.3g} N and {per_factor * np.linalg.norm(rate[3:]):.3g} "
                      f"N·m {per}")
-        details = (f"linear bias drift fitted ({drift_model.get('chosen', '')}); time from "
+        details = (f"linear bias drift fitted, {drift_model.get('chosen', '')}; time from "
                    f"{drift_model.get('source', '?')}; rates {np.round(per_factor * rate, 6).tolist()} {per}; the "
                    "calibration's biases are those at the end of the recording")
         status = WARN if (force > warn_force or torque > warn_torque) else PASS

@@ -103,7 +103,7 @@ def test_drift_auto_models_a_large_trend_and_leaves_a_steady_record_alone():
     record, truth, _ = drifting_record(seed=1)
     auto = identify(record)  # drift="auto" by default
     assert auto.calibration.metadata["drift_model"]["model"] == "linear"
-    assert auto.calibration.metadata["drift_model"]["chosen"].startswith("linear (chosen")
+    assert auto.calibration.metadata["drift_model"]["chosen"].startswith("chosen automatically")
     from tests.fakes.pose_records import example_record
 
     steady = identify(example_record(truth, seed=1))

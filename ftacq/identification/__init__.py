@@ -290,15 +290,15 @@ def identify(
     try:
         if drift == "linear":
             return _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, times,
-                             "linear (asked for)", drift_warn)
+                             "asked for (--drift linear)", drift_warn)
         result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, None,
-                           "none (asked for)" if drift == "none" else "none (no large, significant trend)",
+                           "asked for (--drift none)" if drift == "none" else "not needed: no large, significant trend",
                            drift_warn)
         found = trend.ResidualTrend.from_dict(result.diagnostics["trend"])
         if drift == "auto" and refine and found.significant and found.large(*drift_warn):
-            reason = (f"linear (chosen: the residuals trend with time, p = {found.p_value:.2g}, "
+            reason = (f"chosen automatically: the residuals trend with time, p = {found.p_value:.2g}, "
                       f"{np.linalg.norm(found.change[:3]):.3g} N and {np.linalg.norm(found.change[3:]):.3g} N·m over "
-                      "the recording)")
+                      "the recording")
             result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, times,
                                reason, drift_warn)
         return result
@@ -307,7 +307,7 @@ def identify(
 
 
 def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, special_tolerance_deg: float,
-              orientation_error: bool, times: trend.PoseTimes | None = None, drift_text: str = "none",
+              orientation_error: bool, times: trend.PoseTimes | None = None, drift_text: str = "not asked for",
               drift_warn: tuple[float, float] = (np.inf, np.inf)) -> IdentificationResult:
     """One identification; ``times`` given: with a linear bias drift over them (refine.py ``bias_rate``)."""
     drift_time = None if times is None else times.drift_time
