@@ -29,6 +29,8 @@ beyond the noise that are spread over all poses are named model mismatch, with t
 beyond what the noise explains) against the data's resolution and a user tolerance (``--tolerance-force``,
 ``--tolerance-torque``; CELL.toml ``sampling.mismatch_tolerance_*``): WARN within the tolerance, FAIL beyond.
 
+Over 500 lines: one module holds every check so that their thresholds and wording are read in one place.
+
 Everything here is pure (numbers in, a :class:`Verdict` out); :func:`held_out_covariance` needs an
 :class:`ftacq.identification.IdentificationResult` and the held-out :class:`ftacq.posefile.PoseRecord`.
 """
