@@ -26,9 +26,12 @@ def _zyx_deg(rotation: np.ndarray) -> tuple[float, float, float]:
 def validation_errors(calibration, record) -> dict:
     """Return the compensation errors on held-out contact-free poses: labels, errors (M, 6), max |e| and RMS per axis.
 
-    ``record`` is a :class:`ftacq.posefile.PoseRecord`; the error is the compensated wrench (ideally 0).
+    ``record`` is a :class:`ftacq.posefile.PoseRecord`; the error is the compensated wrench (ideally 0), with the
+    bias of the pose's own time when the calibration models a bias drift (ftacq.identification.trend).
     """
-    errors = calibration.compensate(record.wrench, record.flange_R_base)
+    from ftacq.identification.trend import bias_drift_at
+
+    errors = calibration.compensate(record.wrench, record.flange_R_base) - bias_drift_at(calibration, record)
     return {
         "labels": list(record.labels),
         "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
@@ -114,6 +117,16 @@ def format_identification_report(result, validation: dict | None = None) -> str:
             if orientation_deg > 0.0
             else "  robot orientation error: not detected in the residuals"
         )
+    drift = meta.get("drift_model", {})
+    if drift.get("model") == "linear":
+        per = "h" if drift.get("unit") == "h" else "row"
+        rate = np.asarray(drift.get("bias_rate", np.zeros(6)), dtype=float)
+        add(f"  bias drift linear, {drift.get('chosen', '')}: F "
+            + ", ".join(f"{v:+.4g}" for v in rate[:3]) + f" N/{per}; T "
+            + ", ".join(f"{v:+.4g}" for v in rate[3:]) + f" N·m/{per}; biases above are those at the end of the "
+            "recording")
+    elif drift:
+        add(f"  bias drift: not modelled ({drift.get('chosen', '')})")
     add(f"  conditioning: scaled condition number {diag.get('condition_number', float('nan')):.3g}")
     add("")
     add("Per-pose residuals (measured − predicted; |F| N, |T| N·m; weight 1 = fully trusted)")

@@ -371,6 +371,10 @@ class SamplingConfig:
                                         low=0.0, high=1000.0)
     drift_warn_torque_nm: float = setting(0.02, "warn when the torque drift (norm) exceeds this", unit="N·m",
                                           low=0.0, high=100.0)
+    mismatch_tolerance_force_n: float = setting(
+        0.1, "model mismatch (held-out error beyond the noise, RMS per axis) accepted with a WARN", unit="N",
+        low=0.0, high=1000.0)
+    mismatch_tolerance_torque_nm: float = setting(0.005, "... and for the torques", unit="N·m", low=0.0, high=100.0)
     sensor_timeout_s: float = setting(2.0, "no sample for this long means the sensor went silent (fault)",
                                       unit="s", low=0.05, high=60.0)
 

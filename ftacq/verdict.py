@@ -17,6 +17,19 @@ explains them):
   warning thresholds (ftacq.identification.diagnostics): WARN.
 - **outliers** — poses the robust fit named disturbed: WARN for any, FAIL above :data:`OUTLIER_FAIL_FRACTION`.
 - **poses** — poses planned but unreachable, or not measured (a stopped run): WARN or FAIL.
+- **trend** — the fit's residuals tested for a straight-line trend against the poses' times (row order without
+  times; ftacq.identification.trend): the drift it implies over the recording against the drift thresholds (WARN
+  above, FAIL above :data:`DRIFT_FAIL_FACTOR` times); a drift the fit modelled (``--drift linear``) is reported
+  with its rate, WARN above the thresholds (the sensor was still drifting at the end).
+- **fit** — whether the refinement converged: WARN when it stopped at its iteration limit with the parameters
+  still moving less than :data:`UNCONVERGED_FAIL_SIGMAS` σ per re-weighting, FAIL beyond.
+
+With many held-out poses (:data:`MISMATCH_MIN_POSES`) the validation also weighs practical significance: errors
+beyond the noise that are spread over all poses are named model mismatch, with their size (RMS, N and N·m,
+beyond what the noise explains) against the data's resolution and a user tolerance (``--tolerance-force``,
+``--tolerance-torque``; CELL.toml ``sampling.mismatch_tolerance_*``): WARN within the tolerance, FAIL beyond.
+
+Over 500 lines: one module holds every check so that their thresholds and wording are read in one place.
 
 Everything here is pure (numbers in, a :class:`Verdict` out); :func:`held_out_covariance` needs an
 :class:`ftacq.identification.IdentificationResult` and the held-out :class:`ftacq.posefile.PoseRecord`.
@@ -51,7 +64,13 @@ OUTLIER_FAIL_FRACTION = 0.2
 MIN_EXPECTED_SIGMA = 1e-12
 """Floor of a predicted variance's square root (N, N·m), so exact synthetic data stay finite."""
 
-CHECKS = ("validation", "drift", "conditioning", "outliers", "poses")
+MISMATCH_MIN_POSES = 30
+"""With at least this many held-out poses, errors beyond the noise are judged by their size (model mismatch)."""
+UNCONVERGED_FAIL_SIGMAS = 1.0
+"""A fit that stopped at its iteration limit is a FAIL when its last re-weighting still moved a parameter more
+than this many σ (else a WARN)."""
+
+CHECKS = ("validation", "drift", "conditioning", "outliers", "poses", "trend", "fit")
 
 
 @dataclass(frozen=True)
@@ -133,9 +152,15 @@ def format_verdict(verdict: Verdict, details: bool = True) -> str:
 # ------------------------------------------------------------------------------------------------ checks
 
 
-def validation_finding(errors: np.ndarray, covariance: np.ndarray, labels: Sequence[str]) -> Finding:
+def validation_finding(errors: np.ndarray, covariance: np.ndarray, labels: Sequence[str],
+                       tolerance: tuple[float, float] | None = None,
+                       resolution: Sequence[float] | None = None) -> Finding:
     """Judge the held-out poses' compensation errors ``errors`` (M, 6) [N, N·m] against their predicted
-    covariance ``covariance`` (M, 6, 6) (see :func:`held_out_covariance`); ``labels`` name the poses."""
+    covariance ``covariance`` (M, 6, 6) (see :func:`held_out_covariance`); ``labels`` name the poses.
+
+    ``tolerance`` (N, N·m): the size of model mismatch the user accepts (per axis, RMS); with at least
+    :data:`MISMATCH_MIN_POSES` poses, a χ² excess within it is a WARN naming the mismatch, beyond it a FAIL.
+    ``resolution`` (6,): the data's step per channel (0 when unknown), quoted beside the mismatch."""
     errors = np.asarray(errors, dtype=float).reshape(-1, 6)
     m = len(errors)
     if m == 0:
@@ -161,11 +186,34 @@ def validation_finding(errors: np.ndarray, covariance: np.ndarray, labels: Seque
         "max_expected_force_sigma_n": float(np.max(np.linalg.norm(sigma[:, :3], axis=1))),
     }
     size = (f"largest |F| {force.max():.3g} N, |T| {torque.max():.3g} N·m")
+    # what the noise does not explain, per axis (RMS over the poses), as one force and one torque figure
+    excess = np.sqrt(np.maximum(np.mean(errors**2, axis=0) - np.mean(sigma**2, axis=0), 0.0))
+    excess_force, excess_torque = float(np.max(excess[:3])), float(np.max(excess[3:]))
+    figures["mismatch_rms_per_axis"] = excess.tolist()
+    figures["mismatch_force_n"], figures["mismatch_torque_nm"] = excess_force, excess_torque
+    if tolerance is not None:
+        figures["tolerance_force_n"], figures["tolerance_torque_nm"] = float(tolerance[0]), float(tolerance[1])
+    resolution_text = "the data's resolution not visible in the values"
+    if resolution is not None and np.any(np.asarray(resolution) > 0):
+        res = np.asarray(resolution, dtype=float)
+        figures["resolution"] = res.tolist()
+        resolution_text = f"data resolution {np.max(res[:3]):.2g} N, {np.max(res[3:]):.2g} N·m"
     details = (f"χ² = {total:.1f} on {dof} degrees of freedom (p = {p:.2g}); RMS normalised error {ratio:.2f}; "
                f"worst pose {labels[worst]} at d² = {d2[worst]:.1f} (one-pose limit {pose_limit:.1f}); the "
                f"expected error per axis combines the measured noise of each mean, the fit's extra scatter, the "
                f"robot's orientation error and the calibration's parameter covariance")
-    if p < VALIDATION_FAIL_P:
+    if p < VALIDATION_WARN_P and m >= MISMATCH_MIN_POSES and tolerance is not None:
+        within = excess_force <= tolerance[0] and excess_torque <= tolerance[1]
+        status = WARN if within else FAIL
+        summary = (f"model mismatch: the {m} held-out poses read {ratio:.2f}× the expected error; what the noise "
+                   f"does not explain is {excess_force:.3g} N and {excess_torque:.3g} N·m RMS per axis ("
+                   f"{resolution_text}; tolerance {tolerance[0]:g} N, {tolerance[1]:g} N·m): "
+                   + ("within the tolerance, the calibration is usable to that accuracy" if within else
+                      "beyond the tolerance: the model does not describe this tool or these data (a cable, a "
+                      "loose or flexible part, a frame or unit mix-up)"))
+        details += (f"; model mismatch {excess_force:.4g} N, {excess_torque:.4g} N·m RMS per axis beyond the "
+                    f"expected error (statistically clear with {m} poses: p = {p:.2g})")
+    elif p < VALIDATION_FAIL_P:
         status = FAIL
         summary = (f"the {m} held-out poses disagree with the calibration: their errors are {ratio:.1f}× what the "
                    f"sensor noise and the calibration's uncertainty allow ({size}, at {labels[worst]}); the tool, "
@@ -265,18 +313,126 @@ def poses_finding(planned: Mapping[str, int], wanted: Mapping[str, int], measure
     return Finding("poses", PASS, f"all {measured} poses measured", details, figures)
 
 
-def identification_findings(result: Any, held_out: Any | None = None) -> list[Finding]:
-    """Return the validation, conditioning and outlier findings of an identification.
+def trend_finding(trend: Mapping[str, Any], drift_model: Mapping[str, Any]) -> Finding:
+    """Judge the drift inside the recording: ``trend`` the residuals' trend (ftacq.identification.trend
+    ``ResidualTrend.to_dict``), ``drift_model`` the calibration's ``metadata["drift_model"]``."""
+    from ftacq.identification.trend import TREND_P
+
+    warn_force, warn_torque = float(drift_model.get("warn_force_n", 0.5)), float(drift_model.get("warn_torque_nm", 0.02))
+    unit = str(trend.get("unit", "row"))
+    span = float(trend.get("span", 0.0))
+    per = "per hour" if unit == "h" else "per 100 rows"
+    per_factor = 1.0 if unit == "h" else 100.0
+    over = f"{span * 60:.0f} min" if unit == "h" else f"{span:.0f} rows"
+    figures = {"trend": dict(trend), "drift_model": dict(drift_model), "warn_force_n": warn_force,
+               "warn_torque_nm": warn_torque, "fail_factor": DRIFT_FAIL_FACTOR, "p_limit": TREND_P}
+    if drift_model.get("model") == "linear":
+        rate = np.asarray(drift_model.get("bias_rate", np.zeros(6)), dtype=float)
+        change = rate * span
+        force, torque = float(np.linalg.norm(change[:3])), float(np.linalg.norm(change[3:]))
+        rate_text = (f"{per_factor * np.linalg.norm(rate[:3]):.3g} N and {per_factor * np.linalg.norm(rate[3:]):.3g} "
+                     f"N·m {per}")
+        details = (f"linear bias drift fitted, {drift_model.get('chosen', '')}; time from "
+                   f"{drift_model.get('source', '?')}; rates {np.round(per_factor * rate, 6).tolist()} {per}; the "
+                   "calibration's biases are those at the end of the recording")
+        status = WARN if (force > warn_force or torque > warn_torque) else PASS
+        summary = (f"the sensor's zero drifted {rate_text} during the recording ({force:.3g} N, {torque:.3g} N·m "
+                   f"over {over}); the fit modelled it and keeps the biases of the end of the run"
+                   + ("; it was still drifting: let the sensor warm up, or tare before use" if status == WARN else ""))
+        return Finding("trend", status, summary, details, figures)
+    rate = np.asarray(trend.get("rate", np.zeros(6)), dtype=float)
+    change = rate * span
+    force, torque = float(np.linalg.norm(change[:3])), float(np.linalg.norm(change[3:]))
+    p = float(trend.get("p_value", 1.0))
+    ratio = max(force / warn_force if warn_force > 0 else np.inf, torque / warn_torque if warn_torque > 0 else np.inf)
+    details = (f"straight line through the residuals against time ({drift_model.get('source', 'row order')}): "
+               f"χ² = {float(trend.get('chi2', 0.0)):.1f} on 6 degrees of freedom (p = {p:.2g}, significant below "
+               f"{TREND_P:g}); {force:.4g} N, {torque:.4g} N·m over {over} "
+               f"({per_factor * force / max(span, 1e-300):.3g} N, {per_factor * torque / max(span, 1e-300):.3g} N·m "
+               f"{per}); thresholds {warn_force:g} N, {warn_torque:g} N·m, failure at {DRIFT_FAIL_FACTOR:g}×")
+    size = (f"{force:.3g} N and {torque:.3g} N·m over {over}, {per_factor * force / max(span, 1e-300):.3g} N and "
+            f"{per_factor * torque / max(span, 1e-300):.3g} N·m {per}")
+    if p < TREND_P and ratio > 1.0:
+        status = FAIL if ratio > DRIFT_FAIL_FACTOR else WARN
+        summary = (f"the residuals trend with time: the sensor's zero drifted about {size} while the poses were "
+                   "recorded, and the fit bent the tool's weight to absorb part of it; identify with --drift "
+                   "linear, or let the sensor warm up (about 30 min powered) and record again")
+        return Finding("trend", status, summary, details, figures)
+    return Finding("trend", PASS, f"no drift over the recording beyond the thresholds ({size})", details, figures)
+
+
+def fit_finding(diagnostics: Mapping[str, Any], noise: Mapping[str, Any] | None = None,
+                tolerance: tuple[float, float] | None = None) -> Finding:
+    """Judge the refinement's convergence from the identification's ``diagnostics``, and what the model leaves
+    unexplained: ``noise`` is the calibration's ``metadata["noise"]`` (the extra scatter beyond the measured noise
+    when the record has std/count columns, else the residual scatter), judged against ``tolerance`` (N, N·m) when
+    the fit has at least :data:`MISMATCH_MIN_POSES` poses."""
+    converged = bool(diagnostics.get("converged", True))
+    reweightings = int(diagnostics.get("reweightings", 0) or 0)
+    iterations = int(diagnostics.get("iterations", 0) or 0)
+    moved = diagnostics.get("last_change_sigmas")
+    moved = float("nan") if moved is None else float(moved)
+    figures = {"converged": converged, "reweightings": reweightings, "iterations": iterations,
+               "last_change_sigmas": moved, "max_reweightings": diagnostics.get("max_reweightings"),
+               "fail_sigmas": UNCONVERGED_FAIL_SIGMAS}
+    details = (f"{reweightings} robust re-weightings, {iterations} Levenberg-Marquardt iterations; the last "
+               f"re-weighting moved the parameters by up to {moved:.3g} σ")
+    noise = dict(noise or {})
+    measured = str(noise.get("source", "")).startswith("measured")
+    scatter = np.asarray(noise.get("extra_scatter" if measured else "rms_residual") or np.zeros(6), dtype=float)
+    scatter = scatter if scatter.shape == (6,) else np.zeros(6)
+    excess_force, excess_torque = float(np.max(scatter[:3])), float(np.max(scatter[3:]))
+    poses = int(diagnostics.get("poses", 0) or 0)
+    what = "beyond the measured sensor noise" if measured else (
+        "of residual scatter (noise and model mismatch together: the record has no std/count columns to tell them "
+        "apart)")
+    size = f"{excess_force:.3g} N and {excess_torque:.3g} N·m RMS per axis {what}"
+    figures.update({"mismatch_force_n": excess_force, "mismatch_torque_nm": excess_torque, "noise_measured": measured})
+    if tolerance is not None:
+        figures.update({"tolerance_force_n": float(tolerance[0]), "tolerance_torque_nm": float(tolerance[1])})
+        resolution = np.asarray(diagnostics.get("resolution") or np.zeros(6), dtype=float)
+        details += (f"; the model leaves {size}; tolerance {tolerance[0]:g} N, {tolerance[1]:g} N·m; data resolution "
+                    + (f"{np.max(resolution[:3]):.2g} N, {np.max(resolution[3:]):.2g} N·m" if np.any(resolution > 0)
+                       else "not visible in the values"))
+    beyond = (tolerance is not None and poses >= MISMATCH_MIN_POSES
+              and (excess_force > tolerance[0] or excess_torque > tolerance[1]))
+    if converged:
+        if beyond:
+            assert tolerance is not None
+            return Finding("fit", WARN, f"model mismatch: the fit leaves {size}, beyond the tolerance "
+                                        f"({tolerance[0]:g} N, {tolerance[1]:g} N·m): compensation will not be "
+                                        "better than that (a cable, a flexible tool, a robot's pose error)",
+                           details, figures)
+        return Finding("fit", PASS, f"the fit converged ({reweightings} re-weightings) and leaves {size}", details,
+                       figures)
+    if np.isfinite(moved) and moved <= UNCONVERGED_FAIL_SIGMAS:
+        return Finding("fit", WARN, f"the fit did not converge within {reweightings} re-weightings; its parameters "
+                                    f"still moved {moved:.2g} σ at the last one: close, but not final", details, figures)
+    return Finding("fit", FAIL, f"the fit did not converge within {reweightings} re-weightings (the parameters still "
+                                f"moved {moved:.2g} σ at the last one): do not use the result; look for poses "
+                                "disturbed in many ways, or a model that does not fit the data", details, figures)
+
+
+def identification_findings(result: Any, held_out: Any | None = None,
+                            tolerance: tuple[float, float] | None = None) -> list[Finding]:
+    """Return the validation, conditioning, outlier, trend and fit findings of an identification.
 
     ``result`` is the :class:`ftacq.identification.IdentificationResult`; ``held_out`` the held-out poses
-    (:class:`ftacq.posefile.PoseRecord`, never fitted; None or empty: the validation finding says so).
+    (:class:`ftacq.posefile.PoseRecord`, never fitted; None or empty: the validation finding says so);
+    ``tolerance`` (N, N·m) the model mismatch the user accepts (default: CELL.toml
+    ``sampling.mismatch_tolerance_force_n`` / ``mismatch_tolerance_torque_nm``).
     """
+    if tolerance is None:
+        from ftacq.settings import SamplingConfig
+
+        tolerance = (SamplingConfig.mismatch_tolerance_force_n, SamplingConfig.mismatch_tolerance_torque_nm)
     from ftacq.identification.diagnostics import parameter_warnings
 
     cal = result.calibration
     if held_out is not None and len(held_out):
-        errors = np.asarray(cal.compensate(held_out.wrench, held_out.flange_R_base), dtype=float).reshape(-1, 6)
-        validation = validation_finding(errors, held_out_covariance(result, held_out), list(held_out.labels))
+        errors = held_out_errors(result, held_out)
+        validation = validation_finding(errors, held_out_covariance(result, held_out), list(held_out.labels),
+                                        tolerance, result.diagnostics.get("resolution"))
     else:
         validation = validation_finding(np.zeros((0, 6)), np.zeros((0, 6, 6)), [])
     diag = result.diagnostics
@@ -285,8 +441,22 @@ def identification_findings(result: Any, held_out: Any | None = None) -> list[Fi
     weakest = ", ".join(_PARAMETER_TEXT.get(str(x), str(x)) for x in diag.get("weakest_parameters", []))
     condition = float(diag.get("condition_number", float("nan")))
     weak = parameter_warnings(cal.uncertainty, cal.mass_kg, {"condition_number": condition, "weakest_text": weakest})
-    return [validation, conditioning_finding(condition, weak, weakest),
-            outlier_finding(list(result.outliers), len(result.labels))]
+    findings = [validation, conditioning_finding(condition, weak, weakest),
+                outlier_finding(list(result.outliers), len(result.labels))]
+    if "trend" in diag:
+        findings.append(trend_finding(diag["trend"], cal.metadata.get("drift_model", {})))
+    findings.append(fit_finding(diag, cal.metadata.get("noise", {}), tolerance))
+    return findings
+
+
+def held_out_errors(result: Any, record: Any) -> np.ndarray:
+    """Return the compensation error (M, 6) of held-out poses; with a modelled bias drift, the biases at each
+    pose's time (the calibration holds those of the end of the recording)."""
+    from ftacq.identification.trend import bias_drift_at
+
+    cal = result.calibration
+    errors = np.asarray(cal.compensate(record.wrench, record.flange_R_base), dtype=float).reshape(-1, 6)
+    return errors - bias_drift_at(cal, record)
 
 
 # ------------------------------------------------------------------------------------------------ noise
@@ -325,8 +495,16 @@ def held_out_covariance(result: Any, record: Any) -> np.ndarray:
         g = orientation_sensitivity(gravity_in_sensor(params, rotations), params.center_of_mass)
         out += orientation_rad**2 * (g @ g.transpose(0, 2, 1))
     sigma = getattr(result, "parameter_covariance", None)
+    drift_model = cal.metadata.get("drift_model", {})
+    drift_time = None
+    if sigma is not None and len(sigma) == 21 and drift_model.get("model") == "linear":
+        from ftacq.identification.trend import pose_times
+
+        params = ModelParameters(params.sensor_rotation, params.gravity_base, params.force_bias,
+                                 params.center_of_mass, params.torque_bias, np.asarray(drift_model["bias_rate"]))
+        drift_time = pose_times(record, drift_model).drift_time
     if sigma is not None:
-        j = jacobian(params, rotations)
+        j = jacobian(params, rotations, drift_time)
         out += j @ np.asarray(sigma, dtype=float) @ j.transpose(0, 2, 1)
     return out
 
@@ -348,5 +526,5 @@ def _jsonable(value: Any) -> Any:
 
 __all__ = ["PASS", "WARN", "FAIL", "Finding", "Verdict", "judge", "format_verdict", "validation_finding",
            "drift_finding", "conditioning_finding", "outlier_finding", "poses_finding", "held_out_covariance",
-           "identification_findings",
+           "identification_findings", "trend_finding", "fit_finding", "held_out_errors",
            "ACCEPTANCE_BAND_SIGMAS"]

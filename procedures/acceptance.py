@@ -38,7 +38,9 @@ def run_verdict(result, plan, options) -> Verdict:
     stopped = "" if result.status == "done" else result.message
     findings = [poses_finding(planned, wanted_counts(plan.settings), min(measured, total), total, stopped)]
     if result.identification is not None:
-        findings = identification_findings(result.identification, held_out_record(result.measured, plan)) + findings
+        findings = identification_findings(
+            result.identification, held_out_record(result.measured, plan),
+            (options.mismatch_tolerance_force_n, options.mismatch_tolerance_torque_nm)) + findings
     if result.drift is not None:
         d = result.drift
         findings.insert(1, drift_finding(d.drift, d.elapsed_s, options.drift_warn_force_n,

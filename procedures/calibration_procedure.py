@@ -149,7 +149,11 @@ class ProcedureOptions:
     drift_check: bool = from_setting("sampling.drift_check")
     drift_warn_force_n: float = from_setting("sampling.drift_warn_force_n")
     drift_warn_torque_nm: float = from_setting("sampling.drift_warn_torque_nm")
+    mismatch_tolerance_force_n: float = from_setting("sampling.mismatch_tolerance_force_n")
+    mismatch_tolerance_torque_nm: float = from_setting("sampling.mismatch_tolerance_torque_nm")
     mount: str | None = None
+    drift: str = "auto"
+    """Bias drift model of the identification (ftacq.identification.DRIFT_MODELS)."""
     target_tolerance_rad: float = TARGET_TOLERANCE_RAD
 
     @classmethod
@@ -423,7 +427,8 @@ class CalibrationProcedure:
         record = self.identification_record()
         if record is None:
             raise IdentificationError("no identification pose (A or E) was measured")
-        result = identify(record, mount=self.options.mount)
+        result = identify(record, mount=self.options.mount, drift=self.options.drift,
+                          drift_warn=(self.options.drift_warn_force_n, self.options.drift_warn_torque_nm))
         self._result_parts["identification"] = result
         self._result_parts["warnings"].extend(result.warnings)
         self._emit(events.Identified(calibration=result.calibration, labels=tuple(result.labels),
@@ -441,9 +446,12 @@ class CalibrationProcedure:
 
 
 def validate(calibration, record) -> events.Validated:
-    """Compensate held-out poses (no contact): the errors (M, 6) should be ≈ 0. Returns per-axis max |e| and RMS."""
+    """Compensate held-out poses (no contact): the errors (M, 6) should be ≈ 0. Returns per-axis max |e| and RMS.
+    With a modelled bias drift each pose is compensated with the bias of its own time."""
+    from ftacq.identification.trend import bias_drift_at
+
     errors = calibration.compensate(record.wrench, record.flange_R_base)
-    errors = np.asarray(errors, dtype=float).reshape(-1, 6)
+    errors = np.asarray(errors, dtype=float).reshape(-1, 6) - bias_drift_at(calibration, record)
     return events.Validated(labels=tuple(record.labels), errors=errors, max_abs=np.abs(errors).max(axis=0),
                             rms=np.sqrt(np.mean(errors**2, axis=0)))
 

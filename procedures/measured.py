@@ -47,6 +47,8 @@ def pose_record(rows: list[MeasuredPose]):
     if not rows:
         return None
     std = None if any(r.std is None for r in rows) else np.array([r.std for r in rows])
+    # the end of each averaging window: the time axis of a bias drift over the run (ftacq.identification.trend)
+    extra = {} if any(r.t_end_s is None for r in rows) else {"t_end_s": np.array([r.t_end_s for r in rows], dtype=float)}
     return PoseRecord(pose=np.array([r.pose for r in rows]), wrench=np.array([r.mean for r in rows]), std=std,
                       count=np.array([max(r.count, 1) for r in rows], dtype=float),
-                      labels=tuple(r.label for r in rows), sets=tuple(r.set_name for r in rows))
+                      labels=tuple(r.label for r in rows), sets=tuple(r.set_name for r in rows), extra=extra)

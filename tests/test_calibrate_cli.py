@@ -164,7 +164,8 @@ def test_verdict_is_printed_last_and_stored(tmp_path):
     run_dir = next((tmp_path / "good").iterdir())
     stored = json.loads((run_dir / "run.json").read_text())["verdict"]
     assert stored["status"] == tail[1].split("\n")[0]
-    assert {f["check"] for f in stored["findings"]} == {"validation", "drift", "conditioning", "outliers", "poses"}
+    assert {f["check"] for f in stored["findings"]} == {"validation", "drift", "conditioning", "outliers", "poses", "trend",
+                                                     "fit"}
     assert json.loads((run_dir / "calibration.json").read_text())["verdict"]["status"] == stored["status"]
     assert (run_dir / "report.md").read_text().split("\n")[2] == f"## Verdict: **{stored['status']}**"
 

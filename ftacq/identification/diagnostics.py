@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ftacq.errors import IdentificationError
-from ftacq.identification.refine import PARAMETER_NAMES
+from ftacq.identification.refine import DRIFT_PARAMETER_NAMES, PARAMETER_NAMES
 from ftacq.validation import MAX_FORCE_N, MAX_POSITION_M, MAX_ROTATION_VECTOR_RAD, MAX_TORQUE_NM
 
 MIN_POSES = 6
@@ -46,6 +46,8 @@ _PARAMETER_TEXT = {
     "force_bias": "force bias",
     "center_of_mass_m": "centre of mass",
     "torque_bias": "torque bias",
+    "force_bias_rate": "force bias drift",
+    "torque_bias_rate": "torque bias drift",
 }
 
 
@@ -185,10 +187,8 @@ def fisher_conditioning(information: np.ndarray) -> dict:
             from None
     condition = float(eigenvalues[-1] / max(eigenvalues[0], 1e-300))
     weakest = eigenvectors[:, 0]
-    involved = sorted(
-        {PARAMETER_NAMES[int(k) // 3] for k in np.flatnonzero(np.abs(weakest) > 0.3)},
-        key=PARAMETER_NAMES.index,
-    )
+    names = PARAMETER_NAMES + DRIFT_PARAMETER_NAMES
+    involved = sorted({names[int(k) // 3] for k in np.flatnonzero(np.abs(weakest) > 0.3)}, key=names.index)
     text = ", ".join(_PARAMETER_TEXT[name] for name in involved)
     if condition > SINGULAR_CONDITION or not np.isfinite(condition):
         raise IdentificationError(

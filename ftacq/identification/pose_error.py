@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ftacq.identification.robust import pool_channels
 from ftacq.identification.torque import skew
 
 CHANNELS = 6
@@ -273,5 +274,25 @@ def estimate_noise(
     if likelihood_ratio < ORIENTATION_LIKELIHOOD_RATIO:
         best_x = without
     tau2, var = best_x[:CHANNELS] * scatter_scale, float(best_x[CHANNELS]) * orientation_scale
+    if standard_error is None:  # noise from the residuals alone: pooled, so that no channel collapses (robust.py)
+        tau2 = pool_channels(tau2, dof_ratio * float(np.sum(np.asarray(pose_weight, dtype=float))))
     channel_variance = np.maximum(se2_all + rel2_all * tau2, floor2)
     return NoiseModel(channel_variance, np.sqrt(tau2), var, sensitivity, likelihood_ratio, fitted_variance)
+
+
+def fixed_noise(
+    sensitivity: np.ndarray,
+    standard_error: np.ndarray | None,
+    relative: np.ndarray,
+    floor: np.ndarray,
+    scatter2: np.ndarray,
+    orientation_variance_rad2: float,
+) -> NoiseModel:
+    """Return the noise model with given variance components (τ² (6,), σ_θ²) for the poses of ``sensitivity``
+    (N, 6, 3): the noise estimated on a subsample, applied to every pose (arguments as in :func:`estimate_noise`)."""
+    n = len(sensitivity)
+    se2 = np.zeros((n, CHANNELS)) if standard_error is None else np.maximum(standard_error, floor) ** 2
+    scatter2 = np.asarray(scatter2, dtype=float)
+    channel_variance = np.maximum(se2 + np.asarray(relative, dtype=float) ** 2 * scatter2, floor**2)
+    return NoiseModel(channel_variance, np.sqrt(scatter2), float(orientation_variance_rad2), sensitivity,
+                      fitted_orientation_variance_rad2=float(orientation_variance_rad2))

@@ -15,6 +15,11 @@ Jacobian is analytic (v_i = S R_i g, M_i = S R_i):
 
 Levenberg-Marquardt with Marquardt (diagonal) scaling on the 15×15 normal equations, vectorised over
 poses, so 100 000 poses cost a few numpy passes per iteration.
+
+Bias drift (beyond the paper; docs/method-notes.md): with ``ModelParameters.bias_rate`` set, the biases drift
+linearly over the recording, F0(t) = F0 + Ḟ0 s_i, T0(t) = T0 + Ṫ0 s_i, where s_i is the pose's time relative to
+the end of the recording (``OrientationBlock.drift_time``, ≤ 0): six more parameters (21 in all) with
+∂F/∂Ḟ0 = s_i I, ∂T/∂Ṫ0 = s_i I, and ``force_bias``/``torque_bias`` are the biases at the end of the recording.
 """
 
 from __future__ import annotations
@@ -30,6 +35,9 @@ from ftacq.so3 import rotation_from_rotvec
 PARAMETER_NAMES = ("sensor_rotation_rad", "gravity_base", "force_bias", "center_of_mass_m", "torque_bias")
 """The five 3-vectors of the parameter vector, in order (the rotation as a sensor-frame increment, rad)."""
 PARAMETER_SLICES = {name: slice(3 * k, 3 * k + 3) for k, name in enumerate(PARAMETER_NAMES)}
+DRIFT_PARAMETER_NAMES = ("force_bias_rate", "torque_bias_rate")
+"""The two 3-vectors appended (parameters 15-20) when the bias drift is modelled (per unit of drift time)."""
+DRIFT_SLICE = slice(15, 21)
 
 MAX_ITERATIONS = 50
 DECREMENT_TOLERANCE = 1e-9
@@ -48,6 +56,12 @@ class ModelParameters:
     force_bias: np.ndarray  # (3,) N
     center_of_mass: np.ndarray  # (3,) m
     torque_bias: np.ndarray  # (3,) N·m
+    bias_rate: np.ndarray | None = None  # (6,) N, N·m per unit of drift time, or None (no drift modelled)
+
+    @property
+    def size(self) -> int:
+        """Number of parameters: 15, or 21 with the bias drift."""
+        return 15 if self.bias_rate is None else 21
 
     @staticmethod
     def from_calibration(calibration: Calibration) -> "ModelParameters":
@@ -80,6 +94,7 @@ class ModelParameters:
             self.force_bias + step[6:9],
             self.center_of_mass + step[9:12],
             self.torque_bias + step[12:15],
+            None if self.bias_rate is None else self.bias_rate + step[DRIFT_SLICE],
         )
 
 
@@ -88,27 +103,33 @@ def gravity_in_sensor(params: ModelParameters, flange_R_base: np.ndarray) -> np.
     return (flange_R_base @ params.gravity_base) @ params.sensor_rotation.T
 
 
-def predict(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
-    """Return the predicted contact-free wrench (N, 6) at (N, 3, 3) orientations (eqs 10-11)."""
+def predict(params: ModelParameters, flange_R_base: np.ndarray, drift_time: np.ndarray | None = None) -> np.ndarray:
+    """Return the predicted contact-free wrench (N, 6) at (N, 3, 3) orientations (eqs 10-11), with the drifted
+    biases at ``drift_time`` (N,) when ``params.bias_rate`` is set."""
     gravity_sensor = gravity_in_sensor(params, flange_R_base)
     out = np.empty((len(gravity_sensor), 6))
     out[:, :3] = gravity_sensor + params.force_bias
     out[:, 3:] = gravity_sensor @ skew(params.center_of_mass).T + params.torque_bias  # c × g_s
+    if params.bias_rate is not None and drift_time is not None:
+        out += np.asarray(drift_time, dtype=float).reshape(-1, 1) * params.bias_rate
     return out
 
 
-def jacobian(params: ModelParameters, flange_R_base: np.ndarray) -> np.ndarray:
-    """Return ∂(predicted wrench)/∂θ, (N, 6, 15), θ ordered as :data:`PARAMETER_NAMES`."""
+def jacobian(params: ModelParameters, flange_R_base: np.ndarray, drift_time: np.ndarray | None = None) -> np.ndarray:
+    """Return ∂(predicted wrench)/∂θ, (N, 6, 15) (21 with the bias drift), θ ordered as :data:`PARAMETER_NAMES`
+    (then :data:`DRIFT_PARAMETER_NAMES`)."""
     rotations_t = np.ascontiguousarray(np.asarray(flange_R_base, dtype=float).transpose(1, 2, 0))
-    return _jacobian_t(params, rotations_t).transpose(2, 1, 0)
+    return _jacobian_t(params, rotations_t, drift_time).transpose(2, 1, 0)
 
 
 class OrientationBlock:
-    """Orientations laid out for vectorised refinement: ``rotations_t`` (3, 3, N) contiguous per element."""
+    """Orientations laid out for vectorised refinement: ``rotations_t`` (3, 3, N) contiguous per element, and
+    each pose's drift time s_i (N,) when the bias drift is modelled (else None)."""
 
-    def __init__(self, flange_R_base: np.ndarray) -> None:
+    def __init__(self, flange_R_base: np.ndarray, drift_time: np.ndarray | None = None) -> None:
         self.flange_R_base = np.asarray(flange_R_base, dtype=float)
         self.rotations_t = np.ascontiguousarray(self.flange_R_base.transpose(1, 2, 0))
+        self.drift_time = None if drift_time is None else np.asarray(drift_time, dtype=float).reshape(-1)
 
     def __len__(self) -> int:
         return self.rotations_t.shape[2]
@@ -122,22 +143,27 @@ def _gravity_terms(params: ModelParameters, rotations_t: np.ndarray) -> tuple[np
     return m, v
 
 
-def _predict_t(params: ModelParameters, rotations_t: np.ndarray) -> np.ndarray:
-    """Return the predicted wrench (6, N) for a (3, 3, N) block."""
+def _predict_t(params: ModelParameters, rotations_t: np.ndarray, drift_time: np.ndarray | None = None) -> np.ndarray:
+    """Return the predicted wrench (6, N) for a (3, 3, N) block (drifted biases at ``drift_time`` (N,))."""
     gravity_flange = np.einsum("abn,b->an", rotations_t, params.gravity_base)
     v = params.sensor_rotation @ gravity_flange
     out = np.empty((6, v.shape[1]))
     out[:3] = v + params.force_bias[:, None]
     out[3:] = skew(params.center_of_mass) @ v + params.torque_bias[:, None]
+    if params.bias_rate is not None and drift_time is not None:
+        out += params.bias_rate[:, None] * drift_time[None, :]
     return out
 
 
-def _jacobian_t(params: ModelParameters, rotations_t: np.ndarray) -> np.ndarray:
-    """Return the Jacobian as (15, 6, N): [parameter, channel, pose] (contiguous per pose)."""
+def _jacobian_t(params: ModelParameters, rotations_t: np.ndarray, drift_time: np.ndarray | None = None) -> np.ndarray:
+    """Return the Jacobian as (15, 6, N) (21 with the bias drift): [parameter, channel, pose]."""
     m, v = _gravity_terms(params, rotations_t)
     n = v.shape[1]
     c = params.center_of_mass
-    jac = np.zeros((15, 6, n))
+    jac = np.zeros((params.size, 6, n))
+    if params.bias_rate is not None:
+        for k in range(6):
+            jac[15 + k, k] = 0.0 if drift_time is None else drift_time
     v0, v1, v2 = v
     # −[v]× as J[b, a] = −skew(v)[a, b], for the rotation increment on F (cols 0-2) and the centre of mass on T
     for base, channel in ((0, 0), (9, 3)):
@@ -180,24 +206,26 @@ def normal_equations(
     poses = _as_orientation_block(flange_R_base)
     n = len(poses)
     full = weight.ndim == 3
-    information = np.zeros((15, 15))
-    gradient = np.zeros(15)
+    size = params.size
+    information = np.zeros((size, size))
+    gradient = np.zeros(size)
     residual = np.empty((n, 6))
     total = 0.0
     for start in range(0, n, CHUNK_POSES):
         block = slice(start, min(start + CHUNK_POSES, n))
         rotations_t = poses.rotations_t[:, :, block]
-        r_t = wrench[block].T - _predict_t(params, rotations_t)
+        drift_time = None if poses.drift_time is None else poses.drift_time[block]
+        r_t = wrench[block].T - _predict_t(params, rotations_t, drift_time)
         residual[block] = r_t.T
-        jac = _jacobian_t(params, rotations_t)
+        jac = _jacobian_t(params, rotations_t, drift_time)
         if full:
-            whitened_jac = (weight[block] @ jac.transpose(2, 1, 0)).reshape(-1, 15)  # (n·6, 15)
+            whitened_jac = (weight[block] @ jac.transpose(2, 1, 0)).reshape(-1, size)  # (n·6, size)
             whitened_r = (weight[block] @ r_t.T[:, :, None]).reshape(-1)
             information += whitened_jac.T @ whitened_jac
             gradient += whitened_jac.T @ whitened_r
             total += float(whitened_r @ whitened_r)
         else:
-            jac = jac.reshape(15, -1)
+            jac = jac.reshape(size, -1)
             weighted = jac * weight[block].T.reshape(-1)
             information += weighted @ jac.T
             gradient += weighted @ r_t.reshape(-1)
@@ -209,7 +237,7 @@ def cost(params: ModelParameters, flange_R_base: np.ndarray | OrientationBlock, 
          weight: np.ndarray) -> float:
     """Return rᵀ W r at ``params`` (``weight`` as in :func:`normal_equations`)."""
     poses = _as_orientation_block(flange_R_base)
-    residual = wrench.T - _predict_t(params, poses.rotations_t)
+    residual = wrench.T - _predict_t(params, poses.rotations_t, poses.drift_time)
     if weight.ndim == 3:
         whitened = weight @ residual.T[:, :, None]
         return float(np.sum(whitened**2))
@@ -244,7 +272,7 @@ def levenberg_marquardt(
         accepted = False
         while damping <= MAX_DAMPING:
             try:
-                step = np.linalg.solve(scaled + damping * np.eye(15), jtr / scale) / scale
+                step = np.linalg.solve(scaled + damping * np.eye(len(jtr)), jtr / scale) / scale
             except np.linalg.LinAlgError:
                 damping *= 10.0
                 continue

@@ -8,6 +8,24 @@ model does not explain (robot kinematic error, drift, …), estimated from the r
     Σ_i w_i r_i,ch² / (se_i,ch² + τ_ch²) = ρ Σ_i w_i         (ρ = (6N − 15)/(6N), the model's dof)
 
 (or its median version at the start, when an outlier may still be in the residuals).
+A noise model that cannot collapse (issue: a 6-pose record without std/count columns was refused as degenerate
+with a scaled condition number of 1e300, because one channel's τ fell to zero, its weight to infinity, and the
+fit then bent to zero that channel's residuals further). Two guards, both in this module:
+
+- **Pooling across channels** (when the noise comes from the residuals alone, no measured std/count): each
+  channel's τ² is shrunk towards the mean τ² of its group (the three forces, the three torques) as with a
+  scaled-inverse-χ² prior worth :data:`POOLING_PRIOR_DOF` residual degrees of freedom,
+
+      τ_ch² ← (ν_ch τ_ch² + ν₀ τ̄_group²) / (ν_ch + ν₀),   ν_ch = ρ Σ_i w_i.
+
+  Chosen over a fixed prior because nothing in a pose file says which sensor measured it, and over a plain floor
+  because it is scale-free: the three force channels of one transducer share its gauges and electronics and have
+  the same noise within a small factor, so borrowing strength between them costs nothing on large sets (ν_ch
+  ≫ ν₀: the per-channel estimate wins) and keeps a 6-pose set (ν_ch ≈ 3.5) from trusting one channel without
+  bound. A channel can only reach zero when its whole group does (exact data).
+- **A floor from the data's resolution** (:func:`resolution_floor`): a file whose values are all multiples of a
+  step q (printed to 3 decimals, or raw counts) cannot know a channel better than the rounding error q/√12.
+
 The pose statistic d_i² = Σ_ch r_i,ch² / σ_i,ch² is χ²₆ for a clean pose. Weights: 1 up to the 99 %
 quantile k² of χ²₆, then k²/d_i² (a redescending Huber-type weight: the influence of a pose falls as
 1/d_i). A pose is named an outlier when d_i² exceeds the χ²₆ quantile at family-wise level 1 %.
@@ -34,6 +52,14 @@ BISECTION_STEPS = 24
 NEWTON_STEPS = 30
 MEDIAN_SUBSAMPLE = 4096
 """The median-based scale uses at most this many (evenly spaced) poses."""
+POOLING_PRIOR_DOF = 10.0
+"""Weight ν₀ (in residual degrees of freedom) of the group's mean τ² in each channel's τ² (module docstring):
+about 3 poses' worth against 6 poses (ν ≈ 3.5 per channel) it dominates; against 100 poses it moves τ² < 2 %."""
+FORCE_CHANNELS, TORQUE_CHANNELS = slice(0, 3), slice(3, 6)
+RESOLUTION_TOLERANCE = 0.02
+"""A value lies on the lattice of step q when it is within this fraction of q of a multiple of q (float32 files)."""
+RESOLUTION_MIN_VALUES = 6
+"""Fewer distinct values than this in a channel say nothing about its resolution."""
 
 
 _WEIGHT_THRESHOLD = float(chi2.ppf(WEIGHT_QUANTILE, CHANNELS))
@@ -50,10 +76,52 @@ def outlier_threshold(n_poses: int) -> float:
     return float(chi2.isf(OUTLIER_FAMILY_ALPHA / max(n_poses, 1), CHANNELS))
 
 
+def resolution_step(values: np.ndarray) -> float:
+    """Return the step q of the lattice every value of one channel lies on (0 when none is found).
+
+    Candidates: the smallest difference between distinct values divided by 1 … 16 (raw counts, of which a short
+    record may skip a few), and the decades 10⁻⁹ … 1 (a file printed to a fixed number of decimals); the largest
+    candidate every value lies on (within :data:`RESOLUTION_TOLERANCE`
+    of a multiple) is the step. Continuous data (means of many samples, float output) have none.
+    """
+    distinct = np.unique(np.asarray(values, dtype=float))
+    if distinct.size < RESOLUTION_MIN_VALUES:
+        return 0.0
+    gaps = np.diff(distinct)
+    candidates = sorted({*(float(gaps.min()) / k for k in range(1, 17)), *(10.0**-k for k in range(10))},
+                        reverse=True)
+    origin = distinct[0]
+    for step in candidates:
+        if step <= 0.0 or step > 0.1 * np.ptp(distinct):
+            continue
+        offset = (distinct - origin) / step
+        if np.all(np.abs(offset - np.round(offset)) <= RESOLUTION_TOLERANCE):
+            return float(step)
+    return 0.0
+
+
+def resolution_floor(wrench: np.ndarray) -> np.ndarray:
+    """Return (6,) the rounding error q/√12 of each channel of a record's wrenches (N, 6) (0 when unquantised)."""
+    wrench = np.asarray(wrench, dtype=float).reshape(-1, CHANNELS)
+    return np.array([resolution_step(wrench[:, k]) for k in range(CHANNELS)]) / np.sqrt(12.0)
+
+
 def noise_floor(wrench: np.ndarray) -> np.ndarray:
-    """Return the per-channel σ floor (6,) for a record's wrenches (N, 6)."""
+    """Return the per-channel σ floor (6,) for a record's wrenches (N, 6): the data's resolution (q/√12), and at
+    least a tiny fraction of the signal so that exact synthetic data stay finite."""
     span = np.ptp(wrench, axis=0) + np.abs(wrench).max(axis=0)
-    return NOISE_FLOOR_RELATIVE * span + 1e-15
+    return np.maximum(NOISE_FLOOR_RELATIVE * span + 1e-15, resolution_floor(wrench))
+
+
+def pool_channels(tau2: np.ndarray, dof: float) -> np.ndarray:
+    """Return τ² (6,) shrunk towards the mean of its group (forces, torques) with prior weight
+    :data:`POOLING_PRIOR_DOF` against ``dof`` residual degrees of freedom per channel (module docstring)."""
+    tau2 = np.asarray(tau2, dtype=float)
+    out = np.empty_like(tau2)
+    dof = max(float(dof), 0.0)
+    for group in (FORCE_CHANNELS, TORQUE_CHANNELS):
+        out[group] = (dof * tau2[group] + POOLING_PRIOR_DOF * np.mean(tau2[group])) / (dof + POOLING_PRIOR_DOF)
+    return out
 
 
 def channel_noise(
@@ -66,7 +134,8 @@ def channel_noise(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Return (σ (N, 6), τ (6,)): the per-pose, per-channel noise used to weight the fit.
 
-    ``statistic`` "median" (robust, for the first pass) or "mean" (efficient, with robust weights).
+    ``statistic`` "median" (robust, for the first pass) or "mean" (efficient, with robust weights). Without a
+    measured standard error the channels are pooled (:func:`pool_channels`).
     """
     r2 = residual**2
     n = len(residual)
@@ -107,6 +176,8 @@ def channel_noise(
                 if not np.any(active):
                     break
                 tau2 = np.where(active, tau2 - value / np.minimum(slope, -1e-300), tau2)
+    if standard_error is None:
+        tau2 = np.maximum(pool_channels(tau2, dof_ratio * float(w.sum())), floor**2)
     sigma = np.sqrt(np.maximum(se2 + tau2, floor**2))
     return sigma, np.sqrt(tau2)
 

@@ -12,6 +12,9 @@ Pose sets (``flange_R_base`` orientations, converted to UR poses ``base_R_flange
   with a random spin about the tool axis;
 - :func:`random_orientations`: uniformly random orientations (set D).
 
+:func:`real_like_record` adds what real recordings show and the other records do not: heavy-tailed noise, no
+std/count columns, a robot orientation error and a small force the model cannot represent.
+
 ``python -m tests.fakes.pose_records OUT.csv`` writes an example record (A + E poses, floor mount).
 """
 
@@ -147,6 +150,19 @@ def simulate_record(
         labels=labels or tuple(f"P{i + 1:02d}" for i in range(n)),
         sets=sets or ("",) * n,
     )
+
+
+def real_like_record(truth: CellTruth, count: int, seed: int = 0) -> PoseRecord:
+    """``count`` random poses as a real recording gives them: mean wrenches only (no std, no count), Student-t
+    (3 dof) noise at the truth's per-sample σ, a 0.05° robot orientation error, and a cable-like force along
+    (0.3, −0.2, 1) growing with the tool's tilt (up to 0.1 N): a residual excess no fit of the model removes."""
+    rotations = random_orientations(count, seed=seed)
+    exact = simulate_record(truth, rotations, seed=seed, orientation_error_deg=0.05, noise=False)
+    rng = np.random.default_rng(seed)
+    sigma = np.array(truth.force_noise_n + truth.torque_noise_nm)
+    wrench = exact.wrench + rng.standard_t(3, size=(count, 6)) * sigma
+    wrench[:, :3] += 0.05 * (1.0 - rotations[:, 2, 2])[:, None] * np.array([0.3, -0.2, 1.0])
+    return PoseRecord(pose=exact.pose, wrench=wrench, labels=exact.labels)
 
 
 def example_record(truth: CellTruth | None = None, seed: int = 0, cone_poses: int = 24) -> PoseRecord:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import logging
 import sys
 from pathlib import Path
@@ -61,6 +62,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="after the poses, run the excitation stage (a checked, confirmed motion recorded with "
                              "the robot state) and identify the tool's inertia: the calibration then compensates "
                              "while the arm moves (docs/dynamics.md)")
+    parser.add_argument("--drift", choices=("auto", "none", "linear"), default="auto",
+                        help="model a linear drift of the sensor's zero over the run: linear, none, or auto (when "
+                             "the residuals trend with time beyond the drift thresholds; default); docs/verdict.md")
     parser.add_argument("--out", type=Path, metavar="DIR",
                         help="parent folder of the run folder (default: output.folder of the config, 'runs')")
     sim = parser.add_argument_group("simulation (--sim)")
@@ -237,6 +241,7 @@ def run(args: argparse.Namespace) -> int:
         _err(f"run folder: {folder.path}")
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
+        options = dataclasses.replace(options, drift=args.drift)
         total = count_measurements(plan, (), drift_check)
         estimate_s = plan.estimated_duration_s * remaining / max(total, 1)
         progress = ProgressListener(total, estimate_s / (max(time_scale, 1.0) if args.sim else 1),

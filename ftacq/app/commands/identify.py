@@ -65,6 +65,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a pose within this angle (degrees) of a cube rotation counts as special (default 3)",
     )
     parser.add_argument(
+        "--drift",
+        choices=("auto", "none", "linear"),
+        default="auto",
+        help="model a linear drift of the sensor's zero over the recording (time from t_start_s/t_end_s, else the "
+        "row order): linear, none, or auto (when the residuals trend with time significantly and beyond CELL.toml "
+        "sampling.drift_warn_*; default). The calibration keeps the biases of the end of the recording",
+    )
+    parser.add_argument("--tolerance-force", type=float, metavar="N",
+                        help="model mismatch accepted with a WARN, RMS per axis, N (default: CELL.toml "
+                             "sampling.mismatch_tolerance_force_n, 0.1)")
+    parser.add_argument("--tolerance-torque", type=float, metavar="NM",
+                        help="... and for the torques, N·m (default: sampling.mismatch_tolerance_torque_nm, 0.005)")
+    parser.add_argument(
         "--use-validation",
         action="store_true",
         help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
@@ -119,6 +132,16 @@ def run(args: argparse.Namespace) -> int:
     # options and the output path first: nothing is computed for a run that cannot be kept
     check_number(args.special_tolerance_deg, "--special-tolerance-deg", low=0.0, high=MAX_SPECIAL_TOLERANCE_DEG,
                  low_exclusive=True, high_exclusive=True)
+    from ftacq.settings import SamplingConfig
+
+    tolerance = (
+        SamplingConfig.mismatch_tolerance_force_n if args.tolerance_force is None
+        else check_number(args.tolerance_force, "--tolerance-force", low=0.0, high=1000.0),
+        SamplingConfig.mismatch_tolerance_torque_nm if args.tolerance_torque is None
+        else check_number(args.tolerance_torque, "--tolerance-torque", low=0.0, high=100.0),
+    )
+    if args.drift == "linear" and args.no_refine:
+        raise InputError("--drift linear is fitted by the refinement: drop --no-refine")
     check_output_file(args.output, "-o/--output")
     mount = mount_option(args.mount, args.gravity_direction)
     path = Path(args.poses)
@@ -127,6 +150,12 @@ def run(args: argparse.Namespace) -> int:
         from ftacq.imports.wrench_frame import sensor_from_base
 
         record = sensor_from_base(record)
+    from ftacq.identification.trend import ROW_INDEX_COLUMN
+
+    if ROW_INDEX_COLUMN not in record.extra:  # the row order survives the split: a drift's time axis without times
+        from dataclasses import replace
+
+        record = replace(record, extra={**record.extra, ROW_INDEX_COLUMN: np.arange(len(record), dtype=float)})
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
     validation = None
     fit_record = record
@@ -139,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
             method=args.method,
             refine=not args.no_refine,
             special_tolerance_deg=args.special_tolerance_deg,
+            drift="none" if args.no_refine and args.drift == "auto" else args.drift,
         )
     except IdentificationError as error:
         from ftacq.imports.wrench_frame import frame_mismatch
@@ -149,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
     held_out_record = record.select(held_out) if fit_record is not record else None
     if held_out_record is not None:
         validation = validation_errors(result.calibration, held_out_record)
-    verdict = _verdict(result, held_out_record, record, fit_record, args.wrench_frame)
+    verdict = _verdict(result, held_out_record, record, tolerance, fit_record, args.wrench_frame)
     calibration = with_provenance(  # a pose file does not say which sensor measured it
         result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
@@ -184,7 +214,7 @@ def mount_option(mount: str | None, gravity_direction: str | None) -> str | None
         raise InputError(f"{option}: {error}") from None
 
 
-def _verdict(result, held_out_record, record, fit_record=None, wrench_frame="sensor"):
+def _verdict(result, held_out_record, record, tolerance, fit_record=None, wrench_frame="sensor"):
     """Judge the identification: held-out poses (V, D), the drift seen by each D row against the pose it
     revisits (label ``<first>-revisit``), conditioning, outliers (ftacq.verdict) and the wrenches' frame
     (ftacq.imports.wrench_frame)."""
@@ -196,7 +226,7 @@ def _verdict(result, held_out_record, record, fit_record=None, wrench_frame="sen
     from ftacq.verdict import drift_finding, identification_findings, judge
     from procedures.measured import DRIFT_SUFFIX
 
-    findings = identification_findings(result, held_out_record)
+    findings = identification_findings(result, held_out_record, tolerance)
     findings.append(wrench_frame_finding(record if fit_record is None else fit_record, result, wrench_frame))
     labels = list(record.labels)
     for i, (label, set_name) in enumerate(zip(labels, record.sets)):
