@@ -185,10 +185,10 @@ def consecutive_runs(runs: int, scale: float, sensor: str = "netft") -> bool:
             targets = np.vstack([plan.joint_targets_rad] + ([np.asarray(plan.revisit_target_rad)[None, :]]
                                                            if plan.revisit_target_rad is not None else []))
             closest = float(np.degrees(np.min(np.minimum(targets - lower, upper - targets))))
-            verdict = run_verdict(result, plan, ProcedureOptions.from_config(run_config)).status \
+            verdict = run_verdict(result, plan, ProcedureOptions.from_config(run_config)).headline() \
                 if result.identification is not None else "-"
             line = (f"  run {i + 1:2d}/{runs} (seed {i}): {result.status:<7} {len(result.measured)} poses in "
-                    f"{wall:5.1f} s, verdict {verdict}, closest target {closest:.1f}° inside a joint limit")
+                    f"{wall:5.1f} s, closest target {closest:.1f}° inside a joint limit, verdict {verdict}")
             if not done:
                 line += f"; {result.message}"
             if result.drift_skipped:
