@@ -124,17 +124,23 @@ def calibration_steps(plan, measured: Iterable[str] = (), drift_check: bool = Tr
     yield Validate()
 
 
-def check_steps(steps: Iterable[Step], settings, start_q_rad: np.ndarray) -> list[str]:
+def check_steps(steps: Iterable[Step], settings, start_q_rad: np.ndarray,
+                optional: list[str] | None = None) -> list[str]:
     """Walk the steps without hardware: check every joint move for collisions and joint limits along its path
-    (:func:`procedures.plan.check_path`) and the speed and acceleration against the model. Return the problems."""
+    (:func:`procedures.plan.check_path`) and the speed and acceleration against the model. Return the problems.
+
+    ``optional``: when given, the problems of optional moves (:func:`is_optional`: the drift-check revisit) go
+    into this list instead: the run may start, and skips that step when it gets there (its move is re-checked
+    and refused then).
+    """
     from procedures.plan import check_path
 
     problems: list[str] = []
     q = np.asarray(start_q_rad, dtype=float)
     for step in steps:
         if isinstance(step, Move):
-            for problem in check_path(settings, q, step.joint_target_rad):
-                problems.append(f"move to {step.label}: {problem}")
+            found = [f"move to {step.label}: {problem}" for problem in check_path(settings, q, step.joint_target_rad)]
+            (optional if optional is not None and is_optional(step) else problems).extend(found)
             q = step.joint_target_rad
     return problems
 

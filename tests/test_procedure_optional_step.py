@@ -89,3 +89,21 @@ def test_a_failed_drift_check_revisit_still_yields_a_calibration_with_a_warn(tmp
     assert "**WARN** drift" in report and "## Drift check" in report and "**Not made**" in report
     out = capsys.readouterr().out
     assert "drift check was not made" in out and "WARN  drift" in out
+
+
+def test_the_path_check_before_a_run_sets_a_blocked_revisit_apart():
+    """A revisit whose move fails the check before the run does not keep the run from starting: the problem is
+    set apart for the plan summary, and the executor skips the revisit when it gets there."""
+    from procedures.calibration_procedure import calibration_steps, check_steps
+    from procedures.plan import PlanSettings, home_configuration_rad, make_plan
+
+    start = home_configuration_rad()
+    plan = make_plan(PlanSettings(random_count=4, validation_count=2), start)
+    target = np.array(plan.revisit_target_rad)
+    target[5] = 2.0 * np.pi
+    blocked = replace(plan, revisit_target_rad=tuple(target))
+    assert check_steps(calibration_steps(plan), plan.settings, start) == []
+    assert len(check_steps(calibration_steps(blocked), plan.settings, start)) == 1  # as before, without the list
+    optional: list[str] = []
+    assert check_steps(calibration_steps(blocked), plan.settings, start, optional) == []
+    assert len(optional) == 1 and optional[0].startswith(f"move to {plan.labels[0]}: joint limit: q6")
