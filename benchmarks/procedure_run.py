@@ -3,6 +3,14 @@
     .venv/bin/python benchmarks/procedure_run.py                 # UR5e floor, Net F/T, controller at time scale 10
     .venv/bin/python benchmarks/procedure_run.py --quick         # time scale 20 (faster, same figures)
     .venv/bin/python benchmarks/procedure_run.py --time-scale 1  # real time: about 3-4 minutes
+    .venv/bin/python benchmarks/procedure_run.py --runs          # 20 consecutive runs: how many were aborted
+    .venv/bin/python benchmarks/procedure_run.py --runs 5 --time-scale 0   # 5 runs, moves complete at once
+
+``--runs [N]`` (N = 20 by default) runs N default calibrations one after another on one simulated cell whose
+controller reports its joint angles with encoder jitter (1e-6 rad, as a real UR5e), each planned from where the
+arm stopped after the previous one and with another seed for the E and V poses (seed 0, 1, …). It prints each
+run's outcome (status, poses measured, wall time, verdict, the planned target closest to a joint limit, a failed
+drift check) and the counts: goal 0 aborted.
 
 Runs the real procedure (real ur-rtde client and Net F/T driver) against the simulated cell. At real-time scale a
 run takes minutes, so the controller runs ``X`` times faster and the figure at real-time scale is rebuilt from the
@@ -25,6 +33,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 DURATION_GOAL_S = 300.0
+CONSECUTIVE_RUNS = 20
+"""``--runs`` without a number: consecutive calibrations run (issue 26's goal: 20 with encoder jitter, 0 aborted)."""
 
 
 class Timer:
@@ -52,7 +62,15 @@ def main() -> int:
     parser.add_argument("--quick", action="store_true", help="controller at time scale 20")
     parser.add_argument("--time-scale", type=float, default=None, help="controller speed factor (default 10)")
     parser.add_argument("--sensor", choices=("netft", "can"), default="netft")
+    parser.add_argument("--runs", type=int, nargs="?", const=CONSECUTIVE_RUNS, default=None, metavar="N",
+                        help=f"run N consecutive calibrations with encoder jitter (default N {CONSECUTIVE_RUNS}; "
+                             "time scale 20 unless given, 0 allowed) and count the aborted ones")
     args = parser.parse_args()
+    if args.runs is not None:
+        scale = args.time_scale if args.time_scale is not None else 20.0
+        if args.runs < 1 or scale < 0:
+            parser.error("--runs needs N >= 1 and --time-scale >= 0")
+        return 0 if consecutive_runs(args.runs, scale, args.sensor) else 1
     scale = args.time_scale if args.time_scale is not None else (20.0 if args.quick else 10.0)
     if scale <= 0:
         parser.error("--time-scale must be > 0 (motion time is measured)")
@@ -126,6 +144,62 @@ def simulated_run_figures(scale: float, sensor: str = "netft") -> tuple[bool, li
     lines.append(f"  accuracy: mass {cal.mass_kg:.4f} kg (true {truth.mass_kg}), validation RMS F "
           f"{np.linalg.norm(v.rms[:3]):.4f} N, T {np.linalg.norm(v.rms[3:]):.5f} N·m")
     return True, lines
+
+
+def consecutive_runs(runs: int, scale: float, sensor: str = "netft") -> bool:
+    """Run ``runs`` default calibrations one after another on one simulated cell with encoder jitter, the controller
+    ``scale`` times real time (0: moves complete at once); print each outcome and the counts. Returns True when
+    none was aborted (every run "done")."""
+    from ftacq.app.commands.calibrate import sim_sampling
+    from ftacq.app.config import CellConfig
+    from ftacq.errors import FtacqError
+    from ftacq.kinematics import planning_limits_rad
+    from procedures.acceptance import run_verdict
+    from procedures.calibration_procedure import ProcedureOptions
+    from tests.fakes.cell import SimulatedCell, run_calibration
+    from tests.fakes.ur_simulator import ENCODER_NOISE_RAD
+
+    t0 = time.monotonic()
+    completed, skipped = 0, 0
+    with SimulatedCell(sensor=sensor, time_scale=scale, encoder_noise_rad=ENCODER_NOISE_RAD) as cell:
+        config = CellConfig().replace_section("robot", host=cell.robot_host).replace_section("sensor",
+                                                                                             url=cell.sensor_url)
+        scaled = sim_sampling(config.sampling, scale)
+        config = config.replace_section("sampling", **{k: getattr(scaled, k) for k in (
+            "settle_time_s", "settle_window_s", "average_time_s")})
+        print(f"{runs} consecutive default calibrations, UR5e floor, {sensor}, controller time scale {scale:g}, "
+              f"encoder jitter {ENCODER_NOISE_RAD:g} rad (1σ); cell start {time.monotonic() - t0:.1f} s", flush=True)
+        for i in range(runs):
+            run_config = config.replace_section("poses", seed=i)
+            t1 = time.monotonic()
+            try:
+                plan, result = run_calibration(cell, run_config)
+            except FtacqError as exc:  # planning refused: as aborted as a run that failed
+                print(f"  run {i + 1:2d}/{runs} (seed {i}): not started, {type(exc).__name__}: {exc}", flush=True)
+                continue
+            wall = time.monotonic() - t1
+            done = result.status == "done"
+            completed += done
+            skipped += bool(result.drift_skipped)
+            lower, upper = planning_limits_rad(plan.settings.ur, 0.0)
+            targets = np.vstack([plan.joint_targets_rad] + ([np.asarray(plan.revisit_target_rad)[None, :]]
+                                                           if plan.revisit_target_rad is not None else []))
+            closest = float(np.degrees(np.min(np.minimum(targets - lower, upper - targets))))
+            verdict = run_verdict(result, plan, ProcedureOptions.from_config(run_config)).headline() \
+                if result.identification is not None else "-"
+            line = (f"  run {i + 1:2d}/{runs} (seed {i}): {result.status:<7} {len(result.measured)} poses in "
+                    f"{wall:5.1f} s, closest target {closest:.1f}° inside a joint limit, verdict {verdict}")
+            if not done:
+                line += f"; {result.message}"
+            if result.drift_skipped:
+                line += f"; drift check skipped: {result.drift_skipped}"
+            print(line, flush=True)
+    total = time.monotonic() - t0
+    aborted = runs - completed
+    print(f"consecutive runs: {completed} completed, {aborted} aborted of {runs} (drift check skipped in {skipped}); "
+          f"wall time {total:.0f} s ({total / runs:.1f} s per run) at time scale {scale:g} "
+          f"[goal 0 aborted: {'OK' if aborted == 0 else 'MISSED'}]", flush=True)
+    return aborted == 0
 
 
 if __name__ == "__main__":

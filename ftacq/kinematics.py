@@ -80,6 +80,37 @@ UR_MODELS: dict[str, URModel] = {
 }
 
 
+JOINT_LIMIT_MARGIN_RAD = float(np.radians(5.0))
+"""Every planned joint target stays this far inside each joint limit (5°). It covers what the arm adds to a
+target: the executor accepts a pose reached within ``TARGET_TOLERANCE_RAD`` (0.01 rad, 0.6°) of it, the encoders'
+jitter (:data:`MEASURED_ANGLE_TOLERANCE_RAD`), and the next move starting from that measured configuration. It
+costs no reach on a ±360° joint (every angle has an equivalent within ±355°); on the ±180° elbow it leaves out
+175-180°, which the elbow-singularity margin already mostly excludes (|sin q3| < 0.05: beyond 177.1°)."""
+MEASURED_ANGLE_TOLERANCE_RAD = 1e-4
+"""A *measured* joint angle (what the controller reports) may lie this far outside a joint limit and still count as
+inside it. A UR's reported angles jitter by about 1e-6 rad at rest (encoder noise; the simulated controller's
+``encoder_noise_rad``): 1e-4 rad (0.006°) is 100 times that, so noise never refuses a move that starts at a limit,
+while an arm truly beyond its limit is still caught. Planned targets get no tolerance: they are checked against
+the limits less :data:`JOINT_LIMIT_MARGIN_RAD`."""
+
+
+def planning_limits_rad(model: "URModel", margin_rad: float = JOINT_LIMIT_MARGIN_RAD) -> tuple[np.ndarray, np.ndarray]:
+    """Return (lower, upper) (6,) joint limits less ``margin_rad`` on each side: the range planned targets keep to."""
+    lower, upper = np.array(model.joint_min_rad, dtype=float), np.array(model.joint_max_rad, dtype=float)
+    return lower + margin_rad, upper - margin_rad
+
+
+def middle_equivalent(q_rad: np.ndarray, lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
+    """Return each joint's 2π-equivalent nearest the middle of its range [lower, upper] (rad).
+
+    The planner takes it when the equivalent nearest the previous target would leave the range: it leaves the
+    most room on both sides for the moves that follow.
+    """
+    q = np.asarray(q_rad, dtype=float)
+    middle = (np.asarray(lower_rad, dtype=float) + np.asarray(upper_rad, dtype=float)) / 2.0
+    return q + 2.0 * np.pi * np.round((middle - q) / (2.0 * np.pi))
+
+
 def ur_model(name: str) -> URModel:
     """Return the model called ``name`` (case-insensitive, e.g. ``"ur5e"``). Raises ValueError listing the known ones."""
     for key, model in UR_MODELS.items():

@@ -12,7 +12,8 @@ explains them):
   one pose alone beyond the Bonferroni-corrected :data:`VALIDATION_POSE_P` is a WARN. The plots draw
   ±:data:`ACCEPTANCE_BAND_SIGMAS` σ per pose and axis.
 - **drift** — the first pose measured again at the end: WARN above the configured thresholds, FAIL above
-  :data:`DRIFT_FAIL_FACTOR` times them.
+  :data:`DRIFT_FAIL_FACTOR` times them; WARN when that revisit failed (the calibration stands on the poses
+  measured before it, but its drift is unknown).
 - **conditioning** — the pose set's scaled condition number and the parameters' 1σ against the identification's
   warning thresholds (ftacq.identification.diagnostics): WARN.
 - **outliers** — poses the robust fit named disturbed: WARN for any, FAIL above :data:`OUTLIER_FAIL_FRACTION`.
@@ -256,6 +257,13 @@ def drift_finding(drift: np.ndarray, elapsed_s: float, warn_force_n: float, warn
                                       "off; a warmed-up sensor drifts less", details, figures)
     return Finding("drift", PASS, f"the sensor's zero stayed put ({size}; allowed {warn_force_n:g} N, "
                                   f"{warn_torque_nm:g} N·m)", details, figures)
+
+
+def drift_not_checked_finding(reason: str) -> Finding:
+    """Judge a run whose drift-check revisit failed (``reason``: what failed and why): WARN, the drift is unknown."""
+    return Finding("drift", WARN, f"the drift check failed, so the sensor's drift over the run is unknown ({reason}); "
+                                  "the calibration uses every pose measured before it", f"revisit failed: {reason}",
+                   {"skipped": reason})
 
 
 def conditioning_finding(condition_number: float, weak_warnings: Sequence[str], weakest: str = "") -> Finding:
@@ -525,6 +533,6 @@ def _jsonable(value: Any) -> Any:
 
 
 __all__ = ["PASS", "WARN", "FAIL", "Finding", "Verdict", "judge", "format_verdict", "validation_finding",
-           "drift_finding", "conditioning_finding", "outlier_finding", "poses_finding", "held_out_covariance",
-           "identification_findings", "trend_finding", "fit_finding", "held_out_errors",
+           "drift_finding", "drift_not_checked_finding", "conditioning_finding", "outlier_finding", "poses_finding",
+           "held_out_covariance", "identification_findings", "trend_finding", "fit_finding", "held_out_errors",
            "ACCEPTANCE_BAND_SIGMAS"]

@@ -2,14 +2,16 @@
 
 Validation uses the held-out V poses as measured (their own standard errors), drift the revisit of the first pose
 against the run's thresholds, poses the plan against what the configuration asked for and what was measured.
-A run that stopped or failed before identification gets a FAIL that says so (and how far it got).
+A run that stopped or failed before identification gets a FAIL that says so (and how far it got). A run whose
+optional drift-check revisit failed gets a drift WARN saying what failed; the revisit then counts neither as
+measured nor as due.
 """
 
 from __future__ import annotations
 
 
 from ftacq.posesets import PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
-from ftacq.verdict import Verdict, drift_finding, identification_findings, judge, poses_finding
+from ftacq.verdict import Verdict, drift_finding, drift_not_checked_finding, identification_findings, judge, poses_finding
 from procedures.measured import DRIFT_SUFFIX, pose_record
 
 
@@ -31,9 +33,11 @@ def run_verdict(result, plan, options) -> Verdict:
     (:class:`procedures.calibration_procedure.ProcedureOptions`: drift thresholds, drift check on or off)."""
     from procedures.calibration_procedure import count_measurements
 
-    total = count_measurements(plan, (), options.drift_check)
+    skipped = getattr(result, "drift_skipped", "")
+    drift_check = options.drift_check and not skipped
+    total = count_measurements(plan, (), drift_check)
     measured = sum(1 for label in result.measured if label in set(plan.labels)) + (
-        1 if options.drift_check and any(label.endswith(DRIFT_SUFFIX) for label in result.measured) else 0)
+        1 if drift_check and any(label.endswith(DRIFT_SUFFIX) for label in result.measured) else 0)
     planned = {name: sum(1 for s in plan.set_names if s == name) for name in PLANNED_SETS}
     stopped = "" if result.status == "done" else result.message
     findings = [poses_finding(planned, wanted_counts(plan.settings), min(measured, total), total, stopped)]
@@ -45,6 +49,8 @@ def run_verdict(result, plan, options) -> Verdict:
         d = result.drift
         findings.insert(1, drift_finding(d.drift, d.elapsed_s, options.drift_warn_force_n,
                                          options.drift_warn_torque_nm, d.label))
+    elif skipped:
+        findings.insert(1, drift_not_checked_finding(skipped))
     return judge(findings)
 
 

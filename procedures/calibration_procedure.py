@@ -15,6 +15,12 @@ seen as KeyboardInterrupt) ends the run at once or at the next checkpoint with s
 (protective stop, sensor silent, a pose that does not settle, a refused path, a crash) ends it with "failed".
 Both stop the robot and keep every pose measured so far; there is no "halt" that skips cleanup.
 
+Optional steps: the drift-check revisit of the first pose only reports the bias drift; every pose the
+calibration needs has been measured before it. A fault in it (its move refused, a protective stop, a pose that
+does not settle, a silent sensor) stops the robot, is kept in :attr:`ProcedureResult.drift_skipped` and the
+warnings, and the run goes on to identify and validate what it measured (status "done"; the verdict says WARN,
+:func:`procedures.acceptance.run_verdict`). A stop request or Ctrl-C during it still stops the run.
+
 The procedure never writes files or draws: it emits :mod:`procedures.events` to its listeners (the run-folder
 writer, the progress bar, the Rerun dashboard), including every batch it reads from the sensor
 (:class:`procedures.tap.SensorTap`).
@@ -31,7 +37,7 @@ import numpy as np
 
 from drivers.robot import Robot
 from drivers.sensor import ForceTorqueSensor
-from ftacq.errors import FtacqError, MotionLimitError, PlanError, RobotError
+from ftacq.errors import AbortedError, FtacqError, MotionLimitError, PlanError, RobotError
 from ftacq.posesets import DRIFT_SET, IDENTIFICATION_SETS, VALIDATION_SET
 from ftacq.settings import from_setting, values_from
 from procedures import events
@@ -48,8 +54,8 @@ TERMINAL_STATES = ("done", "stopped", "failed")
 TRANSITIONS: dict[str, tuple[str, ...]] = {
     "idle": ("planning",),
     "planning": ("moving", "identifying"),
-    "moving": ("settling",),
-    "settling": ("averaging",),
+    "moving": ("settling", "identifying"),
+    "settling": ("averaging", "identifying"),
     "averaging": ("moving", "identifying"),
     "identifying": ("validating", "done"),
     "validating": ("done",),
@@ -57,7 +63,8 @@ TRANSITIONS: dict[str, tuple[str, ...]] = {
     "stopped": (),
     "failed": (),
 }
-"""Allowed transitions; "stopped" and "failed" may also be entered from any non-terminal state."""
+"""Allowed transitions; "stopped" and "failed" may also be entered from any non-terminal state. Moving or settling
+goes straight to identifying only when the optional drift-check revisit failed."""
 
 
 # ------------------------------------------------------------------------------------------------ steps
@@ -117,17 +124,23 @@ def calibration_steps(plan, measured: Iterable[str] = (), drift_check: bool = Tr
     yield Validate()
 
 
-def check_steps(steps: Iterable[Step], settings, start_q_rad: np.ndarray) -> list[str]:
+def check_steps(steps: Iterable[Step], settings, start_q_rad: np.ndarray,
+                optional: list[str] | None = None) -> list[str]:
     """Walk the steps without hardware: check every joint move for collisions and joint limits along its path
-    (:func:`procedures.plan.check_path`) and the speed and acceleration against the model. Return the problems."""
+    (:func:`procedures.plan.check_path`) and the speed and acceleration against the model. Return the problems.
+
+    ``optional``: when given, the problems of optional moves (:func:`is_optional`: the drift-check revisit) go
+    into this list instead: the run may start, and skips that step when it gets there (its move is re-checked
+    and refused then).
+    """
     from procedures.plan import check_path
 
     problems: list[str] = []
     q = np.asarray(start_q_rad, dtype=float)
     for step in steps:
         if isinstance(step, Move):
-            for problem in check_path(settings, q, step.joint_target_rad):
-                problems.append(f"move to {step.label}: {problem}")
+            found = [f"move to {step.label}: {problem}" for problem in check_path(settings, q, step.joint_target_rad)]
+            (optional if optional is not None and is_optional(step) else problems).extend(found)
             q = step.joint_target_rad
     return problems
 
@@ -174,6 +187,8 @@ class ProcedureResult:
         validation, drift: the :class:`events.Validated` / :class:`events.DriftChecked` emitted, if any.
         error: the exception that ended a stopped or failed run. warnings: drift and identification warnings.
         interrupted: True when the run ended by Ctrl-C or SIGTERM.
+        drift_skipped: what failed in the optional drift-check revisit and why ("" when it did not fail); the
+            run identified without it.
     """
 
     status: str
@@ -185,6 +200,13 @@ class ProcedureResult:
     error: BaseException | None = None
     warnings: list[str] = field(default_factory=list)
     interrupted: bool = False
+    drift_skipped: str = ""
+
+
+def is_optional(step: Step) -> bool:
+    """Return True for a step of the drift-check revisit: the run identifies without it if it fails."""
+    return (isinstance(step, Move) and step.purpose == "drift") or (isinstance(step, Measure)
+                                                                    and step.set_name == DRIFT_SET)
 
 
 class CalibrationProcedure:
@@ -283,7 +305,8 @@ class CalibrationProcedure:
         return ProcedureResult(status=status, message=message, measured=dict(self.measured), error=error,
                                interrupted=interrupted, identification=self._result_parts.get("identification"),
                                validation=self._result_parts.get("validation"),
-                               drift=self._result_parts.get("drift"), warnings=self._result_parts["warnings"])
+                               drift=self._result_parts.get("drift"), warnings=self._result_parts["warnings"],
+                               drift_skipped=self._result_parts.get("drift_skipped", ""))
 
     def _where(self) -> str:
         """Where the run is, counted as the progress display counts: pose k/N is the k-th measurement of the N
@@ -316,10 +339,15 @@ class CalibrationProcedure:
             raise DeviceConnectionError("the robot's data stream is not connected")
 
     def execute(self) -> None:
-        """Walk the steps (see :func:`calibration_steps`)."""
+        """Walk the steps (see :func:`calibration_steps`); a fault in an optional step skips the rest of it."""
+        skipping = False
         for step in calibration_steps(self.plan, self.measured, self.options.drift_check):
             if self._should_stop():
                 raise StopRequested("stop requested")
+            if is_optional(step):
+                if not skipping:
+                    skipping = not self._optional(step)
+                continue
             if isinstance(step, Move):
                 self._move(step)
             elif isinstance(step, Measure):
@@ -330,6 +358,32 @@ class CalibrationProcedure:
             elif isinstance(step, Validate):
                 self._validate()
         self._enter("done", message="calibration finished")
+
+    def _optional(self, step: Step) -> bool:
+        """Run an optional step; on a fault stop the robot, record what failed and return False."""
+        try:
+            if isinstance(step, Move):
+                self._move(step)
+            else:
+                assert isinstance(step, Measure)
+                self._measure(step)
+            return True
+        except (StopRequested, AbortedError):
+            raise
+        except FtacqError as exc:
+            if self._should_stop():
+                raise
+            what = self._label or getattr(step, "label", "")
+            reason = f"{type(exc).__name__} at {what} while {self.state}: {exc}"
+            log.warning("the drift check failed, the run identifies without it: %s", reason)
+            try:
+                self.robot.stop()
+            except Exception:
+                log.warning("robot.stop() failed after the drift check's fault", exc_info=True)
+            self._result_parts["drift_skipped"] = reason
+            self._result_parts["warnings"].append(
+                f"the drift check was not made ({reason}); the calibration uses the poses measured before it")
+            return False
 
     def shutdown(self, status: str, message: str) -> None:
         """Stop the robot unless the run succeeded, and announce the final state (always called)."""
@@ -457,4 +511,4 @@ def validate(calibration, record) -> events.Validated:
 
 
 __all__ = ["CalibrationProcedure", "ProcedureOptions", "ProcedureResult", "Move", "Measure", "Identify", "Validate",
-           "calibration_steps", "check_steps", "count_measurements", "validate", "TRANSITIONS"]
+           "calibration_steps", "check_steps", "count_measurements", "is_optional", "validate", "TRANSITIONS"]

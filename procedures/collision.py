@@ -21,7 +21,9 @@ few centimetres: the ``clearance_m`` margin is there for that.
 Checks: (1) non-adjacent link pairs and the tool against the arm (:data:`SELF_COLLISION_PAIRS`, capsule-capsule
 distance ≥ r_a + r_b + clearance); (2) every link except the base, and the tool, stay ``table_margin_m`` above the
 mounting surface: the plane z = 0 of the base frame, which is the table for a floor mount, the wall for a wall
-mount and the ceiling for a ceiling mount (the base is bolted to it); (3) joint limits. Link frames come from
+mount and the ceiling for a ceiling mount (the base is bolted to it); (3) joint limits: a planned target must stay
+:data:`ftacq.kinematics.JOINT_LIMIT_MARGIN_RAD` inside them, a measured configuration (where a move starts) may
+lie :data:`ftacq.kinematics.MEASURED_ANGLE_TOLERANCE_RAD` outside them (encoder jitter). Link frames come from
 Pinocchio (``pin.forwardKinematics`` + ``updateFramePlacements``, :func:`ftacq.kinematics.pinocchio_dh_frames`);
 distances are plain numpy segment-segment distances, vectorised over the samples of a path.
 """
@@ -33,7 +35,15 @@ from functools import cached_property
 
 import numpy as np
 
-from ftacq.kinematics import URModel, dh_transforms_batch, pinocchio_dh_frames, pinocchio_model
+from ftacq.kinematics import (
+    JOINT_LIMIT_MARGIN_RAD,
+    MEASURED_ANGLE_TOLERANCE_RAD,
+    URModel,
+    dh_transforms_batch,
+    pinocchio_dh_frames,
+    pinocchio_model,
+    planning_limits_rad,
+)
 from ftacq.mounts import mount_of
 
 LINK_NAMES = ("base", "upper arm", "forearm", "wrist 1", "wrist 2", "wrist 3", "tool")
@@ -61,7 +71,6 @@ PATH_MAX_DISPLACEMENT_M = 0.03
 bound between samples is not yet proven, see :meth:`CollisionChecker.problems_along`)."""
 PATH_MIN_DISPLACEMENT_M = 0.0005
 """Refinement of a joint-move check stops at this displacement per step (the certified bound's tolerance)."""
-LIMIT_TOLERANCE_RAD = 1e-9
 
 
 def link_radii(model: URModel, tool_radius_m: float) -> np.ndarray:
@@ -197,24 +206,35 @@ class CollisionChecker:
         return (f"{LINK_NAMES[b]} hits {LINK_NAMES[a]} (gap {(clearance_m + self.clearance_m) * 1000:.0f} mm, "
                 f"needs {self.clearance_m * 1000:.0f} mm)")
 
-    def _limit_problem(self, q_samples: np.ndarray) -> tuple[str, int] | None:
-        lower, upper = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
-        outside = (q_samples < lower - LIMIT_TOLERANCE_RAD) | (q_samples > upper + LIMIT_TOLERANCE_RAD)
+    def _limit_problem(self, q_samples: np.ndarray, margins_rad: np.ndarray) -> tuple[str, int] | None:
+        """Return (message, first offending sample) when a sample (S, 6) leaves the joint limits less its margin
+        (S,) (negative: a tolerance beyond the limits), or None."""
+        margins = np.asarray(margins_rad, dtype=float).reshape(-1, 1)
+        lower, upper = planning_limits_rad(self.model, 0.0)
+        outside = (q_samples < lower + margins) | (q_samples > upper - margins)
         if not outside.any():
             return None
         k = int(np.argmax(outside.any(axis=-1)))
+        margin = float(margins[k, 0])
+        kept = (f" (the limits less the {np.degrees(margin):.0f} deg planning margin)" if margin > 0.0 else
+                f" (measured; {abs(margin):.0e} rad of encoder noise allowed)" if margin < 0.0 else "")
         return "joint limit: " + ", ".join(
-            f"q{j + 1} = {np.degrees(q_samples[k, j]):.1f} deg outside "
-            f"[{np.degrees(lower[j]):.0f}, {np.degrees(upper[j]):.0f}]" for j in np.flatnonzero(outside[k])), k
+            f"q{j + 1} = {np.degrees(q_samples[k, j]):.4f} deg outside "
+            f"[{np.degrees(lower[j] + margin):.0f}, {np.degrees(upper[j] - margin):.0f}]" + kept
+            for j in np.flatnonzero(outside[k])), k
 
     def _surface_name(self) -> str:
         return mount_of(self.mount).surface
 
-    def problems_at(self, q_rad: np.ndarray) -> list[str]:
-        """Return the collision and limit problems of one configuration (6,); empty when it is clear."""
+    def problems_at(self, q_rad: np.ndarray, measured: bool = False) -> list[str]:
+        """Return the collision and limit problems of one configuration (6,); empty when it is clear.
+
+        A planned configuration (default) must keep :data:`JOINT_LIMIT_MARGIN_RAD` from every limit; a
+        ``measured`` one (the arm's reported angles) may lie :data:`MEASURED_ANGLE_TOLERANCE_RAD` beyond one.
+        """
         q = np.asarray(q_rad, dtype=float).reshape(1, 6)
         problems = []
-        limit = self._limit_problem(q)
+        limit = self._limit_problem(q, np.array([-MEASURED_ANGLE_TOLERANCE_RAD if measured else JOINT_LIMIT_MARGIN_RAD]))
         if limit:
             problems.append(limit[0])
         clearance = self.clearances(q)[0]
@@ -242,11 +262,16 @@ class CollisionChecker:
         :data:`PATH_MIN_DISPLACEMENT_M` (accepted: the clearance there is within that of the limit). Each message
         says how far along the move (in %) the problem first occurs. ``check_limits=False`` checks geometry only
         (it is 2π-periodic in every joint, so a planner may check a move once for any winding).
+
+        Joint limits: ``q_from`` is where the arm is (measured, or a target already checked) and may lie
+        :data:`MEASURED_ANGLE_TOLERANCE_RAD` beyond a limit; ``q_to`` is a planned target and must keep
+        :data:`JOINT_LIMIT_MARGIN_RAD` from every limit.
         """
         q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
         problems: list[str] = []
-        if check_limits:
-            limit = self._limit_problem(np.vstack([q_from, q_to]))  # a straight move is inside if both ends are
+        if check_limits:  # a straight move is inside if both ends are
+            limit = self._limit_problem(np.vstack([q_from, q_to]),
+                                        np.array([-MEASURED_ANGLE_TOLERANCE_RAD, JOINT_LIMIT_MARGIN_RAD]))
             if limit:
                 problems.append(f"{limit[0]} at {100.0 * limit[1]:.0f} % of the move")
         bound = self.displacement_bound_m(q_from, q_to)

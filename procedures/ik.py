@@ -19,7 +19,7 @@ frame ``k``:
    ``q2 = atan2(y, x) − atan2(a3 s3, a2 + a3 c3)``, ``q4 = atan2(T14[1,0], T14[0,0]) − q2 − q3``.
 
 Each branch is then mapped joint by joint to the 2π-equivalent value nearest a reference configuration
-within the joint limits, refined by a few Gauss-Newton steps on Pinocchio's FK (``pin.log6`` error, local
+within the joint limits less the planning margin (:data:`ftacq.kinematics.JOINT_LIMIT_MARGIN_RAD`), refined by a few Gauss-Newton steps on Pinocchio's FK (``pin.log6`` error, local
 Jacobian) and verified to :data:`IK_TOLERANCE`. :func:`solve_ik` keeps the branch of the previous
 configuration: a change of shoulder, elbow or wrist branch between consecutive poses means passing a
 singularity (a wrist flip, for instance), which the planner refuses.
@@ -32,7 +32,14 @@ from functools import lru_cache
 
 import numpy as np
 
-from ftacq.kinematics import FLANGE_FRAME, URModel, dh_transforms, forward_kinematics, pinocchio_model
+from ftacq.kinematics import (
+    FLANGE_FRAME,
+    URModel,
+    dh_transforms,
+    forward_kinematics,
+    pinocchio_model,
+    planning_limits_rad,
+)
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 
 TWO_PI = 2.0 * np.pi
@@ -239,13 +246,14 @@ def refine_ik(model: URModel, pose_or_transform: np.ndarray, q_rad: np.ndarray) 
 
 def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
                       q_reference_rad: np.ndarray) -> dict[Branch, IKResult]:
-    """Solve every branch of a flange pose; each joint the 2π-equivalent nearest ``q_reference_rad`` in limits.
+    """Solve every branch of a flange pose; each joint the 2π-equivalent nearest ``q_reference_rad`` within the
+    joint limits less the planning margin (:func:`ftacq.kinematics.planning_limits_rad`).
 
     Returns a dict branch → :class:`IKResult` (a solution refined on Pinocchio's FK and verified to
     :data:`IK_TOLERANCE`, or why that branch has none: out of reach, joint limit, near a singularity).
     """
     q_ref = np.asarray(q_reference_rad, dtype=float)
-    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    lower, upper = planning_limits_rad(model)
     out: dict[Branch, IKResult] = {}
     for branch, q, reason in analytic_ik(model, pose_or_transform):
         if q is None:
@@ -254,7 +262,7 @@ def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
         wrapped = wrap_near(q, q_ref, lower, upper)
         if wrapped is None:
             out[branch] = IKResult(None, None, "joint limit: no equivalent of (" + ", ".join(
-                f"{np.degrees(v):.0f}" for v in q) + ") deg within the limits")
+                f"{np.degrees(v):.0f}" for v in q) + ") deg within the limits less the planning margin")
             continue
         singular = singularity_reason(model, wrapped)
         if singular:

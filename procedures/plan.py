@@ -7,6 +7,11 @@ has :mod:`procedures.tour` order the poses and check every joint move of that or
 estimates the duration from trapezoidal joint profiles. When no centre is given and the default one loses poses,
 alternative centres are tried. The settings are :class:`procedures.plan_settings.PlanSettings`.
 
+Joint limits: every planned target, the drift-check revisit's included, keeps
+:data:`ftacq.kinematics.JOINT_LIMIT_MARGIN_RAD` (5°) from each limit (a joint that would leave that range goes to
+its 2π-equivalent nearest the middle of the range, :mod:`procedures.tour`); the robot's measured configuration may
+lie :data:`ftacq.kinematics.MEASURED_ANGLE_TOLERANCE_RAD` beyond a limit (encoder jitter).
+
 Order of the sets: A, E and V poses are interleaved in one tour. Validation poses measured among the others
 see the same thermal state and time as the identification poses, so their error measures the calibration, not
 the drift (which the executor's revisit of the first pose reports separately); putting V last would also add
@@ -23,8 +28,8 @@ from functools import lru_cache
 import numpy as np
 
 from ftacq.errors import PlanError
+from ftacq.kinematics import JOINT_LIMIT_MARGIN_RAD, MEASURED_ANGLE_TOLERANCE_RAD, UR_MODELS, URModel, ur_model
 from ftacq.mounts import mount_of
-from ftacq.kinematics import UR_MODELS, URModel, ur_model
 from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 from procedures.collision import CollisionChecker
@@ -76,7 +81,8 @@ class Plan:
 
     Attributes:
         poses: flange poses (N, 6) in the base frame. joint_targets_rad: IK solutions (N, 6), each joint the
-            2π-equivalent nearest the previous target. labels: "A07", "E13", "V02", "X01"… set_names: "A"/"E"/"V".
+            2π-equivalent nearest the previous target, or nearest the middle of its range where that one would
+            come within JOINT_LIMIT_MARGIN_RAD of a limit. labels: "A07", "E13", "V02", "X01"… set_names: "A"/"E"/"V".
         rejected: (label, reason) of every pose left out. estimated_duration_s: moves + settle + averaging
             (+ the drift-check revisit). joint_travel_rad: weighted joint travel of this order from the start
             configuration; listing_travel_rad: the same for the listing order (A, E, V as generated).
@@ -264,7 +270,9 @@ def collision_checker(settings: PlanSettings, planning: bool = False) -> Collisi
 def check_path(settings: PlanSettings, q_from: np.ndarray, q_to: np.ndarray) -> list[str]:
     """Return the collision and joint-limit problems along the moveJ q_from → q_to (sampled); empty = clear.
 
-    The executor calls this before every move, so that nothing leaves the checked plan.
+    The executor calls this before every move, so that nothing leaves the checked plan. ``q_from`` is where the
+    arm is (its measured angles may lie MEASURED_ANGLE_TOLERANCE_RAD beyond a limit: encoder jitter); ``q_to`` is
+    a planned target and must keep JOINT_LIMIT_MARGIN_RAD from every limit.
     """
     q_from, q_to = np.asarray(q_from, dtype=float).reshape(6), np.asarray(q_to, dtype=float).reshape(6)
     if not (np.all(np.isfinite(q_from)) and np.all(np.isfinite(q_to))):
@@ -380,9 +388,10 @@ def make_plan(settings: PlanSettings, start_q_rad: np.ndarray) -> Plan:
     start_q = np.asarray(start_q_rad, dtype=float).reshape(6)
     model = settings.ur
     lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
-    if not np.all(np.isfinite(start_q)) or np.any(start_q < lower - 1e-6) or np.any(start_q > upper + 1e-6):
+    tolerance = MEASURED_ANGLE_TOLERANCE_RAD  # the start is measured: its angles jitter
+    if not np.all(np.isfinite(start_q)) or np.any(start_q < lower - tolerance) or np.any(start_q > upper + tolerance):
         raise PlanError(f"start configuration {np.round(start_q, 4).tolist()} rad is outside the joint limits")
-    start_problems = collision_checker(settings).problems_at(start_q)
+    start_problems = collision_checker(settings).problems_at(start_q, measured=True)
     if start_problems:
         raise PlanError("the robot's current configuration is too close to a collision in the planner's model ("
                         + "; ".join(start_problems) + "): jog it clear (e.g. to the home configuration) and plan again")
@@ -489,7 +498,8 @@ def format_plan(plan: Plan) -> str:
     lines += [
         f"  joint travel: {plan.joint_travel_rad:.1f} rad in this order, {plan.listing_travel_rad:.1f} rad in "
         f"listing order ({saving:.0f} % shorter)",
-        f"  limits: joint speed {s.joint_speed_rad_s:.2f} rad/s, acceleration {s.joint_acceleration_rad_s2:.2f} rad/s²",
+        f"  limits: joint speed {s.joint_speed_rad_s:.2f} rad/s, acceleration {s.joint_acceleration_rad_s2:.2f} rad/s²; "
+        f"every target at least {np.degrees(JOINT_LIMIT_MARGIN_RAD):.0f}° inside each joint limit",
         f"  estimated duration: {_minutes(plan.estimated_duration_s)} (settle {s.settle_time_s:.1f} s + average "
         f"{s.average_time_s:.1f} s per pose" + (", drift-check revisit of the first pose" if s.drift_check else "")
         + ")",

@@ -261,6 +261,9 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
                   f"F [{', '.join(f'{x:+.4f}' for x in d.drift[:3])}] N, "
                   f"T [{', '.join(f'{x:+.5f}' for x in d.drift[3:])}] N·m"
                   + (f". **{d.warning}**" if d.warning else " (below the warning thresholds)."), ""]
+    elif getattr(result, "drift_skipped", ""):
+        lines += ["## Drift check", "", f"**Not made**: {result.drift_skipped}. The calibration uses every pose "
+                  "measured before it; the sensor's drift over the run is unknown.", ""]
     lines += ["## Measured poses", ""]
     lines += _table(["label", "set", "count", *[f"{c} [{u}]" for c, u in zip(CHANNELS, UNITS)]],
                     [(label, result.measured[label].set_name, str(result.measured[label].count),

@@ -25,7 +25,7 @@ from ftacq.bias_estimate import BiasEstimate, estimate_biases
 from ftacq.calibration import Calibration
 from ftacq.errors import IdentificationError
 from ftacq.posesets import RANDOM_SET
-from ftacq.so3 import rotation_from_rotvec
+from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from procedures import events
 from procedures.calibration_procedure import CalibrationProcedure, ProcedureOptions
 from procedures.settle import SettleSettings, average_at_pose, wait_until_settled
@@ -78,7 +78,11 @@ def tare_here(robot: Robot, sensor: ForceTorqueSensor, calibration: Calibration,
     before = np.asarray(robot.flange_pose(), dtype=float)
     average, _, _ = average_at_pose(sensor, settle, should_stop)
     after = np.asarray(robot.flange_pose(), dtype=float)
-    if not robot.is_steady() or np.max(np.abs(after - before)) > 1e-4:
+    # the turn between the two poses, not the difference of their rotation vectors: near an angle of π (the tool
+    # pointing down) the encoders' jitter flips a rotation vector's sign
+    turned_rad = float(np.linalg.norm(rotvec_from_rotation(rotation_from_rotvec(before[3:]).T
+                                                           @ rotation_from_rotvec(after[3:]))))
+    if not robot.is_steady() or max(float(np.max(np.abs(after[:3] - before[:3]))), turned_rad) > 1e-4:
         from procedures.settle import PoseNotSettledError
 
         raise PoseNotSettledError("the arm moved while the tare was averaging: keep it still and tare again")

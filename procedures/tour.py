@@ -9,6 +9,12 @@ re-optimised, and a pose that no order reaches cleanly is dropped with its reaso
 The drift-check revisit of the first pose at the end is made clear by rotating the cycle or a 2-opt step on its
 closing move (:func:`clear_revisit`, :func:`revisit_target`).
 
+Joint limits: every target keeps :data:`ftacq.kinematics.JOINT_LIMIT_MARGIN_RAD` from each limit. A move takes
+each joint the shortest way (a ±360° wrist may wind past ±180°); where that would leave the range less the
+margin, the joint goes instead to the 2π-equivalent nearest the middle of its range
+(:func:`ftacq.kinematics.middle_equivalent`), and that move is checked as it is. Without the margin, winding put
+targets exactly on a limit (q6 = ±360° after a few cube rotations), where the encoders' jitter reads them outside.
+
 Nothing here knows about pose sets or settings: :mod:`procedures.plan` builds the poses, solves their IK and
 hands the joint configurations, the collision checker and the model to this module.
 """
@@ -17,9 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ftacq.kinematics import URModel
+from ftacq.kinematics import URModel, middle_equivalent, planning_limits_rad
 from procedures.collision import CollisionChecker
-from procedures.ik import TWO_PI, wrap_near
+from procedures.ik import TWO_PI
 
 COLLIDING_EDGE_PENALTY_RAD = 1e3
 """Cost added to a joint move that failed the path check, so the 2-opt avoids it."""
@@ -96,14 +102,15 @@ class MoveGraph:
     """Moves between poses (node 0 = the start configuration) with their path checks, cached.
 
     The geometry of a move is 2π-periodic in every joint, so a move is checked once as (from-node, delta) from
-    the canonical configuration; joint limits are checked on the actual targets of a sequence.
+    the canonical configuration; joint limits (less the planning margin) are checked on the actual targets of a
+    sequence.
     """
 
     def __init__(self, checker: CollisionChecker, model: URModel, start_q: np.ndarray, q: np.ndarray) -> None:
         self.model = model
         self.checker = checker
         self.weights = joint_weights(self.model)
-        self.lower, self.upper = np.array(self.model.joint_min_rad), np.array(self.model.joint_max_rad)
+        self.lower, self.upper = planning_limits_rad(self.model)
         self.nodes = np.vstack([start_q[None, :], q])
         self.delta = angle_delta(self.nodes[:, None, :], self.nodes[None, :, :])  # (n, n, 6), δ[a, b]
         self.delta[0, :] = angle_delta(start_q, self.nodes)  # from the start
@@ -150,8 +157,9 @@ class MoveGraph:
     def sequence(self, path: list[int]) -> tuple[np.ndarray, list[tuple[int, int]]]:
         """Return the actual joint targets along ``path`` (node 0 first) and the moves that failed a check.
 
-        A target outside the joint limits is replaced by the equivalent nearest its predecessor within the
-        limits, and that move is checked as it is.
+        A joint whose target would leave the joint limits less the planning margin goes to its 2π-equivalent
+        nearest the middle of its range instead (:func:`ftacq.kinematics.middle_equivalent`), and that move is
+        checked as it is.
         """
         q = self.nodes[0].copy()
         out = []
@@ -159,16 +167,16 @@ class MoveGraph:
         for a, b in zip(path[:-1], path[1:]):
             ok = self.check_edge(a, b)
             target = q + self.move(a, b)
-            if np.any(target < self.lower - 1e-9) or np.any(target > self.upper + 1e-9):
-                wrapped = wrap_near(self.nodes[b], q, self.lower, self.upper)
-                target = self.nodes[b] if wrapped is None else wrapped
+            outside = (target < self.lower) | (target > self.upper)
+            if outside.any():
+                target = np.where(outside, middle_equivalent(target, self.lower, self.upper), target)
                 problems = self.checker.problems_along(q, target)
                 if problems:
                     self.bad[(min(a, b), max(a, b))] = problems[0]
                     ok = False
             if not ok:
                 failed.append((a, b))
-            target = np.clip(target, self.lower, self.upper)  # only rounding: farther out was re-wrapped above
+            target = np.clip(target, self.lower, self.upper)  # only rounding: farther out was moved above
             out.append(target)
             q = target
         return np.array(out).reshape(-1, 6), failed
@@ -250,15 +258,15 @@ def clear_revisit(graph: MoveGraph, path: list[int], targets: np.ndarray) -> tup
 
 
 def listing_targets(model: URModel, start_q: np.ndarray, q_sequence: np.ndarray) -> np.ndarray:
-    """Return the joint targets of a sequence moved through with the shortest joint moves (within limits)."""
-    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    """Return the joint targets of a sequence moved through with the shortest joint moves (within the limits less
+    the planning margin; a joint that would leave them goes to its equivalent nearest the middle of its range)."""
+    lower, upper = planning_limits_rad(model)
     out = np.empty_like(q_sequence)
     q = np.asarray(start_q, dtype=float)
     for i, target in enumerate(q_sequence):
         nxt = q + angle_delta(q, target)
-        if np.any(nxt < lower) or np.any(nxt > upper):
-            wrapped = wrap_near(target, q, lower, upper)
-            nxt = target if wrapped is None else wrapped
+        outside = (nxt < lower) | (nxt > upper)
+        nxt = np.where(outside, middle_equivalent(nxt, lower, upper), nxt)
         out[i] = q = np.clip(nxt, lower, upper)
     return out
 
@@ -267,9 +275,10 @@ def revisit_target(checker: CollisionChecker, model: URModel, q_exec: np.ndarray
     """Return (joint target for revisiting the first pose, "" or why every candidate move is blocked).
 
     Candidates, in order: the first target itself, then its 2π-equivalent nearest the last target (shortest
-    move), then that with one wrist or base joint the long way round; each within the limits and checked clear.
+    move), then that with one wrist or base joint the long way round; each within the limits less the planning
+    margin (:func:`ftacq.kinematics.planning_limits_rad`) and checked clear.
     """
-    lower, upper = np.array(model.joint_min_rad), np.array(model.joint_max_rad)
+    lower, upper = planning_limits_rad(model)
     last, first = q_exec[-1], q_exec[0]
     shortest = last + angle_delta(last, first)
     candidates = [first, shortest]
@@ -280,7 +289,7 @@ def revisit_target(checker: CollisionChecker, model: URModel, q_exec: np.ndarray
             candidates.append(alternative)
     first_problem = ""
     for candidate in candidates:
-        if np.any(candidate < lower - 1e-9) or np.any(candidate > upper + 1e-9):
+        if np.any(candidate < lower) or np.any(candidate > upper):
             continue
         candidate = np.clip(candidate, lower, upper)
         problems = checker.problems_along(last, candidate)

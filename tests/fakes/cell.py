@@ -27,6 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from ftacq.kinematics import ur_model
+from tests.fakes.ur_simulator import ENCODER_NOISE_RAD
 from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
 
 SENSORS = ("netft", "can")
@@ -48,11 +49,14 @@ class SimulatedCell:
         time_scale: controller speed factor (0 = moves complete at once, 1 = real time, 10 = ten times faster).
         rate_hz: the sensor's sample rate (Net F/T streaming rate, or CAN poll rate suggested in the URL).
         seed: seed of the sensor noise. initial_q: start joint angles (rad); default the plan's home.
+        encoder_noise_rad: 1σ jitter of the joint angles the controller reports, rad; default
+            :data:`tests.fakes.ur_simulator.ENCODER_NOISE_RAD` (as a real arm), 0 = exact.
     """
 
     def __init__(self, truth: CellTruth | None = None, sensor: str = "netft", model: str = "UR5e",
                  mount: str = "floor", time_scale: float = 1.0, rate_hz: float = DEFAULT_SENSOR_RATE_HZ,
-                 seed: int = 0, initial_q: np.ndarray | None = None) -> None:
+                 seed: int = 0, initial_q: np.ndarray | None = None,
+                 encoder_noise_rad: float = ENCODER_NOISE_RAD) -> None:
         if sensor not in SENSORS:
             raise ValueError(f"sensor {sensor!r}: must be one of {', '.join(SENSORS)}")
         truth = truth or CellTruth()
@@ -70,6 +74,7 @@ class SimulatedCell:
 
             initial_q = home_configuration_rad(mount)
         self.initial_q = np.asarray(initial_q, dtype=float)
+        self.encoder_noise_rad = float(encoder_noise_rad)
         self.shared_pose: SharedPose | None = None
         self.physics: SensorPhysics | None = None
         self.controller = None
@@ -92,7 +97,7 @@ class SimulatedCell:
             self._stack.callback(self._close_shared_pose)
             self.controller = URControllerProcess(model=self.model_name, time_scale=self.time_scale,
                                                   pose_shm=self.shared_pose.name, initial_q=self.initial_q,
-                                                  mount=self.mount)
+                                                  mount=self.mount, extra_args=self._controller_args())
             self.controller.start()
             self._stack.callback(self.controller.stop)
             self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed, robot=ur_model(self.model_name),
@@ -115,6 +120,10 @@ class SimulatedCell:
             self.close()
             raise
         return self
+
+    def _controller_args(self) -> list[str]:
+        """The controller's options beyond those URControllerProcess takes: the encoder jitter (seeded by ``seed``)."""
+        return ["--seed", str(self.seed), "--encoder-noise-rad", repr(self.encoder_noise_rad)]
 
     def _close_shared_pose(self) -> None:
         # The controller subprocess attached to the block; Python < 3.13's resource tracker of that process may

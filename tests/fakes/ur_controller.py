@@ -57,7 +57,7 @@ import numpy as np
 from ftacq.kinematics import ur_model
 from tests.fakes import rtde_protocol as rp
 from tests.fakes.ur_dashboard_server import GREETING, dashboard_server_reply
-from tests.fakes.ur_simulator import Fault, URSimulator
+from tests.fakes.ur_simulator import ENCODER_NOISE_RAD, Fault, URSimulator
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 TICK_HZ = 500.0
@@ -674,6 +674,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mount", default="floor", help="floor, wall, ceiling, tilted:ALPHA,BETA or gravity:X,Y,Z")
     parser.add_argument("--version", type=parse_version, default=(5, 11, 1, 108318), help="controller version")
     parser.add_argument("--serial-number", default="20235500123")
+    parser.add_argument("--encoder-noise-rad", type=float, default=0.0,
+                        help=f"1σ jitter of the reported joint angles, rad (default 0: exact; a real UR5e "
+                             f"{ENCODER_NOISE_RAD:g})")
+    parser.add_argument("--seed", type=int, default=None, help="seed of the encoder jitter")
     return parser
 
 
@@ -681,7 +685,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version,
                       initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
-                      serial_number=args.serial_number)
+                      serial_number=args.serial_number, encoder_noise_rad=args.encoder_noise_rad, seed=args.seed)
     server = ControllerServer(sim, args.host, args.pose_shm)
     try:
         server.bind()

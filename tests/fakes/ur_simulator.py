@@ -61,6 +61,12 @@ SCRIPT_COMPILE_DELAY_S = 0.05
 MIN_SETTLE_S = 0.012
 """'Done' is signalled at least this long (and 2.5 stream periods) after the final state is published (§7.11)."""
 STEADY_SPEED_RAD_S = 1e-6
+ENCODER_NOISE_RAD = 1e-6
+"""1σ of the Gaussian jitter on the reported joint angles (``actual_q``), rad: what a real UR5e's encoders show at
+rest, independent per joint and per cycle. The motion itself (``q``, ``target_q``, the flange pose the sensor sees)
+stays exact. The simulated cell (:class:`tests.fakes.cell.SimulatedCell`: the procedure's tests, ``--sim``) turns
+it on by default; a bare controller (the protocol tests, which compare angles exactly) reports exact angles unless
+given ``encoder_noise_rad``."""
 STANDARD_GRAVITY_M_S2 = 9.81
 MOUNT_GRAVITY_M_S2 = {"floor": (0.0, 0.0, -STANDARD_GRAVITY_M_S2), "wall": (-STANDARD_GRAVITY_M_S2, 0.0, 0.0),
                       "ceiling": (0.0, 0.0, STANDARD_GRAVITY_M_S2)}
@@ -128,13 +134,18 @@ class URSimulator:
     """The simulated controller's state. ``network`` hooks (drop/freeze) are set by the server."""
 
     def __init__(self, model: URModel, *, time_scale: float = 1.0, version: tuple[int, int, int, int] = (5, 11, 1, 108318),
-                 initial_q: np.ndarray | None = None, mount: str = "floor", serial_number: str = "20235500123") -> None:
+                 initial_q: np.ndarray | None = None, mount: str = "floor", serial_number: str = "20235500123",
+                 encoder_noise_rad: float = 0.0, seed: int | None = None) -> None:
         self.lock = threading.RLock()
         self.model = model
         self.time_scale = float(time_scale)
         self.version = version
         self.mount = mount
         self.serial_number = serial_number
+        if not encoder_noise_rad >= 0.0:
+            raise ValueError(f"encoder_noise_rad {encoder_noise_rad!r}: must be >= 0")
+        self.encoder_noise_rad = float(encoder_noise_rad)
+        self._encoder_rng = np.random.default_rng(seed)
         self.start_s = time.monotonic()
         self._last_step_s = self.start_s
         self.q = np.array(initial_q if initial_q is not None else [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0], dtype=float)
@@ -702,6 +713,9 @@ class URSimulator:
         else:
             self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
         q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
+        actual_q = q
+        if self.encoder_noise_rad > 0.0:  # the encoders' jitter: reported angles only
+            actual_q = tuple((self.q + self._encoder_rng.normal(0.0, self.encoder_noise_rad, 6)).tolist())
         moving = self.motion is not None
         running = self.robot_mode == ROBOT_MODE_RUNNING
         joint_mode = 253 if running else (255 if self.robot_mode == ROBOT_MODE_IDLE else 239)
@@ -713,7 +727,7 @@ class URSimulator:
                                                    self.payload_kg, self.payload_cog, np.array(gravity))
         fields = {
             "timestamp": now - self.start_s,
-            "actual_q": q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": qdd,
+            "actual_q": actual_q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": qdd,
             "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(tcp.tolist()),
             "actual_TCP_force": tcp_force,
             "actual_TCP_speed": tuple(self.tcp_speed.tolist()), "target_TCP_speed": tuple(self.tcp_speed.tolist()),

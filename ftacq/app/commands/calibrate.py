@@ -218,14 +218,17 @@ def run(args: argparse.Namespace) -> int:
         if folder is not None:
             print(f"  resuming {folder.path}: {len(measured)} poses already measured, {remaining} to measure",
                   flush=True)
-        problems = check_steps(calibration_steps(plan, measured, drift_check), settings, start_q)
+        optional_problems: list[str] = []
+        problems = check_steps(calibration_steps(plan, measured, drift_check), settings, start_q, optional_problems)
         if problems:
             from ftacq.errors import PlanError
 
             raise PlanError("the plan's moves from the robot's current configuration are not clear:\n  "
                             + "\n  ".join(problems))
         print(f"  path check: {sum(isinstance(s, Move) for s in calibration_steps(plan, measured, drift_check))} moves "
-              "checked for collisions and joint limits from the current configuration: clear", flush=True)
+              "checked for collisions and joint limits from the current configuration: clear"
+              + (" but the drift-check revisit, which will be skipped (the verdict will say WARN): "
+                 + "; ".join(optional_problems) if optional_problems else ""), flush=True)
         if args.dry_run:
             print("dry run: the robot did not move", flush=True)
             return 0
