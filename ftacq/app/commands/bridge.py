@@ -24,6 +24,10 @@ import numpy as np
 from ftacq.errors import FtacqError, InputError
 
 SIM_SENSOR_RATE_HZ = 7000.0
+SIM_REALTIME_PRIORITY = 85
+"""SCHED_FIFO priority of the simulated controller and Net F/T (--sim): real ones keep their cycle whatever the
+computer does; at normal priority on a busy computer the simulated controller missed 100 ms (normal scheduling
+where refused)."""
 READOUT_PERIOD_S = 0.5
 
 
@@ -101,7 +105,8 @@ def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
     if args.sim:
         from ftacq.app.simcell import simulated_cell
 
-        cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
+        cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ,
+                                                  realtime_priority=SIM_REALTIME_PRIORITY))
         truth = cell.truth
         offset = np.asarray(getattr(truth, "sensor_offset_m", (0.0, 0.0, 0.0)), dtype=float)
         if calibration is None:  # the ground truth, tool inertia included: the jogging arm is compensated dynamically
@@ -214,20 +219,40 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
           f"low-pass {bridge.cutoff_hz:g} Hz (delay {bridge.filter.delay_s * 1000:.1f} ms); feeding (Ctrl-C to stop)",
           file=sys.stderr)
     summary = bridge.run(duration_s=args.seconds)
-    staleness = summary.staleness_s()
-    p50, p99 = (np.percentile(staleness, [50, 99]) * 1000 if len(staleness) else (np.nan, np.nan))
-    newest = f" (the newest {len(summary.log)} cycles)" if len(summary.log) < summary.cycles else ""
-    print(f"ftacq bridge: {summary.written} values written in {summary.cycles} controller cycles over "
-          f"{summary.duration_s:.1f} s; answered later than one cycle: {summary.late_answers}; feed thread "
-          f"{summary.feed_priority}; newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms{newest}, max "
-          f"{summary.max_sample_age_s * 1000:.1f} ms; filter delay "
-          f"{summary.filter_delay_s * 1000:.1f} ms; external input "
-          f"{'disabled' if summary.disabled else 'NOT disabled (the controller pauses the program by itself)'}"
-          + ("; stopped by Ctrl-C" if summary.interrupted else ""))
+    print(summary_line(summary))
     if summary.trip:
+        state = ("disabled" if summary.disabled else "left to the controller") if summary.enabled else \
+            "left to the program" if robot is None else "never enabled"
         raise BridgeStoppedError(f"the watchdog stopped the feed: {summary.trip}; nothing more was written and the "
-                                 f"external input is {'disabled' if summary.disabled else 'left to the controller'}")
+                                 f"external input is {state}")
     return 0
+
+
+def summary_line(summary) -> str:
+    """The run's last line: what was fed while the input was enabled (procedures.bridge.BridgeSummary)."""
+    head = (f"ftacq bridge: {summary.written} values written in {summary.cycles} controller cycles over "
+            f"{summary.duration_s:.1f} s")
+    if summary.skipped_at_start:
+        head += f" ({summary.skipped_at_start} cycles queued before the feed began skipped)"
+    tail = f"; feed thread {summary.feed_priority}; filter delay {summary.filter_delay_s * 1000:.1f} ms"
+    if not np.isfinite(summary.enabled_from_s):
+        return (f"{head}; the external input was never enabled" + tail
+                + ("; stopped by Ctrl-C" if summary.interrupted else ""))
+    staleness = summary.staleness_s(while_enabled=True)
+    if len(staleness):
+        p50, p99 = np.percentile(staleness, [50, 99]) * 1000
+        newest = f" (the newest {len(staleness)})" if len(summary.log) < summary.cycles else ""
+        ages = (f"newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms{newest}, max "
+                f"{summary.max_sample_age_s * 1000:.1f} ms")
+    else:
+        ages = "no sample age (nothing written)"
+    if summary.enabled:
+        state = "disabled" if summary.disabled else "NOT disabled (the controller pauses the program by itself)"
+    else:
+        state = "left to the program"
+    return (f"{head}; while the input was enabled: {summary.enabled_written} values in {summary.enabled_cycles} "
+            f"cycles, answered later than one cycle: {summary.late_answers}, {ages}{tail}; external input {state}"
+            + ("; stopped by Ctrl-C" if summary.interrupted else ""))
 
 
 class _Readout:
