@@ -49,8 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "and the enable arguments of the convention in docs/bridge.md. A watchdog stops feeding and "
                     "disables the input when the sensor goes silent, saturates or the wrench jumps. Never moves "
                     "the arm. Stop with Ctrl-C or --seconds. Run --check first on a new cell.",
-        epilog="examples:\n  ftacq bridge --config cell.toml --calibration runs/latest/calibration.json --check\n"
-               "  ftacq bridge --config cell.toml --calibration runs/latest/calibration.json\n"
+        epilog="examples:\n  ftacq bridge --config cell.toml --calibration runs/<run>/calibration.json --check\n"
+               "  ftacq bridge --config cell.toml --calibration runs/<run>/calibration.json\n"
                "  ftacq bridge --sim --seconds 10",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
