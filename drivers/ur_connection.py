@@ -66,8 +66,8 @@ def controller_host(text: str) -> str:
 def _unreachable(host: str, port: int, what: str, error: OSError, timeout_s: float) -> DeviceConnectionError:
     if isinstance(error, ConnectionRefusedError):
         return DeviceConnectionError(
-            f"robot controller {host}: nothing listens on port {port} ({what}); check the IP address and that the "
-            "robot is switched on and booted")
+            f"robot controller {host}: cannot connect to port {port} ({what}): nothing listens there; check the IP "
+            "address and that the robot is switched on and booted")
     if isinstance(error, socket.timeout):
         return DeviceConnectionError(
             f"robot controller {host} port {port} ({what}): no answer within {timeout_s:g} s; check the IP address, "

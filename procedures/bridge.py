@@ -33,19 +33,23 @@ filter's low-frequency group delay plus the time from the newest sample to the w
 
 Start-up: the controller's packages queue from the moment the input client connects; the feed thread skips those
 already superseded by a newer one (``queued``) unanswered, so the first value written answers the controller's
-newest cycle, and the caller enables the input only after it. Nothing is written either while the newest sample is older than
-``max_staleness_s`` before the first value (a sensor's own start-up backlog arriving in a burst), for at most
-:data:`START_TIMEOUT_S`. The figures of :class:`BridgeSummary` (late answers,
-sample ages, counts) cover the cycles while the input was enabled: from the enable call to the end of the feed,
-right after the disable call (all of the feed when a PolyScope program enables the input).
+newest cycle, and the caller enables the input only after it. Before that first value nothing is written while
+the newest sample is older than ``max_staleness_s`` (a sensor's own start-up backlog arriving in a burst), for at
+most :data:`START_TIMEOUT_S`. The figures of :class:`BridgeSummary` (late answers, sample ages, counts) cover the
+cycles while the input was enabled: from the enable call to the end of the feed, right after the disable call
+(all of the feed when a PolyScope program enables the input).
 
 Watchdog (feed thread, every cycle): the newest sample is older than ``max_staleness_s`` (sensor silent or the
 bridge starved; a sample's age runs from its sample time, the sensor's own count on the host clock
-(:class:`procedures.dynamic_compensation.SensorClock`), not from its arrival: a burst of late samples is old), a sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` /
-``jump_torque_nm`` in one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
+(:class:`procedures.dynamic_compensation.SensorClock`), not from its arrival: a burst of late samples is old), a
+sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` / ``jump_torque_nm`` in
+one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
 written (the last written value was fresh and checked), the caller's thread disables the input and says why; if
 the disable cannot arrive within 0.1 s the controller's own watchdog pauses the program. Ctrl-C disables first
 (while still feeding fresh values), then stops feeding.
+
+Over 500 lines: the feed loop, its watchdog, the per-cycle log and the run's summary share one loop's state; the
+log (:class:`_Log`) and the filter (:class:`WrenchFilter`) are the parts that could be their own modules next.
 """
 
 from __future__ import annotations

@@ -26,12 +26,14 @@ NOT_OUTPUT = {".git", ".venv", "__pycache__", ".pytest_cache", ".hypothesis", ".
 
 
 def checkout_files(root: Path = CHECKOUT) -> set[str]:
-    """Every file and folder of the checkout, relative, outside :data:`NOT_OUTPUT` (and the egg-info)."""
+    """Every file and folder of the checkout, relative, outside :data:`NOT_OUTPUT` (and the egg-info); source files
+    (``*.py``, ``*.md``) left out: one made during the run is the developer's, not a test's output."""
     found: set[str] = set()
     for folder, dirs, files in os.walk(root):
         dirs[:] = [d for d in dirs if d not in NOT_OUTPUT and not d.endswith(".egg-info")]
         base = os.path.relpath(folder, root)
-        found.update(os.path.normpath(os.path.join(base, name)) for name in (*dirs, *files))
+        found.update(os.path.normpath(os.path.join(base, name)) for name in (*dirs, *files)
+                     if not name.endswith((".py", ".md")))
     return found
 
 

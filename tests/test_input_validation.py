@@ -271,7 +271,7 @@ def test_a_robot_host_with_its_rtde_port_says_nothing_listens_there(capsys):
     # a loopback address where nothing listens on 30004: the connection is refused at once, no network involved
     assert main(["robot", "info", "127.0.0.62:30004"]) == 1
     line = one_line_error(capsys)
-    assert "127.0.0.62" in line and "nothing listens on port 30004" in line and "not known" not in line
+    assert "127.0.0.62" in line and "port 30004 (RTDE): nothing listens there" in line and "not known" not in line
 
 
 def test_a_cell_toml_robot_host_that_is_no_host_is_refused(tmp_path, capsys):
