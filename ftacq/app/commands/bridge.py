@@ -28,6 +28,10 @@ SIM_REALTIME_PRIORITY = 85
 """SCHED_FIFO priority of the simulated controller and Net F/T (--sim): real ones keep their cycle whatever the
 computer does; at normal priority on a busy computer the simulated controller missed 100 ms (normal scheduling
 where refused)."""
+SIM_PROCESS_PRIORITY = 70
+"""With --sim the simulated Net F/T, its driver and the viewer share this process and its interpreter lock: all
+its threads run at SCHED_FIFO 70 while feeding (the feed thread 80), so that none is preempted by other programs
+while it holds the lock (at a load average of 20-30 on 2 cores the newest sample stayed over 50 ms old)."""
 READOUT_PERIOD_S = 0.5
 
 
@@ -212,6 +216,11 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
     if args.realtime_priority is not None:
         settings = replace(settings, realtime_priority=args.realtime_priority)
     bridge = Bridge(sensor, client, robot, plan, calibration, model, settings, listeners=tuple(listeners))
+    if args.sim:
+        from procedures.realtime import ask_realtime_all_threads
+
+        print(f"ftacq bridge: --sim: this process's threads {ask_realtime_all_threads(SIM_PROCESS_PRIORITY)}",
+              file=sys.stderr)
     advice = softirq_advice(softirq_threads())
     if advice:
         print(f"ftacq bridge: hint: {advice}", file=sys.stderr)
