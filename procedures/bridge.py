@@ -33,9 +33,9 @@ filter's low-frequency group delay plus the time from the newest sample to the w
 
 Start-up: the controller's packages queue from the moment the input client connects; the feed thread skips those
 already superseded by a newer one (``queued``) unanswered, so the first value written answers the controller's
-newest cycle, and the caller enables the input only after it. Before that first value nothing is written while
-the newest sample is older than ``max_staleness_s`` (a sensor's own start-up backlog arriving in a burst), for at
-most :data:`START_TIMEOUT_S`. The figures of :class:`BridgeSummary` (late answers, sample ages, counts) cover the
+newest cycle, and the caller enables the input only after :data:`START_WRITES` fresh values. Until the enable
+call nothing is written while the newest sample is older than ``max_staleness_s`` (a sensor's own start-up backlog
+arriving in a burst), and nothing trips; the start must succeed within :data:`START_TIMEOUT_S`. The figures of :class:`BridgeSummary` (late answers, sample ages, counts) cover the
 cycles while the input was enabled: from the enable call to the end of the feed, right after the disable call
 (all of the feed when a PolyScope program enables the input).
 
@@ -111,6 +111,8 @@ PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
 """The first sensor samples and controller cycles must arrive within this."""
+START_WRITES = 25
+"""Fresh values written (50 ms at 500 Hz) before the input is enabled: the start-up's bursts are over."""
 LOG_COLUMNS = ("controller_time_s", "cycle_received_s", "written_s", "newest_sample_s", "samples", "fed_fx_n",
                "fed_fy_n", "fed_fz_n", "fed_tx_nm", "fed_ty_nm", "fed_tz_nm")
 """One row per controller cycle answered in :attr:`BridgeSummary.log` (monotonic host times; ``written_s`` is when
@@ -462,8 +464,8 @@ class Bridge:
                     continue  # nothing measured yet: nothing to feed (the input is not enabled before the first)
                 now_s = self._clock_s()
                 age_s = now_s - newest_s
-                if age_s > settings.max_staleness_s and not self._written:
-                    continue  # the sensor's own backlog at start-up (samples queued in a burst): nothing written yet
+                if age_s > settings.max_staleness_s and (start_s == np.inf or not self._written):
+                    continue  # not enabled yet (a start-up burst of old samples): nothing written, nothing tripped
                 if age_s > settings.max_staleness_s:
                     self._trip_now(f"the sensor went silent: newest sample {age_s * 1000:.0f} ms old (limit "
                                    f"{settings.max_staleness_s * 1000:.0f} ms)")
@@ -577,10 +579,11 @@ class Bridge:
         return "disabled" if summary.disabled else "NOT disabled"
 
     def _wait_first_write(self, start_s: float) -> None:
-        while self._written == 0 and self._trip is None:
+        while self._written < START_WRITES and self._trip is None:
             if time.monotonic() - start_s > START_TIMEOUT_S:
-                self._trip_now(f"no fresh sensor sample (at most {self.settings.max_staleness_s * 1000:.0f} ms old) "
-                               f"and controller cycle within {START_TIMEOUT_S:g} s of the start")
+                self._trip_now(f"fewer than {START_WRITES} fresh sensor samples (at most "
+                               f"{self.settings.max_staleness_s * 1000:.0f} ms old) and controller cycles within "
+                               f"{START_TIMEOUT_S:g} s of the start")
                 return
             self._done.wait(0.005)
 

@@ -16,7 +16,7 @@ from ftacq.app.commands.bridge import summary_line
 from ftacq.bridge_convention import plan_feed
 from ftacq.errors import DeviceTimeoutError
 from ftacq.kinematics import ur_model
-from procedures.bridge import Bridge, BridgeSettings, BridgeSummary
+from procedures.bridge import START_WRITES, Bridge, BridgeSettings, BridgeSummary
 from procedures.events import Notice
 from tests.fakes.world import CellTruth
 
@@ -73,8 +73,8 @@ class _Controller:
     """A controller's output stream as the input client sees it: ``backlog`` packages already queued when the feed
     begins (2 ms apart, received at once), then one package per cycle, each 2 ms later on ``clock``, received
     ``late_by_s`` after it was sent. Stops the run (``stop``) after ``cycles`` fresh ones, or raises (a controller
-    gone) when ``vanish`` is set. With ``gate``, once a value was written, the next package waits for the enable
-    call (a fixed order for the test). Records which cycle each written value answered."""
+    gone) when ``vanish`` is set. With ``gate``, once the bridge wrote what it writes before enabling, the next
+    package waits for the enable call (a fixed order for the test). Records which cycle each written value answered."""
 
     frequency_hz = 500.0
 
@@ -90,7 +90,7 @@ class _Controller:
         self.gate = False
 
     def next_cycle(self, timeout_s: float = 0.1) -> ControllerCycle:
-        if self.gate and self.answered:
+        if self.gate and len(self.answered) >= START_WRITES:
             assert self.enabled.wait(10.0)
         self.count += 1
         if self.count > self.backlog:
@@ -146,7 +146,7 @@ def test_cycles_queued_before_the_feed_are_skipped_and_the_input_enabled_after_a
     assert summary.skipped_at_start == 500 - 1  # all but the newest queued one
     assert controller.answered[0] == 500  # the first value answers the newest package, not the oldest
     assert summary.written == len(controller.answered) and summary.cycles == controller.count - 499
-    assert switch.calls[0][0] and switch.calls[0][1] >= 1  # enabled after a value was written
+    assert switch.calls[0][0] and switch.calls[0][1] >= START_WRITES  # enabled after fresh values were written
     assert summary.enabled and summary.disabled
 
 
@@ -162,8 +162,9 @@ def test_figures_count_only_the_cycles_while_the_input_was_enabled():
     controller.on_cycle = late_until_enabled
     summary, _ = _run(controller, _Sensor(clock), clock, stop, switch)
     assert summary.trip is None, summary.trip
-    assert switch.calls[0] == (True, 1)  # enabled after the first value
-    assert summary.enabled_written == summary.written - 1 and summary.enabled_cycles == summary.cycles - 1
+    assert switch.calls[0] == (True, START_WRITES)  # enabled after the start-up's values
+    assert summary.enabled_written == summary.written - START_WRITES
+    assert summary.enabled_cycles == summary.cycles - START_WRITES
     assert summary.late_answers == 0 and summary.max_sample_age_s < CYCLE_S
     assert len(summary.staleness_s(while_enabled=True)) == summary.enabled_written
     assert "nan" not in summary_line(summary)
@@ -197,3 +198,21 @@ def test_a_stop_before_the_input_was_enabled_says_so_and_prints_no_nan():
     assert "never enabled" in notice.text and "NOT disabled" not in notice.text
     line = summary_line(summary)
     assert "never enabled" in line and "nan" not in line and "NOT disabled" not in line
+
+
+def test_old_samples_before_the_input_is_enabled_hold_the_feed_back_without_tripping():
+    clock, stop = _Clock(), threading.Event()
+    controller = _Controller(clock, stop, cycles=300)
+    controller.gate = True  # the enable call comes after the start-up's values, at a known cycle
+    switch = _Switch(controller)
+    sensor = _Sensor(clock)
+    sensor.arrived_when_taken = True
+
+    def old_samples_first(count: int) -> None:  # cycles 1-40: every sample 60 ms old when it arrives
+        sensor.delay_s = 0.06 if count <= 40 else 0.0
+
+    controller.on_cycle = old_samples_first
+    summary, _ = _run(controller, sensor, clock, stop, switch)
+    assert summary.trip is None, summary.trip
+    assert min(controller.answered) > 40  # nothing written from the old samples
+    assert switch.calls[0] == (True, START_WRITES) and summary.enabled and summary.disabled
