@@ -454,12 +454,8 @@ class NetFTBox:
             if due <= 0:
                 return [], None
             if due > MAX_BURST_RECORDS:  # descheduled: skip the backlog instead of flooding
-                skipped = due - per_datagram
-                self.skipped_backlog += skipped
-                self._stream_done += skipped
-                # as records lost on the way: the box's counters ran on (a gap in both, as a receiver would see)
-                self._rdt_sequence = (self._rdt_sequence + skipped) & UINT32_MASK
-                self._ft_sequence = (self._ft_sequence + skipped * self._ft_step) & UINT32_MASK
+                self.skipped_backlog += due - per_datagram
+                self._stream_done += due - per_datagram
                 due = per_datagram
             if self._remaining is not None:
                 due = min(due, self._remaining)
