@@ -20,7 +20,8 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from ftacq.errors import DeviceConnectionError, DeviceTimeoutError
+from drivers.hosts import check_host
+from ftacq.errors import DeviceConnectionError, DeviceTimeoutError, InputError
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 """The controller's fixed TCP ports: RTDE, UR Dashboard Server, the script ("realtime") port ur-rtde uploads to."""
@@ -50,7 +51,23 @@ class RTDEProbe:
         return ".".join(str(v) for v in self.version)
 
 
+def controller_host(text: str) -> str:
+    """The controller's address from what a user typed: an IP address or host name, optionally followed by the
+    RTDE port (``192.168.1.10:30004``, dropped: the controller's ports are fixed). Raises InputError (one line)."""
+    host, _, port = text.rpartition(":") if text.count(":") == 1 else ("", "", "")
+    if host and port.isdigit():
+        if int(port) != RTDE_PORT:
+            raise InputError(f"robot controller {text!r}: a UR controller's ports are fixed (RTDE {RTDE_PORT}, UR "
+                             f"Dashboard Server {DASHBOARD_SERVER_PORT}, script {SCRIPT_PORT}): give the address alone")
+        text = host
+    return check_host(text, "robot controller")
+
+
 def _unreachable(host: str, port: int, what: str, error: OSError, timeout_s: float) -> DeviceConnectionError:
+    if isinstance(error, ConnectionRefusedError):
+        return DeviceConnectionError(
+            f"robot controller {host}: cannot connect to port {port} ({what}): nothing listens there; check the IP "
+            "address and that the robot is switched on and booted")
     if isinstance(error, socket.timeout):
         return DeviceConnectionError(
             f"robot controller {host} port {port} ({what}): no answer within {timeout_s:g} s; check the IP address, "
@@ -66,6 +83,9 @@ def connect(host: str, port: int, what: str, timeout_s: float = PROBE_TIMEOUT_S)
         sock = socket.create_connection((host, port), timeout=timeout_s)
     except OSError as error:
         raise _unreachable(host, port, what, error, timeout_s) from error
+    except UnicodeError:  # the resolver's IDNA codec refused the name (drivers/hosts.py)
+        check_host(host, "robot controller")
+        raise
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     return sock
 

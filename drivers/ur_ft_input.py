@@ -19,6 +19,7 @@ another client answers ``IN_USE`` (RTDE guide: only one client may control a var
 
 from __future__ import annotations
 
+import select
 import socket
 import struct
 import time
@@ -228,6 +229,18 @@ class URForceTorqueInput:
                                safety_status_bits=int(values[21]), received_s=received_s,
                                tcp_pose=np.array(values[22:28]), target_qd=np.array(values[28:34]),
                                target_qdd=np.array(values[34:40]))
+
+    def queued(self) -> bool:
+        """True when bytes of a newer package are already here (in this client's buffer or readable on the socket):
+        the cycle :meth:`next_cycle` returned last is not the controller's newest. A caller that starts reading
+        late (the packages queue from :meth:`start` on) skips those instead of answering them with old values."""
+        if self._buffer:
+            return True
+        sock = self._sock
+        if sock is None:
+            return False
+        readable, _, _ = select.select([sock], [], [], 0.0)
+        return bool(readable)
 
     def write(self, wrench) -> None:
         """Send one ``external_force_torque`` value [Fx, Fy, Fz (N), Tx, Ty, Tz (N·m)]."""

@@ -8,7 +8,7 @@ value came from (file and key, or option), the value, and why it is refused. Not
 - Text that Python itself may refuse to parse (JSON or TOML with an integer of more than 4300 digits, nesting
   deep enough for a ``RecursionError``) becomes an InputError too: :func:`load_json_text`.
 - Output paths are checked before the work starts (:func:`check_output_file`, :func:`check_output_folder`):
-  not a folder where a file is wanted, its folder creatable and writable.
+  not a folder where a file is wanted, a file's folder existing and writable (an output folder creatable).
 - URLs are parsed (:func:`check_url`): scheme, host and port; a malformed one (``netft://[::1``) is an
   InputError, not a ``ValueError`` from :mod:`urllib`.
 """
@@ -125,8 +125,8 @@ def load_json_text(text: str, where: str) -> Any:
 def check_output_file(path: str | os.PathLike, what: str = "output file") -> Path:
     """Check, before any work, that a file can be written at ``path`` (atomically: temporary file + rename).
 
-    Refused: an existing folder, a path below an existing file, a folder that cannot be created or written.
-    Missing parent folders are fine (the writer creates them).
+    Refused: an existing folder, a path below an existing file, a folder that does not exist (a mistyped path
+    would otherwise create folders nobody asked for) or cannot be written.
     """
     target = Path(path)
     if str(path) == "" or target.name in ("", ".", ".."):
@@ -134,6 +134,9 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Pat
     if target.is_dir():
         raise InputError(f"{what} {target}: is a folder; give a file name (e.g. {target / 'out'})")
     _check_writable_folder(target.parent, f"{what} {target}")
+    folder = target.parent if str(target.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError(f"{what} {target}: the folder {folder} does not exist (create it first)")
     return target
 
 

@@ -31,12 +31,25 @@ Decimation: the filter runs on every sensor sample (7 kHz); each controller cycl
 cut-off (:data:`CUTOFF_FRACTION` of the controller rate) is the anti-alias filter. The stated delay is the
 filter's low-frequency group delay plus the time from the newest sample to the write (measured, per cycle).
 
+Start-up: the controller's packages queue from the moment the input client connects; the feed thread skips those
+already superseded by a newer one (``queued``) unanswered, so the first value written answers the controller's
+newest cycle, and the caller enables the input only after :data:`START_WRITES` fresh values. Until the enable
+call nothing is written while the newest sample is older than ``max_staleness_s`` (a sensor's own start-up backlog
+arriving in a burst), and nothing trips; the start must succeed within :data:`START_TIMEOUT_S`. The figures of :class:`BridgeSummary` (late answers, sample ages, counts) cover the
+cycles while the input was enabled: from the enable call to the end of the feed, right after the disable call
+(all of the feed when a PolyScope program enables the input).
+
 Watchdog (feed thread, every cycle): the newest sample is older than ``max_staleness_s`` (sensor silent or the
-bridge starved), a sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` /
-``jump_torque_nm`` in one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
+bridge starved; a sample's age runs from its sample time, the sensor's own count on the host clock
+(:class:`procedures.dynamic_compensation.SensorClock`), not from its arrival: a burst of late samples is old), a
+sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` / ``jump_torque_nm`` in
+one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
 written (the last written value was fresh and checked), the caller's thread disables the input and says why; if
 the disable cannot arrive within 0.1 s the controller's own watchdog pauses the program. Ctrl-C disables first
 (while still feeding fresh values), then stops feeding.
+
+Over 500 lines: the feed loop, its watchdog, the per-cycle log and the run's summary share one loop's state; the
+log (:class:`_Log`) and the filter (:class:`WrenchFilter`) are the parts that could be their own modules next.
 """
 
 from __future__ import annotations
@@ -48,7 +61,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 from scipy import signal
@@ -61,7 +74,7 @@ from ftacq.calibration import Calibration
 from ftacq.dynamics.timing import ControllerClock
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import FlangeRotation, URModel
-from procedures.dynamic_compensation import DynamicCompensator
+from procedures.dynamic_compensation import DynamicCompensator, SensorClock
 from procedures.events import Event, FedWrenches, Listener, Notice
 from procedures.excitation import counts_samples
 from procedures.realtime import ask_realtime
@@ -98,10 +111,12 @@ PUBLISH_PERIOD_S = 0.1
 """The caller's thread hands the fed values to the listeners this often (batched)."""
 START_TIMEOUT_S = 2.0
 """The first sensor samples and controller cycles must arrive within this."""
+START_WRITES = 25
+"""Fresh values written (50 ms at 500 Hz) before the input is enabled: the start-up's bursts are over."""
 LOG_COLUMNS = ("controller_time_s", "cycle_received_s", "written_s", "newest_sample_s", "samples", "fed_fx_n",
                "fed_fy_n", "fed_fz_n", "fed_tx_nm", "fed_ty_nm", "fed_tz_nm")
-"""One row per controller cycle in :attr:`BridgeSummary.log` (monotonic host times; ``written_s`` is when the
-value was checked and sent, NaN when nothing was written)."""
+"""One row per controller cycle answered in :attr:`BridgeSummary.log` (monotonic host times; ``written_s`` is when
+the value was checked and sent, NaN when nothing was written; ``newest_sample_s`` the newest sample's sample time)."""
 
 
 class ControllerInput(Protocol):
@@ -110,6 +125,7 @@ class ControllerInput(Protocol):
     frequency_hz: float
 
     def next_cycle(self, timeout_s: float = ...): ...
+    def queued(self) -> bool: ...
     def write(self, wrench) -> None: ...
 
 
@@ -139,7 +155,8 @@ class BridgeSettings:
 
 @dataclass
 class BridgeSummary:
-    """What a bridge run did. ``log`` holds one row per controller cycle (:data:`LOG_COLUMNS`)."""
+    """What a bridge run did. ``log`` holds one row per controller cycle answered (:data:`LOG_COLUMNS`); the
+    ``enabled_*`` figures, ``late_answers`` and ``max_sample_age_s`` cover the cycles while the input was enabled."""
 
     cycles: int = 0
     written: int = 0
@@ -147,6 +164,8 @@ class BridgeSummary:
     duration_s: float = 0.0
     trip: str | None = None
     interrupted: bool = False
+    enabled: bool = False
+    """The input was enabled by the bridge (False without the enable call, or when it stopped before)."""
     disabled: bool = False
     filter_delay_s: float = 0.0
     cutoff_hz: float = 0.0
@@ -158,24 +177,37 @@ class BridgeSummary:
     """How the feed thread was scheduled, e.g. "SCHED_FIFO 80" or "normal (…why…)"."""
     log: np.ndarray = field(default_factory=lambda: np.empty((0, len(LOG_COLUMNS))))
     """The newest ``log_keep_s`` of the run (all of a shorter run): ``cycles - len(log)`` older rows were dropped."""
+    skipped_at_start: int = 0
+    """Controller cycles already superseded when the feed began (queued since the client connected), not answered."""
+    enabled_from_s: float = float("nan")
+    enabled_until_s: float = float("nan")
+    """The span the figures cover (host monotonic clock): from the enable call to the end of the feed, right after
+    the disable call (the whole feed when a program enables the input); NaN when the input was never enabled."""
+    enabled_cycles: int = 0
+    enabled_written: int = 0
+    """Controller cycles received, and values written, in that span (over the whole run)."""
     late_answers: int = 0
-    """Values written later than one controller cycle after their package arrived, over the whole run."""
+    """Values written later than one controller cycle after their package arrived, while enabled (whole run)."""
     max_sample_age_s: float = float("nan")
-    """The oldest newest-sample age at a write, over the whole run, s."""
+    """The oldest newest-sample age at a write while enabled (whole run), s."""
 
-    def written_rows(self) -> np.ndarray:
-        """The log rows of cycles that were answered with a value."""
-        return self.log[np.isfinite(self.log[:, 2])]
+    def written_rows(self, while_enabled: bool = False) -> np.ndarray:
+        """The log rows of cycles that were answered with a value (those written while the input was enabled)."""
+        written = self.log[:, 2]
+        keep = np.isfinite(written)
+        if while_enabled:
+            keep &= (written >= self.enabled_from_s) & (written <= self.enabled_until_s)
+        return self.log[keep]
 
-    def answer_time_s(self) -> np.ndarray:
+    def answer_time_s(self, while_enabled: bool = False) -> np.ndarray:
         """Time from a controller cycle's package arriving to the value written in answer, s (a value that must
         reach the controller before its next cycle: longer than one cycle is late)."""
-        rows = self.written_rows()
+        rows = self.written_rows(while_enabled)
         return rows[:, 2] - rows[:, 1]
 
-    def staleness_s(self) -> np.ndarray:
-        """Age of the newest sensor sample when each value was written, s."""
-        rows = self.written_rows()
+    def staleness_s(self, while_enabled: bool = False) -> np.ndarray:
+        """Age of the newest sensor sample (from its sample time) when each value was written, s."""
+        rows = self.written_rows(while_enabled)
         return rows[:, 2] - rows[:, 3]
 
 
@@ -321,11 +353,14 @@ class Bridge:
         listeners: :data:`procedures.events.Listener` s: they get :class:`~procedures.events.FedWrenches` about ten
         times a second and a :class:`~procedures.events.Notice` (source "bridge") when the feed starts and stops
         (level ERROR for a watchdog trip). They must not block (wrap a viewer in a BackgroundListener).
+        clock_s: the host clock of the cycles' arrival stamps and the sensor's samples (time.monotonic; tests
+        that date their stand-ins' cycles and samples themselves pass theirs).
     """
 
     def __init__(self, sensor: ForceTorqueSensor, controller_input: ControllerInput, switch: InputSwitch | None,
                  plan: FeedPlan, calibration: Calibration, model: URModel, settings: BridgeSettings = BridgeSettings(),
-                 listeners: tuple[Listener, ...] = (), sensor_rate_hz: float | None = None) -> None:
+                 listeners: tuple[Listener, ...] = (), sensor_rate_hz: float | None = None,
+                 clock_s: Callable[[], float] = time.monotonic) -> None:
         self.sensor, self.input, self.switch = sensor, controller_input, switch
         self.plan, self.calibration, self.model, self.settings = plan, calibration, model, settings
         self.listeners = tuple(listeners)
@@ -334,6 +369,9 @@ class Bridge:
         self.cutoff_hz = settings.cutoff_hz or CUTOFF_FRACTION * self.controller_rate_hz
         self.filter = WrenchFilter(self.cutoff_hz, self.sensor_rate_hz, settings.filter_order)
         self._bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+        self._clock_s = clock_s
+        self._sample_clock = SensorClock(counts_samples(sensor), 1.0 / self.sensor_rate_hz)
+        """The samples' sample times (the sensor's own count on the host clock): what their age runs from."""
         self.states = CycleStates()
         """Every controller cycle's joint state, on the host clock (the dynamic model's robot stream)."""
         self.dynamic: DynamicCompensator | None = None
@@ -354,6 +392,12 @@ class Bridge:
         self._log = _Log(0, expected_rows=0)
         self._samples = 0
         self._written = 0
+        self._skipped = 0
+        self._enabled_cycles = self._enabled_written = 0
+        """Cycles received and values written in ``_window`` (counted by the feed thread)."""
+        self._window = (np.inf, np.inf)
+        """(from, until) on ``clock_s``: the rows written in it count into the run's figures (until the feed ends,
+        the cycle or two after the disable call included)."""
         self._thread: threading.Thread | None = None
 
     @property
@@ -377,18 +421,27 @@ class Bridge:
         held: np.ndarray | None = None
         newest_s = -np.inf
         previous: np.ndarray | None = None
+        catching_up = True
         try:
             while not self._stop_feeding.is_set():
                 self._log.complete = self._log.count
                 try:
                     cycle = self.input.next_cycle(timeout_s=settings.cycle_timeout_s)
+                    if catching_up:  # a package queued before feeding began: a newer one is here, answer that
+                        catching_up = self.input.queued()
                 except DeviceError as error:
                     self._trip_now(f"the controller's cycle stopped ({error})")
                     return
-                row = self._log.row()
-                row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
                 if self.dynamic is not None:
                     self.states.append(cycle)
+                if catching_up:
+                    self._skipped += 1
+                    continue
+                row = self._log.row()
+                row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
+                start_s, end_s = self._window
+                if start_s <= cycle.received_s <= end_s:
+                    self._enabled_cycles += 1
                 try:
                     batch = _take(self.sensor)
                 except DeviceError as error:
@@ -402,14 +455,17 @@ class Bridge:
                                        f"{samples} samples)")
                         return
                     filtered = self.filter(self._sensor_frame(batch, cycle))
-                    held, newest_s = filtered[-1], float(batch.time_s[-1])
+                    held = filtered[-1]
+                    newest_s = float(self._sample_clock.host_times(batch.time_s, batch.sequence)[-1])
                     self._samples += samples
                     row[4] = samples
                 row[3] = newest_s
                 if held is None:
                     continue  # nothing measured yet: nothing to feed (the input is not enabled before the first)
-                now_s = time.monotonic()
+                now_s = self._clock_s()
                 age_s = now_s - newest_s
+                if age_s > settings.max_staleness_s and (start_s == np.inf or not self._written):
+                    continue  # not enabled yet (a start-up burst of old samples): nothing written, nothing tripped
                 if age_s > settings.max_staleness_s:
                     self._trip_now(f"the sensor went silent: newest sample {age_s * 1000:.0f} ms old (limit "
                                    f"{settings.max_staleness_s * 1000:.0f} ms)")
@@ -428,6 +484,8 @@ class Bridge:
                 row[5:] = fed
                 previous = fed
                 self._written += 1
+                if start_s <= now_s <= end_s:
+                    self._enabled_written += 1
         except Exception as error:  # noqa: BLE001 - any failure stops the feed and is reported as a trip
             self._trip_now(f"bridge failure: {type(error).__name__}: {error}")
         finally:
@@ -446,6 +504,7 @@ class Bridge:
         self._log = _Log(int(self.settings.log_keep_s * self.controller_rate_hz),
                          expected_rows=None if duration_s is None else int(duration_s * self.controller_rate_hz * 1.2))
         self._late_answers, self._max_sample_age_s = 0, float("nan")
+        self._window = (-np.inf if self.switch is None else np.inf, np.inf)
         summary = BridgeSummary(filter_delay_s=self.filter.delay_s, cutoff_hz=self.cutoff_hz,
                                 sensor_rate_hz=self.sensor_rate_hz, controller_rate_hz=self.controller_rate_hz,
                                 compensation=self.compensation)
@@ -465,6 +524,7 @@ class Bridge:
             self._wait_first_write(start_s)
             if self.switch is not None and self._trip is None:
                 self.switch.set_payload(self.plan.payload_kg, self.plan.payload_cog_m)
+                self._window = (self._clock_s(), np.inf)  # the controller may take the input from the call on
                 self.switch.enable_external_ft_input(True, self.plan.function, self.plan.sensor_mass_kg,
                                                      self.plan.sensor_measuring_offset_m, self.plan.sensor_cog_m)
                 enabled = True
@@ -499,18 +559,31 @@ class Bridge:
             summary.cycles, summary.written, summary.samples = self._log.count, self._written, self._samples
             summary.log = self._log.rows(self._log.first_kept, self._log.count)
             summary.late_answers, summary.max_sample_age_s = self._late_answers, self._max_sample_age_s
+            summary.enabled, summary.skipped_at_start = enabled, self._skipped
+            summary.enabled_cycles, summary.enabled_written = self._enabled_cycles, self._enabled_written
+            if self._window[0] < np.inf:  # enabled (or a program's input: the whole feed counts, from -inf)
+                summary.enabled_from_s, summary.enabled_until_s = self._window
+            input_state = self._input_state(summary)
             if self._trip:
-                text = f"watchdog: {self._trip}; feed stopped, input {'disabled' if summary.disabled else 'NOT disabled'}"
+                text = f"watchdog: {self._trip}; feed stopped, input {input_state}"
             else:
-                text = f"feed stopped ({'Ctrl-C' if summary.interrupted else 'done'}), input " \
-                       f"{'disabled' if summary.disabled else 'left as it was'}"
+                text = f"feed stopped ({'Ctrl-C' if summary.interrupted else 'done'}), input {input_state}"
             self._notify(Notice(text, level="ERROR" if self._trip else "INFO", source="bridge"))
         return summary
 
+    def _input_state(self, summary: BridgeSummary) -> str:
+        if self.switch is None:
+            return "left to the program"
+        if not summary.enabled:
+            return "never enabled"
+        return "disabled" if summary.disabled else "NOT disabled"
+
     def _wait_first_write(self, start_s: float) -> None:
-        while self._written == 0 and self._trip is None:
+        while self._written < START_WRITES and self._trip is None:
             if time.monotonic() - start_s > START_TIMEOUT_S:
-                self._trip_now(f"no sensor sample and controller cycle within {START_TIMEOUT_S:g} s of the start")
+                self._trip_now(f"fewer than {START_WRITES} fresh sensor samples (at most "
+                               f"{self.settings.max_staleness_s * 1000:.0f} ms old) and controller cycles within "
+                               f"{START_TIMEOUT_S:g} s of the start")
                 return
             self._done.wait(0.005)
 
@@ -532,10 +605,12 @@ class Bridge:
         if count <= published:
             return count
         rows = self._log.rows(published, count)
+        start_s, end_s = self._window
         rows = rows[np.isfinite(rows[:, 2])]
-        if len(rows):
-            self._late_answers += int(np.count_nonzero(rows[:, 2] - rows[:, 1] > 1.0 / self.controller_rate_hz))
-            self._max_sample_age_s = float(np.fmax(self._max_sample_age_s, np.max(rows[:, 2] - rows[:, 3])))
+        counted = rows[(rows[:, 2] >= start_s) & (rows[:, 2] <= end_s)]
+        if len(counted):
+            self._late_answers += int(np.count_nonzero(counted[:, 2] - counted[:, 1] > 1.0 / self.controller_rate_hz))
+            self._max_sample_age_s = float(np.fmax(self._max_sample_age_s, np.max(counted[:, 2] - counted[:, 3])))
         if self.listeners:
             self._notify(FedWrenches(time_s=rows[:, 2], fed=rows[:, 5:], cycles=count - published,
                                      written=len(rows)))

@@ -211,10 +211,14 @@ class _Feeder:
             time.sleep(0.005)
 
     def _run(self) -> None:
+        catching_up = True  # packages queued since the client connected: skipped, as the bridge does
         try:
             while not self._stop.is_set():
                 cycle = self.input.next_cycle(timeout_s=CYCLE_TIMEOUT_S)
                 self._offset_s = min(self._offset_s, cycle.received_s - cycle.timestamp_s)
+                if catching_up and self.input.queued():
+                    continue
+                catching_up = False
                 with self._lock:
                     first = self._first_write_s
                     if first is not None and cycle.timestamp_s >= first - self._offset_s + SETTLE_CYCLES * self.input.cycle_s:

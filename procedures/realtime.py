@@ -33,6 +33,20 @@ def ask_realtime(priority: int) -> str:
     return f"SCHED_FIFO {priority}"
 
 
+def ask_realtime_all_threads(priority: int, tasks: Path = Path("/proc/self/task")) -> str:
+    """Ask SCHED_FIFO ``priority`` for every thread of this process now running (threads they start later inherit
+    it); return how it went, as :func:`ask_realtime`. For a process that holds simulated devices (``ftacq bridge
+    --sim``): a thread at normal priority preempted while it holds the interpreter lock stalls every other one."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        return ask_realtime(priority)
+    try:
+        for task in tasks.iterdir():
+            os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, ValueError) as error:
+        return f"normal (SCHED_FIFO {priority} refused: {getattr(error, 'strerror', None) or error})"
+    return f"SCHED_FIFO {priority}"
+
+
 @dataclass(frozen=True)
 class KernelThread:
     """One kernel thread: process id, name, real-time priority (0: normal scheduling)."""

@@ -4,14 +4,73 @@ tests/fakes/.
 :func:`wait_until` is how a test waits for something another thread or process does: a condition polled with
 a deadline, never a bare sleep. Import it (``from tests.conftest import wait_until``) or take the fixture of the
 same name.
+
+The checkout stays as it was: a test writes into ``tmp_path``, never into the work tree (an .rrd a command saves
+by default under ``runs/`` of the current folder, a file with a relative path). Run one process (``-p no:xdist``)
+and the test that wrote a file fails, naming it; with ``-n 2`` the other worker's files would be blamed on the
+wrong test, so the whole run fails at its end instead, naming the files.
 """
 
 from __future__ import annotations
 
+import os
 import time
+from pathlib import Path
 from typing import Callable, TypeVar
 
 import pytest
+
+CHECKOUT = Path(__file__).resolve().parents[1]
+NOT_OUTPUT = {".git", ".venv", "__pycache__", ".pytest_cache", ".hypothesis", ".mypy_cache", ".ruff_cache"}
+"""Folders of the checkout that tools (git, the environment, caches) write: not looked at by the guard."""
+
+
+def checkout_files(root: Path = CHECKOUT) -> set[str]:
+    """Every file and folder of the checkout, relative, outside :data:`NOT_OUTPUT` (and the egg-info); source files
+    (``*.py``, ``*.md``) left out: one made during the run is the developer's, not a test's output."""
+    found: set[str] = set()
+    for folder, dirs, files in os.walk(root):
+        dirs[:] = [d for d in dirs if d not in NOT_OUTPUT and not d.endswith(".egg-info")]
+        base = os.path.relpath(folder, root)
+        found.update(os.path.normpath(os.path.join(base, name)) for name in (*dirs, *files)
+                     if not name.endswith((".py", ".md")))
+    return found
+
+
+def _one_process(config: pytest.Config) -> bool:
+    return not hasattr(config, "workerinput") and getattr(config.option, "numprocesses", None) in (None, 0)
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    if not hasattr(session.config, "workerinput"):  # the controlling process (or the only one)
+        session.config.stash[_BEFORE] = checkout_files()
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    before = session.config.stash.get(_BEFORE, None)
+    if before is None:
+        return
+    written = sorted(checkout_files() - before)
+    if written:
+        print(f"\ntests wrote into the checkout {CHECKOUT} (write into tmp_path): {', '.join(written)}")
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+_BEFORE = pytest.StashKey[set]()
+
+
+@pytest.fixture(autouse=True)
+def _checkout_untouched(request: pytest.FixtureRequest):
+    """Fail the test that wrote into the checkout (one process only; see the module docstring)."""
+    if not _one_process(request.config):
+        yield
+        return
+    before = checkout_files()
+    yield
+    written = sorted(checkout_files() - before)
+    if written:
+        pytest.fail(f"the test wrote into the checkout {CHECKOUT} (write into tmp_path): {', '.join(written)}",
+                    pytrace=False)
 
 WAIT_TIMEOUT_S = 10.0
 """Default deadline of :func:`wait_until`: generous, since a loaded 2-core machine runs the suite in parallel."""

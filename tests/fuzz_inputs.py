@@ -167,7 +167,8 @@ def pose_csv(draw) -> str:
 
 
 HOSTS = st.one_of(st.sampled_from(["192.168.1.1", "[::1]", "[::1", "::1]", "", "h", "[", "]", "a b", "%41",
-                                   "example.com", "[fe80::1%25eth0]", "999.999.999.999", "virtual", "socketcan"]),
+                                   "example.com", "[fe80::1%25eth0]", "999.999.999.999", "virtual", "socketcan",
+                                   "not..a..host", ".", "a." + "b" * 64, "-x.example", "x_y", "é.example"]),
                   st.text(max_size=10))
 PORTS = st.one_of(st.just(""), st.integers(-5, 70000).map(lambda p: f":{p}"), st.sampled_from([":", ":x", ":0",
                                                                                                  ":65535", ":1e3"]))
@@ -185,6 +186,12 @@ def sensor_url(draw) -> str:
     pairs = draw(st.lists(st.tuples(QUERY_KEYS, st.one_of(CSV_CELLS, st.just(""))), max_size=3))
     query = ("?" + "&".join(f"{k}={v}" for k, v in pairs)) if pairs else draw(st.sampled_from(["", "?", "?&&"]))
     return f"{scheme}://{draw(HOSTS)}{draw(PORTS)}{path}{query}"
+
+
+@st.composite
+def robot_host(draw) -> str:
+    """What a user may type as the controller's address (``ftacq robot info HOST``, ``robot.host``)."""
+    return draw(st.one_of(HOSTS, st.tuples(HOSTS, PORTS).map("".join), st.text(max_size=70)))
 
 
 # ------------------------------------------------------------------------------------------ targets
@@ -241,10 +248,24 @@ class Targets:
         if refused:
             raise refused[0]
 
+    def robot_host(self, text: str) -> None:
+        """Check the address as ``robot info`` does, then resolve an accepted one as the connection would,
+        numeric only (a name is never looked up: no network): the resolver must not raise a foreign error."""
+        import socket
+
+        from drivers.ur_connection import controller_host
+
+        host = controller_host(text)
+        try:
+            socket.getaddrinfo(host, 30004, flags=socket.AI_NUMERICHOST)
+        except socket.gaierror:
+            pass  # a name, not a number: resolving it is the connection's business
+
     def all(self) -> dict[str, tuple[object, Callable[[str], None]]]:
         """name → (strategy, target)."""
         return {"pose CSV": (pose_csv(), self.pose_csv), "calibration JSON": (calibration_json(), self.calibration_json),
-                "CELL.toml": (cell_toml(), self.cell_toml), "sensor URL": (sensor_url(), self.sensor_url)}
+                "CELL.toml": (cell_toml(), self.cell_toml), "sensor URL": (sensor_url(), self.sensor_url),
+                "robot host": (robot_host(), self.robot_host)}
 
 
-__all__ = ["Targets", "pose_csv", "calibration_json", "cell_toml", "sensor_url"]
+__all__ = ["Targets", "pose_csv", "calibration_json", "cell_toml", "sensor_url", "robot_host"]

@@ -199,3 +199,16 @@ def test_first_cycle_after_the_enable_reads_the_value_that_arrived_before_it():
     assert (ft.summary()["cycles_fed"], ft.summary()["cycles_missed"]) == (1, 0)
     ft.count_cycle(0.004, 0.004, period_s)
     assert (ft.summary()["cycles_fed"], ft.summary()["cycles_missed"]) == (1, 1)
+
+
+def test_queued_tells_a_package_that_is_not_the_newest(fake):
+    with URForceTorqueInput(fake.host) as client:
+        first = client.next_cycle()
+        # packages keep coming at 500 Hz while nobody reads: a newer one is waiting
+        wait_until(lambda: client.queued(), what="a second package to queue")
+        read = [first]
+        while client.queued():  # the backlog, as the bridge skips it at start
+            read.append(client.next_cycle())
+        assert len(read) >= 2 and not client.queued()
+        timestamps = [cycle.timestamp_s for cycle in read]
+        assert timestamps == sorted(timestamps) and len(set(timestamps)) == len(timestamps)

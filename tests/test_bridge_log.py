@@ -1,11 +1,10 @@
 """The bridge's per-cycle log over a long run (procedures/bridge.py ``_Log``): fixed chunks, never copied while
 feeding, the newest ``log_keep_s`` kept, and the whole run's counts in the summary. Stand-ins for the sensor and
-the controller's input: no network, no sleeps."""
+the controller's input on a simulated host clock: no network, no sleeps, no timing."""
 
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 
@@ -41,32 +40,47 @@ def test_rows_live_in_chunks_that_are_never_reallocated_and_the_oldest_are_dropp
     assert log.rows(5, 20).shape == (0, len(LOG_COLUMNS))  # all dropped
 
 
-class _Sensor(SensorBase):
-    """One fresh sample each read."""
+class _Clock:
+    """The host clock of the stand-ins (the bridge's ``clock_s``): the controller advances it one cycle (2 ms) per
+    package, so the figures do not depend on how fast this machine runs the feed thread. Dated by the real clock,
+    a loaded machine made tens of answers "late" (once ``assert 120 == 2`` in a full run)."""
 
     def __init__(self) -> None:
+        self.now_s = 1000.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+class _Sensor(SensorBase):
+    """One fresh sample each read, dated by ``clock``."""
+
+    def __init__(self, clock: _Clock) -> None:
         super().__init__()
         self.info = SensorInfo(transport="stand-in", serial="", firmware="", force_unit="N", torque_unit="N-m",
                                counts_per_force=1.0, counts_per_torque=1.0, rate_hz=7000.0)
+        self.clock = clock
         self.sequence = 0
 
     def read(self, timeout_s: float | None = 1.0) -> WrenchBatch:
         self.sequence += 1
-        return WrenchBatch(time_s=np.array([time.monotonic()]), wrench=np.zeros((1, 6)),
+        return WrenchBatch(time_s=np.array([self.clock()]), wrench=np.zeros((1, 6)),
                            counts=np.zeros((1, 6), dtype=np.int64), status=np.zeros(1, dtype=np.uint32),
                            sequence=np.array([self.sequence]), saturated=np.zeros(1, dtype=bool))
 
 
 class _Controller:
-    """Cycles as fast as the bridge asks; sets ``stop`` after ``cycles``. The cycles listed in ``late`` arrived
-    ``late_by_s`` before the bridge got them (their answer is later than one cycle). At each cycle of ``gates`` it
-    waits until the bridge has handed ``gates[cycle]`` cycles to its listeners (``published``)."""
+    """Cycles as fast as the bridge asks, each 2 ms later on ``clock``; sets ``stop`` after ``cycles``. The cycles
+    listed in ``late`` arrived ``late_by_s`` before the bridge got them (their answer is later than one cycle). At
+    each cycle of ``gates`` it waits until the bridge has handed ``gates[cycle]`` cycles to its listeners
+    (``published``)."""
 
     frequency_hz = 500.0
 
     def __init__(self, cycles: int, stop: threading.Event, late: set[int], late_by_s: float,
-                 gates: dict[int, int]) -> None:
+                 gates: dict[int, int], clock: _Clock) -> None:
         self.cycles, self.stop, self.late, self.late_by_s, self.gates = cycles, stop, late, late_by_s, gates
+        self.clock = clock
         self.count = 0
         self.written = 0
         self.published = 0
@@ -85,11 +99,15 @@ class _Controller:
                 assert self.progress.wait_for(lambda: self.published >= self.gates[self.count], timeout=10.0)
         if self.count >= self.cycles:
             self.stop.set()
-        received_s = time.monotonic() - (self.late_by_s if self.count in self.late else 0.0)
+        self.clock.now_s += 1.0 / self.frequency_hz
+        received_s = self.clock() - (self.late_by_s if self.count in self.late else 0.0)
         zeros = np.zeros(6)
         return ControllerCycle(timestamp_s=self.count * 0.002, q=np.array([0.3, -1.2, 1.4, -1.7, -1.5708, 0.4]),
                                qd=zeros, tcp_force=zeros, runtime_state=1, safety_status_bits=1,
                                received_s=received_s, tcp_pose=zeros, target_qd=zeros, target_qdd=zeros)
+
+    def queued(self) -> bool:
+        return False
 
     def write(self, wrench) -> None:
         self.written += 1
@@ -98,18 +116,21 @@ class _Controller:
 def test_a_run_longer_than_the_kept_log_counts_every_cycle(monkeypatch):
     monkeypatch.setattr(bridge_module, "LOG_CHUNK_ROWS", 256)
     stop = threading.Event()
+    clock = _Clock()
     # late answers at cycles 100 and 2900; each is handed on before its chunk can be dropped (3 chunks kept)
-    controller = _Controller(cycles=3000, stop=stop, late={100, 2900}, late_by_s=0.01, gates={400: 101, 2990: 2901})
+    controller = _Controller(cycles=3000, stop=stop, late={100, 2900}, late_by_s=0.01, gates={400: 101, 2990: 2901},
+                             clock=clock)
     truth = CellTruth()
     plan = plan_feed(truth.calibration(), "compensated", np.array([0.0, 0.0, 0.035]), sensor_body_kg=0.3)
     settings = BridgeSettings(log_keep_s=1.0, realtime_priority=0)  # 500 rows at 500 Hz: 3 chunks of 256 kept
-    bridge = Bridge(_Sensor(), controller, None, plan, truth.calibration(), ur_model("UR5e"), settings,
-                    listeners=(controller.listener,))
+    bridge = Bridge(_Sensor(clock), controller, None, plan, truth.calibration(), ur_model("UR5e"), settings,
+                    listeners=(controller.listener,), clock_s=clock)
     summary = bridge.run(stop=stop)
     assert summary.trip is None
     assert summary.cycles == controller.count >= 3000 and summary.written == controller.written == summary.cycles
     assert controller.published == summary.cycles
+    assert summary.enabled_written == summary.written  # a program's input (no enable call): the whole feed counts
     assert 500 <= len(summary.log) <= 768 < summary.cycles  # the newest chunks only
     assert np.all(np.diff(summary.log[:, 0]) > 0) and summary.log[-1, 0] == controller.count * 0.002
     assert summary.late_answers == 2  # cycle 100 left the log long before the end: still counted
-    assert 0.0 <= summary.max_sample_age_s < bridge_module.MAX_STALENESS_S
+    assert summary.max_sample_age_s == 0.0  # each sample is read in the cycle that dates it

@@ -24,7 +24,8 @@ def test_monitor_chooses_the_model_by_the_calibration(tmp_path, capsys, with_ine
         calibration = replace(calibration, inertia=truth.inertia)
     path = tmp_path / "calibration.json"
     save_calibration(path, calibration)
-    assert ftacq_main(["monitor", "--sim", "--sim-still", "--calibration", str(path), "--seconds", "1.5"]) == 0
+    assert ftacq_main(["monitor", "--sim", "--sim-still", "--calibration", str(path), "--seconds", "1.5",
+                       "--save", str(tmp_path / "monitor.rrd")]) == 0
     captured = capsys.readouterr()
     err = captured.err
     assert "drift tracker" in captured.out  # the tracker runs with either model

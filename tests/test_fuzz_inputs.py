@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 
 from ftacq.errors import FtacqError
-from tests.fuzz_inputs import Targets, calibration_json, cell_toml, pose_csv, sensor_url
+from tests.fuzz_inputs import Targets, calibration_json, cell_toml, pose_csv, robot_host, sensor_url
 
 SUITE_SETTINGS = settings(max_examples=120, deadline=None, derandomize=True, database=None,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -52,3 +52,9 @@ def test_cell_toml_reader(targets, text):
 @given(url=sensor_url())
 def test_sensor_url_parser(targets, url):
     _only_ftacq_errors(targets.sensor_url, url)
+
+
+@SUITE_SETTINGS
+@given(text=robot_host())
+def test_robot_host_check(targets, text):
+    _only_ftacq_errors(targets.robot_host, text)

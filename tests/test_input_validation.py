@@ -241,8 +241,47 @@ def test_output_paths_under_a_file_are_refused_before_any_device_starts(tmp_path
     assert "--out" in one_line_error(capsys)
 
 
-def test_check_output_file_accepts_a_new_file_in_a_missing_folder(tmp_path):
-    assert check_output_file(tmp_path / "new" / "deeper" / "cal.json") == tmp_path / "new" / "deeper" / "cal.json"
+def test_check_output_file_accepts_a_new_file_in_an_existing_folder(tmp_path):
+    assert check_output_file(tmp_path / "cal.json") == tmp_path / "cal.json"
+
+
+def test_an_output_file_in_a_missing_folder_is_refused_and_no_folder_created(tmp_path, poses_csv, capsys):
+    out = tmp_path / "no" / "such" / "cal.json"
+    assert main(["identify", str(poses_csv), "-o", str(out)]) == 2
+    line = one_line_error(capsys)
+    assert "-o/--output" in line and "does not exist" in line and str(tmp_path / "no" / "such") in line
+    assert not (tmp_path / "no").exists()
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["robot", "info", "not..a..host"], "an empty part between two dots"),
+    (["robot", "info", "a" * 64 + ".example"], "longer than 63 characters"),
+    (["robot", "info", "127.0.0.62:80"], "ports are fixed"),
+    (["sensor", "info", "netft://not..a..host"], "an empty part between two dots"),
+    (["sensor", "info", "netft://a_b.example"], "not a host name part"),
+])
+def test_a_malformed_host_is_a_one_line_error_before_any_socket(argv, what, capsys, monkeypatch):
+    monkeypatch.setattr("socket.create_connection", never("a connection"))
+    monkeypatch.setattr("socket.getaddrinfo", never("a name lookup"))
+    assert main(argv) == 2
+    assert what in one_line_error(capsys)
+
+
+def test_a_robot_host_with_its_rtde_port_says_nothing_listens_there(capsys):
+    # a loopback address where nothing listens on 30004: the connection is refused at once, no network involved
+    assert main(["robot", "info", "127.0.0.62:30004"]) == 1
+    line = one_line_error(capsys)
+    assert "127.0.0.62" in line and "port 30004 (RTDE): nothing listens there" in line and "not known" not in line
+
+
+def test_a_cell_toml_robot_host_that_is_no_host_is_refused(tmp_path, capsys):
+    path = tmp_path / "CELL.toml"
+    assert main(["config", "init", str(path)]) == 0
+    path.write_text(path.read_text().replace('host = "192.168.1.10"', 'host = "ur..cell"'))
+    capsys.readouterr()
+    assert main(["config", "check", str(path)]) == 2
+    line = one_line_error(capsys)
+    assert "robot.host" in line and "'ur..cell'" in line
 
 
 def test_written_files_are_mode_0644(tmp_path, poses_csv, capsys):

@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from procedures.realtime import KernelThread, ask_realtime, softirq_advice, softirq_threads
+from procedures.realtime import KernelThread, ask_realtime, ask_realtime_all_threads, softirq_advice, softirq_threads
 
 
 def test_ask_realtime_not_asked_and_refused(monkeypatch):
@@ -56,3 +56,18 @@ def test_softirq_advice_names_the_normal_priority_threads():
     assert "for p in 14; do chrt -f -p 60 $p; done" in advice
     assert softirq_advice([KernelThread(24, "ksoftirqd/1", 60)]) is None
     assert softirq_advice([]) is None
+
+
+def test_ask_realtime_all_threads_asks_for_every_thread_of_the_process(tmp_path, monkeypatch):
+    for tid in ("101", "102", "107"):
+        (tmp_path / tid).mkdir()
+    asked = []
+    monkeypatch.setattr("os.sched_setscheduler", lambda tid, policy, param: asked.append((tid, param.sched_priority)))
+    assert ask_realtime_all_threads(70, tasks=tmp_path) == "SCHED_FIFO 70"
+    assert sorted(asked) == [(101, 70), (102, 70), (107, 70)]
+
+    def refuse(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr("os.sched_setscheduler", refuse)
+    assert ask_realtime_all_threads(70, tasks=tmp_path) == "normal (SCHED_FIFO 70 refused: Operation not permitted)"

@@ -27,6 +27,7 @@ from urllib.parse import urlsplit
 
 import numpy as np
 
+from drivers.hosts import host_problem
 from drivers.netft.discovery import (
     DEFAULT_HTTP_TIMEOUT_S,
     DEFAULT_TCP_TIMEOUT_S,
@@ -472,6 +473,10 @@ def parse_netft_url(url: str) -> dict:
         raise InputError(f"sensor URL {url!r}: no host; expected {URL_FORM}")
     if parts.path not in ("", "/"):
         raise InputError(f"sensor URL {url!r}: unexpected path {parts.path!r}; expected {URL_FORM}")
+    problem = host_problem(parts.hostname)
+    if problem is not None:
+        raise InputError(f"sensor URL {url!r}: host {parts.hostname!r} is not an IP address or host name ({problem}); "
+                         f"expected {URL_FORM}")
     kwargs: dict = {"host": parts.hostname}
     if port is not None:
         if port == 0:

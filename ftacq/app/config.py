@@ -117,6 +117,15 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> CellConfig
     return config
 
 
+def check_robot_host(host: str, where: str) -> None:
+    """Refuse a robot.host that is not an IP address or host name (no network): ConfigError naming ``where``."""
+    from drivers.hosts import host_problem
+
+    problem = host_problem(host)
+    if problem is not None:
+        raise ConfigError(f"{where} = {shown(host)}: not an IP address or host name ({problem})")
+
+
 def check_sensor_url(url: str, where: str) -> None:
     """Parse the sensor URL as its driver will (scheme, host, port, query keys) without touching the network.
 
@@ -148,7 +157,9 @@ def load_config(path: str | Path) -> CellConfig:
         raise ConfigError(f"{path}: not valid TOML: nested too deeply to read") from None
     except ValueError as error:  # e.g. an integer of more than 4300 digits
         raise ConfigError(f"{path}: cannot read a value: {error}") from None
-    return config_from_dict(data, str(path))
+    config = config_from_dict(data, str(path))
+    check_robot_host(config.robot.host, f"{path}: robot.host")
+    return config
 
 
 def _toml_value(value: Any) -> str:

@@ -51,12 +51,15 @@ class SimulatedCell:
         seed: seed of the sensor noise. initial_q: start joint angles (rad); default the plan's home.
         encoder_noise_rad: 1σ jitter of the joint angles the controller reports, rad; default
             :data:`tests.fakes.ur_simulator.ENCODER_NOISE_RAD` (as a real arm), 0 = exact.
+        realtime_priority: SCHED_FIFO priority of the controller process's threads and of the Net F/T's sending
+            thread (0: normal scheduling). Real devices keep their cycle whatever the computer does; on a loaded
+            computer the simulated ones, at normal priority, stall for 100 ms and more (ftacq bridge --sim).
     """
 
     def __init__(self, truth: CellTruth | None = None, sensor: str = "netft", model: str = "UR5e",
                  mount: str = "floor", time_scale: float = 1.0, rate_hz: float = DEFAULT_SENSOR_RATE_HZ,
                  seed: int = 0, initial_q: np.ndarray | None = None,
-                 encoder_noise_rad: float = ENCODER_NOISE_RAD) -> None:
+                 encoder_noise_rad: float = ENCODER_NOISE_RAD, realtime_priority: int = 0) -> None:
         if sensor not in SENSORS:
             raise ValueError(f"sensor {sensor!r}: must be one of {', '.join(SENSORS)}")
         truth = truth or CellTruth()
@@ -69,6 +72,7 @@ class SimulatedCell:
         self.time_scale = float(time_scale)
         self.rate_hz = float(rate_hz)
         self.seed = seed
+        self.realtime_priority = int(realtime_priority)
         if initial_q is None:
             from procedures.plan import home_configuration_rad
 
@@ -97,7 +101,8 @@ class SimulatedCell:
             self._stack.callback(self._close_shared_pose)
             self.controller = URControllerProcess(model=self.model_name, time_scale=self.time_scale,
                                                   pose_shm=self.shared_pose.name, initial_q=self.initial_q,
-                                                  mount=self.mount, extra_args=self._controller_args())
+                                                  mount=self.mount, extra_args=self._controller_args(),
+                                                  realtime_priority=self.realtime_priority)
             self.controller.start()
             self._stack.callback(self.controller.stop)
             self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed, robot=ur_model(self.model_name),
@@ -105,7 +110,8 @@ class SimulatedCell:
             if self.sensor_kind == "netft":
                 from tests.fakes.netft import FakeNetFT
 
-                self.netft = FakeNetFT(self.physics, host="127.0.0.1", rate_hz=self.rate_hz)
+                self.netft = FakeNetFT(self.physics, host="127.0.0.1", rate_hz=self.rate_hz,
+                                       realtime_priority=self.realtime_priority)
                 self.netft.start()
                 self._stack.callback(self.netft.close)
                 self.sensor_url = self.netft.url

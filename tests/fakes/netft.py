@@ -76,9 +76,12 @@ class FakeNetFT(NetFTBox):
     """
 
     def __init__(self, physics, host: str = "127.0.0.1", rdt_port: int = 0, tcp_port: int = 0, http_port: int = 0,
-                 serve_tcp: bool = True, send_from_other_socket: bool = False, **box) -> None:
+                 serve_tcp: bool = True, send_from_other_socket: bool = False, realtime_priority: int = 0,
+                 **box) -> None:
         super().__init__(physics, **box)
         self.host = host
+        self.realtime_priority = realtime_priority
+        """SCHED_FIFO priority of the sending (RDT) thread, 0: normal (a real box sends whatever the host does)."""
         self._requested_ports = (rdt_port, tcp_port, http_port)
         self.serve_tcp = serve_tcp
         self.send_from_other_socket = send_from_other_socket
@@ -121,14 +124,18 @@ class FakeNetFT(NetFTBox):
         self._http = _make_http_server(self, (self.host, http_port), family)
         self.http_port = self._http.server_address[1]
         self._started = True
-        self._spawn("rdt", self._rdt_loop)
+        self._spawn("rdt", self._rdt_loop, self.realtime_priority)
         if self._tcp is not None:
             self._spawn("tcp", self._tcp_loop)
         self._spawn("http", lambda: self._http.serve_forever(poll_interval=POLL_S))
         return self
 
-    def _spawn(self, name: str, target) -> None:
+    def _spawn(self, name: str, target, realtime_priority: int = 0) -> None:
         def run() -> None:
+            if realtime_priority > 0:
+                from procedures.realtime import ask_realtime
+
+                ask_realtime(realtime_priority)
             try:
                 target()
             except BaseException as error:  # re-raised in close()

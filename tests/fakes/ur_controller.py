@@ -678,6 +678,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"1σ jitter of the reported joint angles, rad (default 0: exact; a real UR5e "
                              f"{ENCODER_NOISE_RAD:g})")
     parser.add_argument("--seed", type=int, default=None, help="seed of the encoder jitter")
+    parser.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                        help="run the controller's threads at SCHED_FIFO N, as a real controller's real-time cycle "
+                             "(0: normal scheduling; refused without CAP_SYS_NICE, then normal)")
     return parser
 
 
@@ -700,6 +703,10 @@ def main(argv: list[str] | None = None) -> int:
     # a real controller's cycle has no collector pauses: the setup's objects out of the cyclic collector's reach
     # (a full collection walking them holds the interpreter for tens of ms, a dozen missed cycles)
     gc.freeze()
+    if args.realtime_priority > 0:  # before the threads start: each inherits its creator's policy
+        from procedures.realtime import ask_realtime
+
+        ask_realtime(args.realtime_priority)
     server.start()
     print("READY " + json.dumps(server.ready_info()), flush=True)
     parent = os.getppid()

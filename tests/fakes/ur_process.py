@@ -55,8 +55,9 @@ class URControllerProcess:
 
     def __init__(self, model: str = "UR5e", time_scale: float = 0.0, pose_shm: str | None = None,
                  initial_q=None, mount: str = "floor", version: str | None = None, host: str | None = None,
-                 extra_args: list[str] | None = None) -> None:
+                 extra_args: list[str] | None = None, realtime_priority: int = 0) -> None:
         self.model, self.time_scale, self.pose_shm = model, time_scale, pose_shm
+        self.realtime_priority = realtime_priority
         self.initial_q, self.mount, self.version = initial_q, mount, version
         self._fixed_host = host
         self._extra = list(extra_args or [])
@@ -78,6 +79,8 @@ class URControllerProcess:
             cmd += ["--initial-q", *[repr(float(v)) for v in self.initial_q]]
         if self.version:
             cmd += ["--version", self.version]
+        if self.realtime_priority:
+            cmd += ["--realtime-priority", str(self.realtime_priority)]
         return cmd + self._extra
 
     def start(self) -> "URControllerProcess":

@@ -24,6 +24,14 @@ import numpy as np
 from ftacq.errors import FtacqError, InputError
 
 SIM_SENSOR_RATE_HZ = 7000.0
+SIM_REALTIME_PRIORITY = 85
+"""SCHED_FIFO priority of the simulated controller and Net F/T (--sim): real ones keep their cycle whatever the
+computer does; at normal priority on a busy computer the simulated controller missed 100 ms (normal scheduling
+where refused)."""
+SIM_PROCESS_PRIORITY = 70
+"""With --sim the simulated Net F/T, its driver and the viewer share this process and its interpreter lock: all
+its threads run at SCHED_FIFO 70 while feeding (the feed thread 80), so that none is preempted by other programs
+while it holds the lock (at a load average of 20-30 on 2 cores the newest sample stayed over 50 ms old)."""
 READOUT_PERIOD_S = 0.5
 
 
@@ -45,8 +53,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "and the enable arguments of the convention in docs/bridge.md. A watchdog stops feeding and "
                     "disables the input when the sensor goes silent, saturates or the wrench jumps. Never moves "
                     "the arm. Stop with Ctrl-C or --seconds. Run --check first on a new cell.",
-        epilog="examples:\n  ftacq bridge --config cell.toml --calibration runs/latest/calibration.json --check\n"
-               "  ftacq bridge --config cell.toml --calibration runs/latest/calibration.json\n"
+        epilog="examples:\n  ftacq bridge --config cell.toml --calibration runs/<run>/calibration.json --check\n"
+               "  ftacq bridge --config cell.toml --calibration runs/<run>/calibration.json\n"
                "  ftacq bridge --sim --seconds 10",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -101,7 +109,8 @@ def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
     if args.sim:
         from ftacq.app.simcell import simulated_cell
 
-        cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
+        cell = stack.enter_context(simulated_cell(sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ,
+                                                  realtime_priority=SIM_REALTIME_PRIORITY))
         truth = cell.truth
         offset = np.asarray(getattr(truth, "sensor_offset_m", (0.0, 0.0, 0.0)), dtype=float)
         if calibration is None:  # the ground truth, tool inertia included: the jogging arm is compensated dynamically
@@ -207,6 +216,11 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
     if args.realtime_priority is not None:
         settings = replace(settings, realtime_priority=args.realtime_priority)
     bridge = Bridge(sensor, client, robot, plan, calibration, model, settings, listeners=tuple(listeners))
+    if args.sim:
+        from procedures.realtime import ask_realtime_all_threads
+
+        print(f"ftacq bridge: --sim: this process's threads {ask_realtime_all_threads(SIM_PROCESS_PRIORITY)}",
+              file=sys.stderr)
     advice = softirq_advice(softirq_threads())
     if advice:
         print(f"ftacq bridge: hint: {advice}", file=sys.stderr)
@@ -214,20 +228,40 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
           f"low-pass {bridge.cutoff_hz:g} Hz (delay {bridge.filter.delay_s * 1000:.1f} ms); feeding (Ctrl-C to stop)",
           file=sys.stderr)
     summary = bridge.run(duration_s=args.seconds)
-    staleness = summary.staleness_s()
-    p50, p99 = (np.percentile(staleness, [50, 99]) * 1000 if len(staleness) else (np.nan, np.nan))
-    newest = f" (the newest {len(summary.log)} cycles)" if len(summary.log) < summary.cycles else ""
-    print(f"ftacq bridge: {summary.written} values written in {summary.cycles} controller cycles over "
-          f"{summary.duration_s:.1f} s; answered later than one cycle: {summary.late_answers}; feed thread "
-          f"{summary.feed_priority}; newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms{newest}, max "
-          f"{summary.max_sample_age_s * 1000:.1f} ms; filter delay "
-          f"{summary.filter_delay_s * 1000:.1f} ms; external input "
-          f"{'disabled' if summary.disabled else 'NOT disabled (the controller pauses the program by itself)'}"
-          + ("; stopped by Ctrl-C" if summary.interrupted else ""))
+    print(summary_line(summary))
     if summary.trip:
+        state = ("disabled" if summary.disabled else "left to the controller") if summary.enabled else \
+            "left to the program" if robot is None else "never enabled"
         raise BridgeStoppedError(f"the watchdog stopped the feed: {summary.trip}; nothing more was written and the "
-                                 f"external input is {'disabled' if summary.disabled else 'left to the controller'}")
+                                 f"external input is {state}")
     return 0
+
+
+def summary_line(summary) -> str:
+    """The run's last line: what was fed while the input was enabled (procedures.bridge.BridgeSummary)."""
+    head = (f"ftacq bridge: {summary.written} values written in {summary.cycles} controller cycles over "
+            f"{summary.duration_s:.1f} s")
+    if summary.skipped_at_start:
+        head += f" ({summary.skipped_at_start} cycles queued before the feed began skipped)"
+    tail = f"; feed thread {summary.feed_priority}; filter delay {summary.filter_delay_s * 1000:.1f} ms"
+    if not np.isfinite(summary.enabled_from_s):
+        return (f"{head}; the external input was never enabled" + tail
+                + ("; stopped by Ctrl-C" if summary.interrupted else ""))
+    staleness = summary.staleness_s(while_enabled=True)
+    if len(staleness):
+        p50, p99 = np.percentile(staleness, [50, 99]) * 1000
+        newest = f" (the newest {len(staleness)})" if len(summary.log) < summary.cycles else ""
+        ages = (f"newest sample age at write p50 {p50:.1f} ms, p99 {p99:.1f} ms{newest}, max "
+                f"{summary.max_sample_age_s * 1000:.1f} ms")
+    else:
+        ages = "no sample age (nothing written)"
+    if summary.enabled:
+        state = "disabled" if summary.disabled else "NOT disabled (the controller pauses the program by itself)"
+    else:
+        state = "left to the program"
+    return (f"{head}; while the input was enabled: {summary.enabled_written} values in {summary.enabled_cycles} "
+            f"cycles, answered later than one cycle: {summary.late_answers}, {ages}{tail}; external input {state}"
+            + ("; stopped by Ctrl-C" if summary.interrupted else ""))
 
 
 class _Readout:

@@ -101,6 +101,9 @@ def _fmt(values, digits: int = 4) -> str:
 
 def run_info(args: argparse.Namespace) -> int:
     """Print the controller's identity and state."""
+    from drivers.ur_connection import controller_host
+
+    args.host = controller_host(args.host)  # an IP address or host name (a ':30004' dropped), before any socket
     data = collect_info(args.host, args.model)
     if args.json:
         print(json.dumps(data, indent=2))
