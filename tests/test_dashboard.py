@@ -206,14 +206,15 @@ def sink_args(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def test_headless_default_saves_an_rrd_and_says_how_to_view_it(monkeypatch):
+def test_headless_default_saves_an_rrd_and_says_where(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setattr(sinks.sys, "platform", "linux")
     choice = sinks._choose_sink(sink_args([]), layout.APP_ID)
     assert choice.kind == "save"
     assert choice.target.endswith(".rrd") and Path(choice.target).parent == Path("runs")
-    assert command("rerun", Path(choice.target)) in choice.message  # absolute, runs as printed
+    assert f"recording to {choice.target}" in choice.message
+    assert "view it" not in choice.message  # said when the file exists (close_recording)
 
 
 def test_sink_flags_pick_the_sink_and_exclude_each_other(tmp_path):
@@ -231,11 +232,27 @@ def test_open_recording_with_save_writes_the_file(tmp_path):
     lines = []
     recording = sinks.open_recording(sink_args(["--save", str(path)]), announce=lines.append)
     Dashboard(recording, strict=True).log_text("hello")
+    assert not path.exists()  # written to a temporary file, renamed when closed
     sinks.close_recording(recording)
     assert path.is_file() and layout.MONITOR_LOG in entity_paths(path)
-    assert lines == [f"rerun: saving to {path}; view it with: {command('rerun', path)}"]
+    assert sorted(p.name for p in path.parent.iterdir()) == ["run.rrd"]
+    assert lines == [f"rerun: recording to {path} (written when the run ends)",
+                     f"rerun: saved {path}; view it with: {command('rerun', path)}"]
     viewer = command("rerun", path).split(" ")[0]  # runs as printed: the viewer beside this Python, or on PATH
     assert viewer == "rerun" or Path(viewer).is_file()
+
+
+def test_a_saved_recording_that_recorded_nothing_leaves_no_file_and_says_so(tmp_path):
+    """A run that fails before its first sample (the robot unreachable) writes no empty .rrd and never says
+    "view it with"."""
+    path = tmp_path / "run.rrd"
+    lines = []
+    recording = sinks.open_recording(sink_args(["--save", str(path)]), announce=lines.append)
+    Dashboard(recording, strict=True).set_calibration(CellTruth().calibration())  # layout and static data only
+    sinks.close_recording(recording)
+    assert list(tmp_path.iterdir()) == []
+    assert lines[-1] == f"rerun: nothing was recorded; {path} not written"
+    assert not any("view it" in line for line in lines)
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from Linux /proc")
