@@ -112,3 +112,18 @@ def mixed_static_and_temporal(rrd_path: str | os.PathLike, under: str = "world")
         if path == under or path.startswith(under + "/"):
             kinds.setdefault(path, set()).add(bool(chunk.is_static))
     return {path for path, seen in kinds.items() if len(seen) == 2}
+
+
+def blueprint_views(rrd_path: str | os.PathLike) -> dict[str, tuple[str, str]]:
+    """Return the views of the recording's blueprint: display name → (view class, origin entity path)."""
+    reader = RrdReader(rrd_path)
+    views = {}
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:space_origin" not in batch.schema.names:
+                continue
+            for kind, name, origin in zip(*(batch.column(f"ViewBlueprint:{c}").to_pylist()
+                                            for c in ("class_identifier", "display_name", "space_origin"))):
+                views[name[0]] = (kind[0], origin[0])
+    return views

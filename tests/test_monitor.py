@@ -319,6 +319,12 @@ def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
     assert {layout.RAW_FORCE, layout.COMPENSATED_FORCE, layout.LINK_FRAMES[5], layout.MONITOR_LOG} <= paths
     time_s, _ = read_scalars(rrd_path, layout.RAW_FORCE)
     assert time_s.size > 1000
+    run_s, _ = read_scalars(rrd_path, layout.RAW_FORCE, absolute=False)
+    assert 0.0 <= run_s[0] < run_s[-1] < 60.0  # seconds since the run started, not the host's uptime
+    from tests.rrd_reader import count_chunks
+
+    for entity in (layout.RAW_FORCE, layout.LABELS, layout.GRAVITY):  # a saved file: columns of 5 s, not per read
+        assert 1 <= count_chunks(rrd_path, entity) <= 3, entity
 
 
 def test_ftacq_monitor_with_an_unreachable_robot_leaves_no_rrd_and_never_says_view_it(tmp_path, capsys):

@@ -227,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
             return 0
         confirm_motion(args)
 
+        # the viewer before the sensor: its time axis starts with the run, not seconds into the sensor's stream
+        dashboard = _dashboard_listener(args, stack, settings.model) if _wants_dashboard(args) else None
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
         sensor.start()
@@ -245,8 +247,8 @@ def run(args: argparse.Namespace) -> int:
         listeners: list[Listener] = [RunFolderWriter(folder), progress]
         if cell is not None and args.sim_wrong_tool:
             listeners.insert(0, cell.wrong_tool_listener(plan))
-        if _wants_dashboard(args):
-            listeners.append(_dashboard_listener(args, stack, settings.model))
+        if dashboard is not None:
+            listeners.append(dashboard)
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()

@@ -75,6 +75,7 @@ class DashboardListener:
         self._unplaced: list[tuple[np.ndarray, np.ndarray]] = []  # (time_s, wrench) read since the last pose
         self._backfill_samples = 0
         self._window = 0  # the averaging window being read: PoseMeasured events so far
+        self._fed_arm_tick = -np.inf  # the last 1/ARM_RATE_HZ tick the bridge's arm was drawn in
 
     def __call__(self, event: events.Event) -> None:
         try:
@@ -168,14 +169,14 @@ class DashboardListener:
         time_s = np.asarray(event.time_s, dtype=float)
         q = np.asarray(q, dtype=float).reshape(-1, 6)
         keep = np.flatnonzero(np.isfinite(time_s) & np.isfinite(q).all(axis=1))
-        _, first = np.unique(np.floor(time_s[keep] * ARM_RATE_HZ), return_index=True)
-        keep = keep[first]
-        keep = keep[time_s[keep] >= self._last_arm_s + 1.0 / ARM_RATE_HZ]
+        tick = np.floor(time_s[keep] * ARM_RATE_HZ)
+        _, first = np.unique(tick, return_index=True)  # the first cycle of each 1/ARM_RATE_HZ tick …
+        keep = keep[first[tick[first] > self._fed_arm_tick]]  # … not drawn yet
         if not keep.size:
             return
         base_T_flange = link_frames(self.model, q[keep])[:, 5]
         pose = np.hstack([base_T_flange[:, :3, 3], rotvec_from_rotation(base_T_flange[:, :3, :3]).reshape(-1, 3)])
-        self._last_arm_s = float(time_s[keep[-1]])
+        self._fed_arm_tick = float(np.floor(time_s[keep[-1]] * ARM_RATE_HZ))
         self.dashboard.log_arm(time_s[keep], pose, q[keep])
 
     def _robot(self, event: events.RobotState) -> None:
