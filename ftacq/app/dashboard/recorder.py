@@ -15,9 +15,9 @@ user in those seconds) saw the arm in an old pose and neither the tool-weight ar
 after ``rerun rrd optimize``, 65 chunks, showed them at once; so did the unoptimized file 30 s after opening). What
 is still held is sent by :meth:`Dashboard.flush`, and by ``close_recording`` (the dashboard attaches itself).
 
-Time is the run's time: every timeline value is seconds since the dashboard was made (``origin_s``, host monotonic
-clock), so the viewer's axes read "+12.5 s", not the machine's uptime; the origin is a recording property
-(``ftacq_time``: the monotonic origin and the wall-clock time it corresponds to).
+Time is the run's time: every timeline value is seconds since the run's first data (``origin_s``, host monotonic
+clock; or an origin given), so the viewer's axes read "+12.5 s", not the machine's uptime; the origin is a
+recording property (``ftacq_time``: the monotonic origin and the wall-clock time it corresponds to).
 
 Strict mode (``Dashboard(recording, strict=True)``) turns Rerun API misuse into exceptions (tests); the
 default is warn-only, so a visualisation problem never stops acquisition or the robot.
@@ -72,7 +72,7 @@ class Dashboard:
         strict: raise on Rerun API misuse (tests) instead of warning (live).
         send_blueprint: send the layout now (False when the sink already carries it).
         view: the layout, "monitor" (also the calibration's) or "bridge" (:func:`~ftacq.app.dashboard.layout.blueprint`).
-        origin_s: host monotonic time of the timeline's zero (default: now).
+        origin_s: host monotonic time of the timeline's zero (default: the time of the first data logged).
         send_period_s: the span of data a stream's column holds before it is sent (default by sink, see the module).
     """
 
@@ -85,7 +85,8 @@ class Dashboard:
         self._sensor_rotation: np.ndarray | None = None  # sensor_R_flange
         self._gravity_base: np.ndarray | None = None  # the tool's weight, base frame, N
         self._contact_sensor = np.zeros(3)  # the latest compensated force sent, sensor frame, N
-        self.origin_s = time.monotonic() if origin_s is None else float(origin_s)
+        self.origin_s: float | None = None
+        """Host monotonic time of the timeline's zero: given, or the time of the first data logged."""
         if send_period_s is None:
             send_period_s = FILE_SEND_PERIOD_S if sinks.is_saved(recording) else LIVE_SEND_PERIOD_S
         self.send_period_s = float(send_period_s)
@@ -97,27 +98,47 @@ class Dashboard:
         self._pending_from_s: float | None = None
         if send_blueprint:
             recording.send_blueprint(blueprint(view))
-        unix_s = time.time() - (time.monotonic() - self.origin_s)
-        recording.send_property(TIME_PROPERTY, rr.AnyValues(
-            origin_monotonic_s=self.origin_s,
-            origin_utc=datetime.fromtimestamp(unix_s, timezone.utc).isoformat(timespec="milliseconds")))
+        if origin_s is not None:
+            self._set_origin(float(origin_s))
         self._log_static_styles()
         sinks.attach(recording, self.flush_columns, lambda: self.rows_logged > 0)
 
     # -- helpers ---------------------------------------------------------------------------------------------
+
+    def start_clock(self, origin_s: float | None = None) -> None:
+        """Make ``origin_s`` (s, host monotonic clock; default now) the timeline's zero, unless data was logged
+        already: a command calls it as its sensor starts, so samples the first read returns are not before it."""
+        with self._lock:
+            if self.origin_s is None:
+                self._set_origin(time.monotonic() if origin_s is None else float(origin_s))
+
+    def _set_origin(self, origin_s: float) -> None:
+        """Make ``origin_s`` (s, host monotonic clock) the timeline's zero and record it (``ftacq_time``)."""
+        self.origin_s = origin_s
+        unix_s = time.time() - (time.monotonic() - origin_s)
+        self.recording.send_property(TIME_PROPERTY, rr.AnyValues(
+            origin_monotonic_s=origin_s,
+            origin_utc=datetime.fromtimestamp(unix_s, timezone.utc).isoformat(timespec="milliseconds")))
+
+    def _since_origin(self, time_s: np.ndarray) -> np.ndarray:
+        """``time_s`` (s, host monotonic clock) as seconds since the origin (the first data sets it)."""
+        if self.origin_s is None:
+            self._set_origin(float(np.min(time_s)))
+        assert self.origin_s is not None
+        return time_s - self.origin_s
 
     def _static(self, path: str, *archetypes: Any) -> None:
         self.recording.log(path, *archetypes, static=True, strict=self.strict)
 
     def _at(self, time_s: float, path: str, *archetypes: Any) -> None:
         """Log ``archetypes`` at ``time_s`` (s, host monotonic clock). Caller holds the lock (time is per thread)."""
-        self.recording.set_time(SENSOR_TIMELINE, duration=float(time_s) - self.origin_s)
+        self.recording.set_time(SENSOR_TIMELINE, duration=float(self._since_origin(np.array([float(time_s)]))[0]))
         self.recording.log(path, *archetypes, strict=self.strict)
         self.rows_logged += 1
 
     def _send(self, path: str, time_s: np.ndarray, columns: Any, pose_index: np.ndarray | None = None) -> None:
         time_s = np.asarray(time_s, dtype=np.float64)
-        indexes = [rr.TimeColumn(SENSOR_TIMELINE, duration=time_s - self.origin_s)]
+        indexes = [rr.TimeColumn(SENSOR_TIMELINE, duration=self._since_origin(time_s))]
         if pose_index is not None:
             indexes.append(rr.TimeColumn(POSE_TIMELINE, sequence=np.asarray(pose_index, dtype=np.int64)))
         self.recording.send_columns(path, indexes=indexes, columns=columns, strict=self.strict)
@@ -129,6 +150,8 @@ class Dashboard:
     def _hold(self, newest_s: float, oldest_s: float) -> None:
         """Note rows from ``oldest_s`` to ``newest_s`` held; send everything held once it spans the send period.
         Caller holds the lock."""
+        if self.origin_s is None:
+            self._set_origin(oldest_s)  # the first data held, not when it is sent
         if self._pending_from_s is None or oldest_s < self._pending_from_s:
             self._pending_from_s = oldest_s
         if newest_s - self._pending_from_s >= self.send_period_s:
@@ -154,9 +177,9 @@ class Dashboard:
                 vectors=contact_sensor * FORCE_ARROW_SCALE_M_PER_N,
                 colors=np.tile(np.array(CONTACT_COLOR, np.uint8), (n, 1)), radii=np.full(n, ARROW_RADIUS_M)))
         if arm:
-            q_parts = [q for _, _, q in arm]
+            q_parts = [q for _, _, q in arm if q is not None]  # all or none (log_arm sends before a change)
             self._send_arm(np.concatenate([t for t, _, _ in arm]), np.concatenate([p for _, p, _ in arm]),
-                           None if any(q is None for q in q_parts) else np.concatenate(q_parts),
+                           np.concatenate(q_parts) if len(q_parts) == len(arm) else None,
                            contact_time_s, contact_sensor)
         if contact_sensor is not None:
             self._contact_sensor = contact_sensor[-1].copy()
