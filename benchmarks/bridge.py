@@ -314,6 +314,8 @@ def move_back_and_forth(robot, bridge, q0: np.ndarray, stop: threading.Event) ->
 
 def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, health, truth, wrench_filter,
            settings, stalls, scheduling) -> None:
+    from procedures.bridge import FED_COLUMNS
+
     log = summary.log
     if summary.written == 0:
         print(f"ftacq bridge benchmark: nothing was written ({summary.trip})")
@@ -322,7 +324,7 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
     received = records["received"]
     cycles = records["cycles"]
     n = min(len(written), len(received))
-    same = np.array_equal(written[-n:, 5:], received[-n:, 2:]) if n else False
+    same = np.array_equal(written[-n:, FED_COLUMNS], received[-n:, 2:]) if n else False
     # latency: newest sample (driver receive stamp) → controller arrival, over the values that carry new samples (a
     # value repeated because no sample arrived since the previous cycle has no sample to time: its age counts in the
     # staleness below)
@@ -361,7 +363,7 @@ def report(args, seconds, summary, state, records, plan, cpu_s, wall_s, t0, heal
             bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
             tool_weight = -calibration.compensate(bias[None, :], base_R_flange.T)[0]  # sensor frame, bias removed
             truth_fed = plan.fed_wrench(contact_at(elapsed) + tool_weight)
-    error = written[:, 5:] - truth_fed if truth_fed is not None else None
+    error = written[:, FED_COLUMNS] - truth_fed if truth_fed is not None else None
     keep = ~near_switch(elapsed, SETTLE_S) & (elapsed > 0.5) & (written[:, 2] - written[:, 3] <= FRESH_S)
     pushing = contact_at(elapsed)[:, 2] != 0
     noise = np.array(truth.force_noise_n + truth.torque_noise_nm)

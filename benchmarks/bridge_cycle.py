@@ -200,6 +200,8 @@ def instrument(bridge) -> dict[str, list[float]]:
 
 def run(model: str, cycles: int, seed: int, profile: bool, breakdown: bool = False) -> tuple[float, np.ndarray]:
     """Feed ``cycles`` scripted cycles; return (CPU µs per cycle after the warm-up, the fed values (cycles, 6))."""
+    from procedures.bridge import FED_COLUMNS
+
     bridge = build(model, cycles, seed)
     parts = instrument(bridge) if breakdown else {}
     controller = bridge.input
@@ -222,7 +224,7 @@ def run(model: str, cycles: int, seed: int, profile: bool, breakdown: bool = Fal
         pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
     if bridge._trip:
         raise SystemExit(f"{model}: the feed tripped: {bridge._trip}")
-    fed = bridge._log.data[:bridge._log.count, 5:].copy()
+    fed = bridge._log.data[:bridge._log.count, FED_COLUMNS].copy()
     for name, spent in parts.items():
         print(f"    {name:34s} {1e6 * spent[0] / cycles:7.1f} µs per cycle (wrapper included)")
     return 1e6 * (marks[1] - marks[0]) / (cycles - 1 - WARMUP_CYCLES), fed

@@ -9,8 +9,9 @@ explains them):
   extra scatter, the robot's orientation error, the parameters' covariance propagated through the model,
   eqs 10-11). Σ_i e_iᵀ C_i⁻¹ e_i is χ² with 6M degrees of freedom when the calibration is right: its
   upper-tail probability p decides (WARN below :data:`VALIDATION_WARN_P`, FAIL below :data:`VALIDATION_FAIL_P`);
-  one pose alone beyond the Bonferroni-corrected :data:`VALIDATION_POSE_P` is a WARN. The plots draw
-  ±:data:`ACCEPTANCE_BAND_SIGMAS` σ per pose and axis.
+  one pose alone beyond the Bonferroni-corrected :data:`VALIDATION_POSE_P` is a WARN. validation.png draws
+  each pose's d² against that one-pose limit (the test itself); the wrench plot shades
+  ±:data:`ACCEPTANCE_BAND_SIGMAS` σ for scale.
 - **drift** — the first pose measured again at the end: WARN above the configured thresholds, FAIL above
   :data:`DRIFT_FAIL_FACTOR` times them; WARN when that revisit failed (the calibration stands on the poses
   measured before it, but its drift is unknown).
@@ -57,7 +58,7 @@ VALIDATION_POSE_P = 1e-3
 MIN_VALIDATION_POSES = 3
 """Fewer held-out poses than this: WARN (the check says little)."""
 ACCEPTANCE_BAND_SIGMAS = 3.0
-"""The plots' acceptance band: ± this many predicted σ per pose and axis."""
+"""The wrench plot's scale band: ± this many predicted σ per axis (not the test: that is d², above)."""
 DRIFT_FAIL_FACTOR = 3.0
 """Drift above the warning threshold is a WARN; above this many times the threshold a FAIL."""
 OUTLIER_FAIL_FRACTION = 0.2

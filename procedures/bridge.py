@@ -114,9 +114,15 @@ START_TIMEOUT_S = 2.0
 START_WRITES = 25
 """Fresh values written (50 ms at 500 Hz) before the input is enabled: the start-up's bursts are over."""
 LOG_COLUMNS = ("controller_time_s", "cycle_received_s", "written_s", "newest_sample_s", "samples", "fed_fx_n",
-               "fed_fy_n", "fed_fz_n", "fed_tx_nm", "fed_ty_nm", "fed_tz_nm")
+               "fed_fy_n", "fed_fz_n", "fed_tx_nm", "fed_ty_nm", "fed_tz_nm", "q1_rad", "q2_rad", "q3_rad", "q4_rad",
+               "q5_rad", "q6_rad")
 """One row per controller cycle answered in :attr:`BridgeSummary.log` (monotonic host times; ``written_s`` is when
-the value was checked and sent, NaN when nothing was written; ``newest_sample_s`` the newest sample's sample time)."""
+the value was checked and sent, NaN when nothing was written; ``newest_sample_s`` the newest sample's sample time;
+the cycle's actual_q, which the viewer draws the arm from)."""
+FED_COLUMNS = slice(5, 11)
+"""The fed wrench's columns of :data:`LOG_COLUMNS`."""
+Q_COLUMNS = slice(11, 17)
+"""The cycle's joint angles' columns of :data:`LOG_COLUMNS`."""
 
 
 class ControllerInput(Protocol):
@@ -439,6 +445,7 @@ class Bridge:
                     continue
                 row = self._log.row()
                 row[0], row[1], row[4] = cycle.timestamp_s, cycle.received_s, 0
+                row[Q_COLUMNS] = cycle.q
                 start_s, end_s = self._window
                 if start_s <= cycle.received_s <= end_s:
                     self._enabled_cycles += 1
@@ -481,7 +488,7 @@ class Bridge:
                         return
                 self.input.write(fed)
                 row[2] = now_s  # the age checked is the age logged
-                row[5:] = fed
+                row[FED_COLUMNS] = fed
                 previous = fed
                 self._written += 1
                 if start_s <= now_s <= end_s:
@@ -606,14 +613,14 @@ class Bridge:
             return count
         rows = self._log.rows(published, count)
         start_s, end_s = self._window
-        rows = rows[np.isfinite(rows[:, 2])]
+        rows = rows[np.isfinite(rows[:, 2])]  # the cycles a value was written in
         counted = rows[(rows[:, 2] >= start_s) & (rows[:, 2] <= end_s)]
         if len(counted):
             self._late_answers += int(np.count_nonzero(counted[:, 2] - counted[:, 1] > 1.0 / self.controller_rate_hz))
             self._max_sample_age_s = float(np.fmax(self._max_sample_age_s, np.max(counted[:, 2] - counted[:, 3])))
         if self.listeners:
-            self._notify(FedWrenches(time_s=rows[:, 2], fed=rows[:, 5:], cycles=count - published,
-                                     written=len(rows)))
+            self._notify(FedWrenches(time_s=rows[:, 2], fed=rows[:, FED_COLUMNS], cycles=count - published,
+                                     written=len(rows), joint_positions_rad=rows[:, Q_COLUMNS]))
         return count
 
     def _notify(self, event: Event) -> None:

@@ -191,12 +191,14 @@ class BiasDrift:
 class FedWrenches:
     """What ``ftacq bridge`` wrote to the controller's external F/T input since the previous event: ``time_s`` (N,)
     when each value was written, ``fed`` (N, 6) [N, N·m] in the frame the controller expects (tool-flange axes,
-    about the measuring point: docs/bridge.md); ``cycles`` controller cycles passed, ``written`` of them fed."""
+    about the measuring point: docs/bridge.md); ``cycles`` controller cycles passed, ``written`` of them fed;
+    ``joint_positions_rad`` (N, 6) the arm's actual_q in the cycle each value answered (None: not known)."""
 
     time_s: np.ndarray
     fed: np.ndarray
     cycles: int
     written: int
+    joint_positions_rad: np.ndarray | None = None
 
 
 StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | BiasDrift | FedWrenches

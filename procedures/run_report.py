@@ -1,4 +1,4 @@
-"""The run report: ``report.md`` with PNG plots (matplotlib, Agg backend: no display needed).
+r"""The run report: ``report.md`` with PNG plots (matplotlib, Agg backend: no display needed).
 
 Sections: summary, identified parameters with 1σ (the core's text report), validation per-axis max and RMS,
 drift check, and the plots:
@@ -6,7 +6,13 @@ drift check, and the plots:
 - ``wrench_per_pose.png``: raw mean wrench per measured pose (six channels) and the compensated wrench (raw −
   predicted gravity wrench − biases; ≈ 0 without contact);
 - ``residuals.png``: identification residual norms |F|, |T| per pose, outliers marked;
-- ``validation.png``: compensation error per V pose and axis.
+- ``validation.png``: compensation error per V pose and axis, and each pose's d² against the verdict's one-pose
+  limit (the verdict's own test, :func:`ftacq.verdict.validation_finding`: a pose above the line is a WARN), so
+  the plot and the verdict cannot disagree.
+
+Every text is at least :data:`MIN_FONT_PT` at the saved size (figures are saved at :data:`FIGURE_DPI` without
+rescaling; the residual plot widens with the number of poses so that one label per pose stays readable).
+Markdown tables escape ``|`` in their cells (``max \|error\|``), so each row has as many cells as the rule.
 """
 
 from __future__ import annotations
@@ -24,6 +30,10 @@ from ftacq.posesets import POSE_SETS, set_colour_rgb
 CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 UNITS = ("N", "N", "N", "N·m", "N·m", "N·m")
 FIGURE_DPI = 110
+MIN_FONT_PT = 10.0
+"""Smallest text in the report's plots, points at the saved size."""
+LABEL_PITCH_IN = 0.2
+"""Width per pose label on a per-pose axis (a rotated 10 pt label is about 0.17 in tall)."""
 
 
 def _colour(set_name: str) -> tuple[float, float, float]:
@@ -38,7 +48,15 @@ def _pyplot():
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    plt.rcParams.update({"font.size": MIN_FONT_PT, "axes.titlesize": MIN_FONT_PT + 1,
+                         "legend.fontsize": MIN_FONT_PT, "xtick.labelsize": MIN_FONT_PT,
+                         "ytick.labelsize": MIN_FONT_PT})
     return plt
+
+
+def _pose_axis_width_in(count: int, minimum_in: float = 12.0) -> float:
+    """Figure width that leaves :data:`LABEL_PITCH_IN` per pose label plus margins."""
+    return max(minimum_in, 2.0 + LABEL_PITCH_IN * count)
 
 
 def _save(fig, path: Path) -> None:
@@ -50,7 +68,8 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
                          compensated: np.ndarray | None, band: np.ndarray | None = None) -> None:
     """Write the raw and compensated mean wrench per pose (N, 6) as a 6-panel PNG (raw only when
     ``compensated`` is None: a stopped or failed run has no calibration to compensate with). ``band`` (6,) is
-    the acceptance half-width per axis, shaded around the compensated panels' zero line."""
+    the typical expected error per axis (± k σ), shaded around the compensated panels' zero line for scale; the
+    verdict's test is the d² of validation.png."""
     plt = _pyplot()
     columns = [(raw, "raw mean")] + ([] if compensated is None else [(compensated, "compensated")])
     fig, axes = plt.subplots(6, len(columns), figsize=(6 * len(columns), 12), sharex=True, squeeze=False)
@@ -66,11 +85,11 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
             ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
             if k == 0:
                 ax.set_title(f"{title} (colour = pose set)"
-                             + ("; grey: acceptance band" if band is not None and col == 1 else ""))
+                             + ("; grey: ± 3σ expected" if band is not None and col == 1 else ""))
     for name in sorted(set(sets), key=lambda s: list(POSE_SETS).index(s) if s in POSE_SETS else len(POSE_SETS)):
         kind = POSE_SETS.get(name)
         axes[0, -1].scatter([], [], color=_colour(name), s=12, label=f"{name}: {kind.title}" if kind else name or "?")
-    axes[0, -1].legend(loc="upper right", fontsize="small")
+    axes[0, -1].legend(loc="upper right")
     for ax in axes[-1]:
         ax.set_xlabel("pose (execution order)")
     fig.tight_layout()
@@ -81,7 +100,7 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
 def plot_residuals(path: Path, labels: Sequence[str], residuals: np.ndarray, outliers: Sequence[str]) -> None:
     """Write the identification residual norms per pose as a PNG (outliers in red)."""
     plt = _pyplot()
-    fig, axes = plt.subplots(2, 1, figsize=(12, 6), sharex=True)
+    fig, axes = plt.subplots(2, 1, figsize=(_pose_axis_width_in(len(labels)), 7), sharex=True)
     x = np.arange(len(labels))
     colours = ["tab:red" if label in set(outliers) else "tab:blue" for label in labels]
     axes[0].bar(x, np.linalg.norm(residuals[:, :3], axis=1), color=colours)
@@ -89,38 +108,56 @@ def plot_residuals(path: Path, labels: Sequence[str], residuals: np.ndarray, out
     axes[1].bar(x, np.linalg.norm(residuals[:, 3:], axis=1), color=colours)
     axes[1].set_ylabel("|T residual| [N·m]")
     axes[1].set_xticks(x)
-    axes[1].set_xticklabels(labels, rotation=90, fontsize=6)
+    axes[1].set_xticklabels(labels, rotation=90)
+    axes[1].set_xlim(-0.6, len(labels) - 0.4)
     axes[0].set_title("identification residuals (measured − predicted); red = outlier")
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
 
 
-def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray, band: np.ndarray | None = None) -> None:
-    """Write the compensation error per validation pose and axis as a PNG; ``band`` (M, 6) is the acceptance
-    half-width per pose and axis (the verdict's ± k σ), drawn as a grey bar behind each error."""
+def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray, test: dict | None = None) -> dict | None:
+    """Write the compensation error per validation pose and axis as a PNG.
+
+    ``test`` is the verdict's validation figures (:func:`ftacq.verdict.validation_finding`: ``pose_d2``,
+    ``pose_d2_limit``, ``chi2``, ``dof``, ``p_value``); with it a third panel draws each pose's d² (its error
+    against its predicted covariance) and the one-pose limit, the verdict's own test: a pose above the line is the
+    verdict's WARN. Returns what that panel drew (``labels``, ``d2``, ``limit``, ``beyond``), or None without it.
+    """
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    errors = np.asarray(errors, dtype=float).reshape(-1, 6)
+    panels = 3 if test is not None else 2
+    fig, axes = plt.subplots(1, panels, figsize=(max(12.0, 4.5 * panels + 0.3 * len(labels)), 4.8))
     x = np.arange(len(labels))
     width = 0.25
     for k in range(3):
         for ax, channel in ((axes[0], k), (axes[1], 3 + k)):
-            if band is not None:
-                ax.bar(x + (k - 1) * width, 2 * band[:, channel], width * 0.9, bottom=-band[:, channel],
-                       color="lightgray", zorder=0, label="acceptance band" if k == 0 else None)
-            ax.bar(x + (k - 1) * width, errors[:, channel], width * 0.5, label=CHANNELS[channel], zorder=2)
+            ax.bar(x + (k - 1) * width, errors[:, channel], width * 0.9, label=CHANNELS[channel], zorder=2)
     axes[0].set_ylabel("force error [N]")
     axes[1].set_ylabel("torque error [N·m]")
+    drawn = None
+    if test is not None:
+        d2 = np.asarray(test["pose_d2"], dtype=float)
+        limit = float(test["pose_d2_limit"])
+        beyond = d2 > limit
+        axes[2].bar(x, d2, 0.6, color=np.where(beyond, "tab:red", "tab:green").tolist(), zorder=2)
+        axes[2].axhline(limit, color="black", ls="--", lw=1.0, label=f"one-pose limit {limit:.1f}")
+        axes[2].set_ylabel("d² (error vs its expected covariance)")
+        axes[2].set_title(f"the verdict's test: χ² = {test['chi2']:.1f} on {test['dof']} dof, "
+                          f"p = {test['p_value']:.2g}")
+        drawn = {"labels": [str(label) for label in labels], "d2": d2.tolist(), "limit": limit,
+                 "beyond": [str(label) for label, b in zip(labels, beyond) if b]}
     for ax in axes:
         ax.set_xticks(x)
-        ax.set_xticklabels(labels, rotation=90, fontsize=7)
+        ax.set_xticklabels(labels, rotation=90)
         ax.axhline(0.0, color="black", lw=0.5)
         ax.legend()
-    fig.suptitle("validation: compensated wrench at held-out poses (should be ≈ 0"
-                 + ("; grey: acceptance band, ± 3σ expected)" if band is not None else ")"))
+    fig.suptitle("validation: compensated wrench at held-out poses (should be ≈ 0)"
+                 + ("; right: above the line = WARN" if test is not None else ""))
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
+    return drawn
 
 
 def validation_dict(validated) -> dict:
@@ -137,9 +174,14 @@ def validation_dict(validated) -> dict:
     }
 
 
+def _cell(text: str) -> str:
+    """A Markdown table cell: ``|`` escaped, or it would split the cell (GitHub-flavoured Markdown)."""
+    return str(text).replace("|", "\\|")
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(row) + " |" for row in rows]
+    out = ["| " + " | ".join(map(_cell, header)) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(map(_cell, row)) + " |" for row in rows]
     return out
 
 
@@ -187,11 +229,20 @@ def _verdict_section(verdict) -> list[str]:
 
 
 def _band(verdict) -> np.ndarray | None:
-    """Return the validation acceptance half-width (M, 6) from the verdict, or None."""
+    """Return ± k σ of the validation poses' expected error (M, 6) from the verdict, or None (a scale for the
+    wrench plot; the test itself is the d² of :func:`plot_validation`)."""
     finding = None if verdict is None else verdict.finding("validation")
     if finding is None or "expected_sigma" not in finding.figures:
         return None
     return finding.figures["band_sigmas"] * np.asarray(finding.figures["expected_sigma"], dtype=float)
+
+
+def _validation_test(verdict, labels: Sequence[str]) -> dict | None:
+    """Return the verdict's validation figures when they are about these ``labels``, else None."""
+    finding = None if verdict is None else verdict.finding("validation")
+    if finding is None or "pose_d2" not in finding.figures or list(finding.figures.get("labels", [])) != list(labels):
+        return None
+    return finding.figures
 
 
 def write_report(folder: Path, result, plan, config: dict, *, truth=None, title: str = "ftacq calibration",
@@ -252,7 +303,7 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
         lines += _table(["axis", "max |error|", "RMS error", "unit"],
                         [(CHANNELS[k], f"{v.max_abs[k]:.5f}", f"{v.rms[k]:.5f}", UNITS[k]) for k in range(6)])
         plot_validation(folder / "validation.png", list(v.labels), np.asarray(v.errors),
-                        band if band is not None and len(band) == len(v.labels) else None)
+                        _validation_test(verdict, [str(label) for label in v.labels]))
         lines += ["", "![validation](validation.png)", ""]
     if result.drift is not None:
         d = result.drift
@@ -274,4 +325,5 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
     return path
 
 
-__all__ = ["write_report", "format_truth_comparison", "validation_dict", "plot_wrench_per_pose", "plot_residuals", "plot_validation"]
+__all__ = ["write_report", "format_truth_comparison", "validation_dict", "plot_wrench_per_pose", "plot_residuals",
+           "plot_validation"]

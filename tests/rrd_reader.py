@@ -1,5 +1,9 @@
 """Read a recording back with Rerun's own reader (:class:`rerun.chunk.RrdReader`): what the tests and benchmarks
-check a dashboard recording against."""
+check a dashboard recording against.
+
+The ``sensor_time`` timeline holds seconds since the run's start; the readers return times on the host monotonic
+clock (the timeline plus the recording's ``ftacq_time`` origin), as the data was logged, unless ``absolute=False``.
+"""
 
 from __future__ import annotations
 
@@ -15,9 +19,22 @@ def _chunks(rrd_path: str | os.PathLike):
     return RrdReader(rrd_path).stream().to_chunks()
 
 
-def read_scalars(rrd_path: str | os.PathLike, entity_path: str) -> tuple[np.ndarray, np.ndarray]:
-    """Return ``(time_s, values)`` of a Scalars entity: (N,) seconds on the ``sensor_time`` timeline and (N, k)
-    values, in time order."""
+def time_origin_s(rrd_path: str | os.PathLike) -> float:
+    """Return the host monotonic time (s) of the ``sensor_time`` timeline's zero (the ``ftacq_time`` property)."""
+    for chunk in _chunks(rrd_path):
+        if chunk.entity_path == "/__properties/ftacq_time":
+            return float(chunk.to_record_batch().column("origin_monotonic_s").to_pylist()[0][0])
+    raise AssertionError(f"{rrd_path}: no ftacq_time property (not written by ftacq's Dashboard)")
+
+
+def _seconds(rrd_path, time_ns: np.ndarray, absolute: bool) -> np.ndarray:
+    return time_ns * 1e-9 + (time_origin_s(rrd_path) if absolute else 0.0)
+
+
+def read_scalars(rrd_path: str | os.PathLike, entity_path: str, *,
+                 absolute: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(time_s, values)`` of a Scalars entity: (N,) seconds (see the module) and (N, k) values, in time
+    order."""
     wanted = "/" + entity_path.strip("/")
     times, values = [], []
     for chunk in _chunks(rrd_path):
@@ -34,7 +51,7 @@ def read_scalars(rrd_path: str | os.PathLike, entity_path: str) -> tuple[np.ndar
         return np.empty(0), np.empty((0, 0))
     time_ns = np.concatenate(times)
     order = np.argsort(time_ns, kind="stable")
-    return time_ns[order] * 1e-9, np.concatenate(values)[order]
+    return _seconds(rrd_path, time_ns[order], absolute), np.concatenate(values)[order]
 
 
 def entity_paths(rrd_path: str | os.PathLike) -> set[str]:
@@ -51,8 +68,9 @@ def static_paths(rrd_path: str | os.PathLike, component: str) -> set[str]:
     return found
 
 
-def read_column(rrd_path: str | os.PathLike, entity_path: str, component: str) -> tuple[np.ndarray, list]:
-    """Return ``(time_s, rows)`` of a temporal component: (N,) s on ``sensor_time`` and N Python rows, time order."""
+def read_column(rrd_path: str | os.PathLike, entity_path: str, component: str, *,
+                absolute: bool = True) -> tuple[np.ndarray, list]:
+    """Return ``(time_s, rows)`` of a temporal component: (N,) s (see the module) and N Python rows, time order."""
     wanted = "/" + entity_path.strip("/")
     times, rows = [], []
     for chunk in _chunks(rrd_path):
@@ -67,7 +85,7 @@ def read_column(rrd_path: str | os.PathLike, entity_path: str, component: str) -
         return np.empty(0), []
     time_ns = np.concatenate(times)
     order = np.argsort(time_ns, kind="stable")
-    return time_ns[order] * 1e-9, [rows[i] for i in order]
+    return _seconds(rrd_path, time_ns[order], absolute), [rows[i] for i in order]
 
 
 def read_texts(rrd_path: str | os.PathLike, entity_path: str) -> list[str]:
@@ -94,3 +112,18 @@ def mixed_static_and_temporal(rrd_path: str | os.PathLike, under: str = "world")
         if path == under or path.startswith(under + "/"):
             kinds.setdefault(path, set()).add(bool(chunk.is_static))
     return {path for path, seen in kinds.items() if len(seen) == 2}
+
+
+def blueprint_views(rrd_path: str | os.PathLike) -> dict[str, tuple[str, str]]:
+    """Return the views of the recording's blueprint: display name → (view class, origin entity path)."""
+    reader = RrdReader(rrd_path)
+    views = {}
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:space_origin" not in batch.schema.names:
+                continue
+            for kind, name, origin in zip(*(batch.column(f"ViewBlueprint:{c}").to_pylist()
+                                            for c in ("class_identifier", "display_name", "space_origin"))):
+                views[name[0]] = (kind[0], origin[0])
+    return views

@@ -98,7 +98,7 @@ def test_bridge_feeds_the_contact_wrench_every_cycle_and_disables_at_the_end(cel
     assert len(received) >= summary.written > 100  # the rate is a benchmark figure (benchmarks/bridge.py)
     expected = plan.fed_wrench(CONTACT)
     np.testing.assert_allclose(received[-100:].mean(axis=0), expected, atol=0.05)
-    np.testing.assert_array_equal(received[-summary.written:], summary.log[np.isfinite(summary.log[:, 2])][:, 5:])
+    np.testing.assert_array_equal(received[-summary.written:], summary.log[np.isfinite(summary.log[:, 2])][:, 5:11])
     assert summary.staleness_s().max() <= LOADED.max_staleness_s
     fed = [e for e in events if isinstance(e, FedWrenches)]
     assert sum(e.written for e in fed) == summary.written

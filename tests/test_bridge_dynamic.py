@@ -18,7 +18,7 @@ from drivers.ur import URRobot
 from drivers.ur_ft_input import URForceTorqueInput
 from ftacq.bridge_convention import plan_feed
 from ftacq.kinematics import ur_model
-from procedures.bridge import Bridge, BridgeSettings
+from procedures.bridge import FED_COLUMNS, Bridge, BridgeSettings
 from tests.conftest import wait_until
 from tests.fakes.cell import SimulatedCell
 
@@ -107,7 +107,7 @@ def feed_during_a_swing(cell, robot, calibration) -> tuple[np.ndarray, np.ndarra
         # a batch with no controller state within 50 ms (the simulated controller descheduled) is compensated
         # statically, as it should be; on a quiet machine that is only the first one
         assert dynamic > static, f"{static} of {dynamic + static} batches had no cycle states around them"
-    return rows[during, 5:], plan.fed_wrench(np.zeros(6)), summary.compensation
+    return rows[during, FED_COLUMNS], plan.fed_wrench(np.zeros(6)), summary.compensation
 
 
 def test_dynamic_calibration_feeds_no_inertial_wrench_while_the_arm_swings(cell, robot):

@@ -206,14 +206,15 @@ def sink_args(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def test_headless_default_saves_an_rrd_and_says_how_to_view_it(monkeypatch):
+def test_headless_default_saves_an_rrd_and_says_where(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setattr(sinks.sys, "platform", "linux")
     choice = sinks._choose_sink(sink_args([]), layout.APP_ID)
     assert choice.kind == "save"
     assert choice.target.endswith(".rrd") and Path(choice.target).parent == Path("runs")
-    assert command("rerun", Path(choice.target)) in choice.message  # absolute, runs as printed
+    assert f"recording to {choice.target}" in choice.message
+    assert "view it" not in choice.message  # said when the file exists (close_recording)
 
 
 def test_sink_flags_pick_the_sink_and_exclude_each_other(tmp_path):
@@ -231,11 +232,27 @@ def test_open_recording_with_save_writes_the_file(tmp_path):
     lines = []
     recording = sinks.open_recording(sink_args(["--save", str(path)]), announce=lines.append)
     Dashboard(recording, strict=True).log_text("hello")
+    assert not path.exists()  # written to a temporary file, renamed when closed
     sinks.close_recording(recording)
     assert path.is_file() and layout.MONITOR_LOG in entity_paths(path)
-    assert lines == [f"rerun: saving to {path}; view it with: {command('rerun', path)}"]
+    assert sorted(p.name for p in path.parent.iterdir()) == ["run.rrd"]
+    assert lines == [f"rerun: recording to {path} (written when the run ends)",
+                     f"rerun: saved {path}; view it with: {command('rerun', path)}"]
     viewer = command("rerun", path).split(" ")[0]  # runs as printed: the viewer beside this Python, or on PATH
     assert viewer == "rerun" or Path(viewer).is_file()
+
+
+def test_a_saved_recording_that_recorded_nothing_leaves_no_file_and_says_so(tmp_path):
+    """A run that fails before its first sample (the robot unreachable) writes no empty .rrd and never says
+    "view it with"."""
+    path = tmp_path / "run.rrd"
+    lines = []
+    recording = sinks.open_recording(sink_args(["--save", str(path)]), announce=lines.append)
+    Dashboard(recording, strict=True).set_calibration(CellTruth().calibration())  # layout and static data only
+    sinks.close_recording(recording)
+    assert list(tmp_path.iterdir()) == []
+    assert lines[-1] == f"rerun: nothing was recorded; {path} not written"
+    assert not any("view it" in line for line in lines)
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from Linux /proc")
@@ -259,3 +276,85 @@ def test_serve_hosts_the_web_viewer_on_localhost_only_and_stops_it():
     sinks.close_recording(recording, wait_while_serving=False)
     assert process.poll() is not None and id(recording) not in sinks._WEB_SERVERS
     wait_until(lambda: not listening(), "the server binary (the wrapper's child) to close its ports")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Time axis, chunks, the bridge's layout
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_the_time_axis_reads_seconds_since_the_run_started(tmp_path):
+    """The timeline holds seconds since the dashboard's origin (not the host's uptime: the viewer printed
+    "+1h 19m 40s" under every plot); the origin is kept in the recording, so the host times come back."""
+    from tests.rrd_reader import time_origin_s
+
+    path = tmp_path / "time.rrd"
+    recording = new_recording(path)
+    dashboard = Dashboard(recording, strict=True, origin_s=86_400.0)  # a day of uptime
+    times = 86_400.5 + np.arange(3 * BATCH_SAMPLES) / RATE_HZ
+    dashboard.log_wrench_batch(times, np.ones((times.size, 6)), None)
+    dashboard.log_text("hello", time_s=86_401.0)
+    sinks.close_recording(recording)
+
+    run_s, _ = read_scalars(path, layout.RAW_FORCE, absolute=False)
+    np.testing.assert_allclose(run_s, times - 86_400.0, atol=1e-9)
+    assert time_origin_s(path) == 86_400.0
+    np.testing.assert_allclose(read_scalars(path, layout.RAW_FORCE)[0], times, atol=1e-9)
+
+
+def test_streams_are_sent_as_columns_of_the_send_period_not_one_chunk_per_read(tmp_path):
+    """3 s of 7 kHz samples in 150 reads: a chunk per plot per second, not per read (a file of one chunk per
+    read loaded so slowly that the viewer showed the arrows and labels seconds late); nothing is lost at close."""
+    from tests.rrd_reader import count_chunks
+
+    path = tmp_path / "chunks.rrd"
+    recording = new_recording(path)
+    listener = DashboardListener(Dashboard(recording, strict=True, send_period_s=1.0), model=MODEL)
+    listener.set_calibration(CellTruth().calibration())
+    times = 10.0 + np.arange(21_000) / 7000.0
+    wrench = np.random.default_rng(7).normal(size=(times.size, 6))
+    for rows in np.array_split(np.arange(times.size), 150):
+        listener.dashboard.log_wrench_batch(times[rows], wrench[rows], wrench[rows] * 0.1)
+        t = float(times[rows][-1])
+        listener(events.RobotState(t, Q_HOME_RAD, flange_pose(MODEL, Q_HOME_RAD)))
+    sinks.close_recording(recording)  # sends what the dashboard still holds
+
+    stored_s, stored = read_scalars(path, layout.RAW_FORCE)
+    np.testing.assert_allclose(stored_s, times, atol=1e-9)
+    np.testing.assert_allclose(stored, wrench[:, :3], atol=VALUE_TOLERANCE)
+    for entity in (layout.RAW_FORCE, layout.COMPENSATED_TORQUE, layout.LABELS, layout.GRAVITY, layout.CONTACT_FORCE,
+                   layout.LINK_FRAMES[5]):
+        assert 1 <= count_chunks(path, entity) <= 5, entity  # (a static style chunk, then one per second)
+
+
+def test_the_bridge_recording_shows_the_fed_wrench_and_a_posed_arm(tmp_path):
+    """ftacq bridge's layout: every plot is one the bridge fills (the fed force and torque, the joints; no empty
+    raw/compensated plots), and the arm is posed from the joint angles of the cycles it fed."""
+    from tests.rrd_reader import blueprint_views, read_column
+
+    path = tmp_path / "bridge.rrd"
+    recording = new_recording(path)
+    listener = DashboardListener(Dashboard(recording, strict=True, view="bridge"), model=MODEL)
+    times = 20.0 + np.arange(1000) / 500.0  # 2 s of controller cycles at 500 Hz
+    qs = Q_HOME_RAD + 0.3 * np.sin(np.linspace(0.0, 2.0, times.size))[:, None]
+    fed = np.column_stack([np.sin(times), np.cos(times), times - 20.0, 0.1 * np.sin(times), 0.0 * times,
+                           0.0 * times])
+    for rows in np.array_split(np.arange(times.size), 20):  # ten events a second, as Bridge publishes
+        listener(events.FedWrenches(time_s=times[rows], fed=fed[rows], cycles=rows.size, written=rows.size,
+                                    joint_positions_rad=qs[rows]))
+    sinks.close_recording(recording)
+
+    views = blueprint_views(path)
+    plots = {origin for kind, origin in views.values() if kind == "TimeSeries"}
+    assert plots == {layout.FED_FORCE, layout.FED_TORQUE, layout.JOINT_ANGLES}
+    assert any(name.startswith("fed to the controller: force") for name in views)
+    assert plots <= entity_paths(path)  # no empty plot
+    stored_s, stored = read_scalars(path, layout.FED_FORCE)
+    np.testing.assert_allclose(stored_s, times, atol=1e-9)
+    np.testing.assert_allclose(stored, fed[:, :3], atol=VALUE_TOLERANCE)
+    arm_s, translations = read_column(path, layout.LINK_FRAMES[5], "Transform3D:translation")
+    assert 50 <= arm_s.size <= 61  # thinned to 30 Hz
+    kept = np.searchsorted(times, arm_s - 1e-6)  # the cycle each state was drawn from
+    np.testing.assert_allclose(times[kept], arm_s, atol=1e-9)
+    expected = arm.link_frames(MODEL, qs[kept])[:, 5, :3, 3]
+    np.testing.assert_allclose(np.array(translations).reshape(-1, 3), expected, atol=1e-6)

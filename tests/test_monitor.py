@@ -319,6 +319,33 @@ def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
     assert {layout.RAW_FORCE, layout.COMPENSATED_FORCE, layout.LINK_FRAMES[5], layout.MONITOR_LOG} <= paths
     time_s, _ = read_scalars(rrd_path, layout.RAW_FORCE)
     assert time_s.size > 1000
+    run_s, _ = read_scalars(rrd_path, layout.RAW_FORCE, absolute=False)
+    assert 0.0 <= run_s[0] < run_s[-1] < 60.0  # seconds since the run started, not the host's uptime
+    from tests.rrd_reader import count_chunks
+
+    for entity in (layout.RAW_FORCE, layout.LABELS, layout.GRAVITY):  # a saved file: columns of 5 s, not per read
+        assert 1 <= count_chunks(rrd_path, entity) <= 3, entity
+
+
+def test_ftacq_monitor_with_an_unreachable_robot_leaves_no_rrd_and_never_says_view_it(tmp_path, capsys):
+    """The robot refuses the connection before a sample is read: exit 1 with the reason, no .rrd (neither the
+    target nor a temporary file), and no "view it with" for a file that holds nothing."""
+    from ftacq.app.cli import main as ftacq_main
+    from ftacq.calfile import save_calibration
+    from tests.fakes.ur_process import random_loopback_address
+
+    host = random_loopback_address()  # nothing listens there: connection refused at once
+    config = tmp_path / "cell.toml"
+    config.write_text(f'[robot]\nhost = "{host}"\nmodel = "UR5e"\n[sensor]\nurl = "netft://{host}"\n',
+                      encoding="utf-8")
+    save_calibration(tmp_path / "cal.json", CellTruth().calibration())
+    rrd_path = tmp_path / "monitor.rrd"
+    status = ftacq_main(["monitor", "--config", str(config), "--calibration", str(tmp_path / "cal.json"),
+                         "--save", str(rrd_path)])
+    err = capsys.readouterr().err
+    assert status == 1 and "cannot connect" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.json", "cell.toml"]
+    assert "view it" not in err and f"nothing was recorded; {rrd_path} not written" in err
 
 
 CLI_WITH_DEFAULT_SIGINT = ("import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "

@@ -148,6 +148,11 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     _, compensated_torque = read_scalars(tmp_path / "view.rrd", layout.COMPENSATED_TORQUE)
     assert raw_time_s.size > 35 * 10 and raw_torque.shape == raw_force.shape  # 35 poses, many samples each
     assert 0 < compensated_time_s.size <= raw_time_s.size and compensated_torque.shape == compensated_force.shape
+    # each averaging window's line ends with a row of NaN: the plot never joins two windows across a move
+    breaks = np.isnan(compensated_force).all(axis=1)
+    assert np.isnan(compensated_torque[breaks]).all() and np.isfinite(compensated_force[~breaks]).all()
+    assert breaks.sum() >= 35 and not breaks[0] and not (breaks[1:] & breaks[:-1]).any()  # one per window
+    compensated_force = compensated_force[~breaks]
     assert np.median(np.abs(raw_force)) > 1.0  # the tool's weight ...
     assert np.linalg.norm(compensated_force, axis=1).max() < 1.0  # ... is gone in every averaging window: no
     # contact while calibrating (and no sample from before a move compensated with the pose after it)
@@ -157,6 +162,9 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     assert len(calibration.metadata["validation"]["labels"]) == 4
     assert calibration.metadata["input"]["sets"] == {"A": 24, "D": 1, "E": 6, "V": 4}
     report = (run_dir / "report.md").read_text(encoding="utf-8")
+    from tests.test_run_report import assert_tables_render
+
+    assert_tables_render(report)  # the validation table's "max |error|" header split into 6 cells over a 4-cell rule
     for part in ("## Identified parameters", "## Validation on held-out poses", "## Drift check",
                  "![residuals](residuals.png)", "Against the simulation's ground truth"):
         assert part in report

@@ -209,7 +209,7 @@ def _feed(args, stack, sensor_url, client, robot, plan, calibration, model) -> i
 
         recording = open_recording(args)
         stack.callback(close_recording, recording)
-        background = BackgroundListener([DashboardListener(Dashboard(recording), model=model)])
+        background = BackgroundListener([DashboardListener(Dashboard(recording, view="bridge"), model=model)])
         stack.callback(background.close)
         listeners.append(background)
     settings = BridgeSettings()

@@ -234,8 +234,13 @@ def run(args: argparse.Namespace) -> int:
             return 0
         confirm_motion(args)
 
+        # the viewer before the sensor: its time axis starts with the run, not seconds into the sensor's stream
+        dashboard, dashboard_clock = _dashboard_listener(args, stack, settings.model) if _wants_dashboard(args) \
+            else (None, None)
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
+        if dashboard_clock is not None:
+            dashboard_clock()  # the time axis starts with the sensor's stream
         sensor.start()
 
         if folder is None:
@@ -253,8 +258,8 @@ def run(args: argparse.Namespace) -> int:
         listeners: list[Listener] = [RunFolderWriter(folder), progress]
         if cell is not None and args.sim_wrong_tool:
             listeners.insert(0, cell.wrong_tool_listener(plan))
-        if _wants_dashboard(args):
-            listeners.append(_dashboard_listener(args, stack, settings.model))
+        if dashboard is not None:
+            listeners.append(dashboard)
         procedure = CalibrationProcedure(plan, robot, sensor, options, listeners, measured)
         result = procedure.run()
         progress.close()
@@ -274,7 +279,8 @@ def _as_dict(sampling) -> dict:
 
 def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
     """Return the dashboard as a listener in its own thread (drawing never slows the procedure; the raw stream's
-    batches are dropped for the viewer rather than queued without bound), closed with the stack."""
+    batches are dropped for the viewer rather than queued without bound), closed with the stack, and the
+    dashboard's ``start_clock`` (call it as the sensor starts)."""
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.kinematics import ur_model
     from procedures.delivery import BackgroundListener
@@ -289,7 +295,7 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, m
     background = BackgroundListener([listener], name="ftacq-dashboard")
     stack.callback(listener.flush)
     stack.callback(background.close)  # runs first: deliver what is queued, then flush the arm
-    return background
+    return background, listener.dashboard.start_clock
 
 
 def _finish(args, folder, plan, config, result, cell, options, sensor_info=None) -> int:

@@ -225,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
         if args.sim and (not args.sim_still or args.sim_swap_tool is not None):
             stack.callback(SimulatedTechnician(cell, jog=not args.sim_still,
                                                swap_after_s=args.sim_swap_tool).start().close)
+        dashboard.dashboard.start_clock()  # the time axis starts with the sensor's stream
         sensor.start()
         compensator: DriftCompensator | None = None
         checks: list[HealthCheck] = []

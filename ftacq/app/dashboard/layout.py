@@ -1,13 +1,15 @@
 """The dashboard's layout: timelines, entity paths, colours and sizes (declared once), and the Rerun blueprint.
 
 Time is the sensor's clock: the ``sensor_time`` timeline holds :attr:`drivers.sensor.WrenchBatch.time_s`
-(seconds on the host's monotonic clock, when each sample was received); the arm, health, procedure events and
-log lines are stamped on the same clock. The calibration's per-pose data also carries the ``pose`` timeline.
+(seconds on the host's monotonic clock, when each sample was received) less the run's start, so the axes read
+seconds since the start; the arm, health, procedure events and log lines are stamped on the same clock. The
+calibration's per-pose data also carries the ``pose`` timeline.
 
 Entity paths::
 
     wrench/raw/force, wrench/raw/torque                    Scalars (N, 3): Fx Fy Fz [N], Tx Ty Tz [N·m]
     wrench/compensated/force, wrench/compensated/torque    the same after compensation (contact wrench)
+    wrench/fed/force, wrench/fed/torque                    what ftacq bridge wrote to the controller
     world                                                  robot base frame B (z up, metres)
     world/robot/link1 … link6                              DH frame i: base_T_i (Transform3D, per time)
     world/robot/link1/shape … link6/shape                  the link drawn in its own frame (static)
@@ -36,7 +38,8 @@ from ftacq.posesets import POSE_SETS, UNKNOWN_SET_COLOUR_RGB
 # ------------------------------------------------------------------------------------------------ timelines
 
 SENSOR_TIMELINE = "sensor_time"
-"""Duration timeline, seconds on the host monotonic clock (``WrenchBatch.time_s``)."""
+"""Duration timeline: seconds since the run's start (the dashboard's ``origin_s``) on the host monotonic clock, the
+clock of ``WrenchBatch.time_s``."""
 POSE_TIMELINE = "pose"
 """Sequence timeline: the calibration pose index (execution order)."""
 
@@ -131,9 +134,19 @@ EYE_TARGET_M = (0.05, -0.3, 0.3)
 """Initial camera of the 3-D view (base frame, m): in front of and above a floor-mounted arm."""
 
 
-def blueprint() -> rrb.Blueprint:
-    """Return the dashboard layout: four wrench plots left; the 3-D view and a tab strip (log, health, joints,
-    calibration) right. Axis names and colours are fixed per entity by the recorder (static SeriesLines)."""
+VIEWS = ("monitor", "calibration", "bridge")
+"""The layouts :func:`blueprint` knows (the monitor's and the calibration's are one)."""
+
+
+def blueprint(view: str = "monitor") -> rrb.Blueprint:
+    """Return the dashboard layout of ``view`` (:data:`VIEWS`).
+
+    monitor, calibration: four wrench plots left; the 3-D view and a tab strip (log, health, drift, joints, the
+    calibration's bars) right. bridge: the wrench fed to the controller (force, torque) left; the 3-D view and the
+    log and joints right (the bridge reads no raw or compensated stream for the viewer). Axis names and colours are
+    fixed per entity by the recorder (static SeriesLines)."""
+    if view not in VIEWS:
+        raise ValueError(f"unknown dashboard view {view!r}: one of {', '.join(VIEWS)}")
     window = rrb.VisibleTimeRange(
         SENSOR_TIMELINE,
         start=rrb.TimeRangeBoundary.cursor_relative(seconds=-WRENCH_WINDOW_S),
@@ -144,6 +157,22 @@ def blueprint() -> rrb.Blueprint:
         return rrb.TimeSeriesView(origin=origin, name=name, time_ranges=window,
                                   plot_legend=rrb.PlotLegend(visible=True))
 
+    robot = rrb.Spatial3DView(origin=WORLD, name="robot (base frame)", eye_controls=rrb.EyeControls3D(
+        position=EYE_POSITION_M, look_target=EYE_TARGET_M, eye_up=(0.0, 0.0, 1.0)))
+    panels = (rrb.TimePanel(state="collapsed", timeline=SENSOR_TIMELINE, play_state="following"),
+              rrb.SelectionPanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"))
+    if view == "bridge":
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Vertical(plot(FED_FORCE, "fed to the controller: force [N]"),
+                             plot(FED_TORQUE, "fed to the controller: torque [N·m]")),
+                rrb.Vertical(robot, rrb.Tabs(rrb.TextLogView(origin=LOG, name="log"),
+                                             rrb.TimeSeriesView(origin=JOINT_ANGLES, name="joints [rad]")),
+                             row_shares=[3, 2]),
+                column_shares=[1, 1],
+            ),
+            *panels,
+        )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -153,14 +182,11 @@ def blueprint() -> rrb.Blueprint:
                 plot(COMPENSATED_TORQUE, "compensated torque [N·m]"),
             ),
             rrb.Vertical(
-                rrb.Spatial3DView(origin=WORLD, name="robot (base frame)", eye_controls=rrb.EyeControls3D(
-                    position=EYE_POSITION_M, look_target=EYE_TARGET_M, eye_up=(0.0, 0.0, 1.0))),
+                robot,
                 rrb.Tabs(
                     rrb.TextLogView(origin=LOG, name="log"),
                     rrb.TimeSeriesView(origin=HEALTH, name="sensor health"),
-                    rrb.TimeSeriesView(origin=BIAS_DRIFT, name="bias drift since the calibration [N, N·m]"),
-                    plot(FED_FORCE, "fed to the controller: force [N]"),
-                    plot(FED_TORQUE, "fed to the controller: torque [N·m]"),
+                    rrb.TimeSeriesView(origin=BIAS_DRIFT, name="bias drift [N, N·m]"),
                     rrb.TimeSeriesView(origin=JOINT_ANGLES, name="joints [rad]"),
                     rrb.TimeSeriesView(origin=MEASURED, name="averaged wrench per pose"),
                     rrb.BarChartView(origin=RESIDUAL_FORCE_NORM, name="|force residual| per pose [N]"),
@@ -171,7 +197,5 @@ def blueprint() -> rrb.Blueprint:
             ),
             column_shares=[1, 1],
         ),
-        rrb.TimePanel(state="collapsed", timeline=SENSOR_TIMELINE, play_state="following"),
-        rrb.SelectionPanel(state="collapsed"),
-        rrb.BlueprintPanel(state="collapsed"),
+        *panels,
     )

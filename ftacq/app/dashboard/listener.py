@@ -11,7 +11,11 @@ raw samples of every averaging window, thinned to at most :data:`BACKFILL_RATE_H
 :data:`BACKFILL_MAX_SAMPLES`, with the pose they were measured at (PoseMeasured: window and pose), and when the
 calibration is identified logs their compensated wrench on the same times (it should be ≈ 0: no contact while
 calibrating); later samples are compensated as they come. Settling samples get no compensated value: the driver
-may still hold samples from before the move when settling starts.
+may still hold samples from before the move when settling starts. The compensated lines end with each averaging
+window (a NaN row after its last sample), so the plot never joins two windows across the move between them.
+
+The bridge (FedWrenches) draws what it fed, and the arm from the joint angles of the controller cycles it fed in
+(thinned to :data:`ARM_RATE_HZ`).
 """
 
 from __future__ import annotations
@@ -22,10 +26,11 @@ from typing import Callable
 
 import numpy as np
 
-from ftacq.app.dashboard.layout import CALIBRATION_LOG, LOG, LOG_PATHS
+from ftacq.app.dashboard.arm import link_frames
+from ftacq.app.dashboard.layout import CALIBRATION_LOG, COMPENSATED_FORCE, COMPENSATED_TORQUE, LOG, LOG_PATHS
 from ftacq.app.dashboard.recorder import Dashboard
 from ftacq.kinematics import URModel
-from ftacq.so3 import rotation_from_rotvec
+from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from procedures import events
 
 log = logging.getLogger(__name__)
@@ -36,6 +41,11 @@ BACKFILL_RATE_HZ = 1000.0
 """Raw samples kept for the compensated plot of a calibration, at most this many per second."""
 BACKFILL_MAX_SAMPLES = 1_500_000
 """… and at most this many in all (≈ 25 min at BACKFILL_RATE_HZ; ≈ 80 MB)."""
+ARM_RATE_HZ = 30.0
+"""Arm states drawn per second at most (from samples that carry a pose, or from the bridge's controller cycles)."""
+LINE_BREAK_AFTER_S = 1e-6
+"""The NaN row that ends a window's line sits this long after its last sample (well under a sample period)."""
+COMPENSATED_PATHS = (COMPENSATED_FORCE, COMPENSATED_TORQUE)
 
 
 class DashboardListener:
@@ -60,9 +70,12 @@ class DashboardListener:
         self._arm: list[events.RobotState] = []
         self._last_arm_s = -np.inf
         self._robot_events = False  # RobotState events come (the monitor): the samples' robot state is not needed
-        self._backfill: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None  # (time_s, wrench, pose)
+        self._backfill: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] | None = None
+        """(time_s, wrench, pose, window): raw samples of the averaging windows, kept for the compensated plot."""
         self._unplaced: list[tuple[np.ndarray, np.ndarray]] = []  # (time_s, wrench) read since the last pose
         self._backfill_samples = 0
+        self._window = 0  # the averaging window being read: PoseMeasured events so far
+        self._fed_arm_tick = -np.inf  # the last 1/ARM_RATE_HZ tick the bridge's arm was drawn in
 
     def __call__(self, event: events.Event) -> None:
         try:
@@ -95,10 +108,10 @@ class DashboardListener:
             self._keep_for_backfill(backfill, batch.time_s, batch.wrench, event.flange_pose)
         if not self._robot_events and event.flange_pose is not None and event.joint_positions_rad is not None:
             now_s = float(batch.time_s[-1])
-            if now_s - self._last_arm_s >= 1.0 / 30.0:
+            if now_s - self._last_arm_s >= 1.0 / ARM_RATE_HZ:
                 self._robot(events.RobotState(now_s, event.joint_positions_rad, event.flange_pose))
 
-    def _keep_for_backfill(self, backfill: list[tuple[np.ndarray, np.ndarray, np.ndarray]], time_s: np.ndarray,
+    def _keep_for_backfill(self, backfill: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]], time_s: np.ndarray,
                            wrench: np.ndarray, pose: np.ndarray | None) -> None:
         """Keep thinned raw samples (placed ones in ``backfill``, the listener's list); without a pose they wait for the next PoseMeasured (the arm is still while
         the procedure reads the sensor)."""
@@ -110,37 +123,61 @@ class DashboardListener:
         if pose is None:
             self._unplaced.append(part)
         else:
-            backfill.append((*part, np.asarray(pose, dtype=float)))
+            backfill.append((*part, np.asarray(pose, dtype=float), self._window))
         self._backfill_samples += keep.size
 
     def _place_backfill(self, event: events.PoseMeasured) -> None:
         """Keep the samples of the pose's averaging window (the arm surely still at ``event.pose``); the others
         read since the last measured pose (settling, and what the driver held from before the move) get none."""
         unplaced, self._unplaced = self._unplaced, []
+        window, self._window = self._window, self._window + 1
         if self._backfill is None:
             return
         pose = np.asarray(event.pose, dtype=float)
         if event.t_start_s is None or event.t_end_s is None:
-            self._backfill += [(t, w, pose) for t, w in unplaced]
+            self._backfill += [(t, w, pose, window) for t, w in unplaced]
             return
         unix_minus_monotonic_s = time.time() - time.monotonic()  # the window is in UNIX time, samples monotonic
         start_s, end_s = event.t_start_s - unix_minus_monotonic_s, event.t_end_s - unix_minus_monotonic_s
         for t, w in unplaced:
             inside = (t >= start_s) & (t <= end_s)
             if inside.any():
-                self._backfill.append((t[inside], w[inside], pose))
+                self._backfill.append((t[inside], w[inside], pose, window))
 
     def _log_backfill(self) -> None:
         """Log the compensated wrench of the samples kept before the calibration was known."""
         parts, self._backfill = self._backfill or [], None
         if not parts or self._calibration is None:
             return
-        time_s = np.concatenate([t for t, _, _ in parts])
-        wrench = np.concatenate([w for _, w, _ in parts]).astype(np.float64)
-        flange_R_base = np.repeat(np.stack([rotation_from_rotvec(p[3:6]).T for _, _, p in parts]),
-                                  [t.size for t, _, _ in parts], axis=0)
+        time_s = np.concatenate([t for t, _, _, _ in parts])
+        wrench = np.concatenate([w for _, w, _, _ in parts]).astype(np.float64)
+        sizes = [t.size for t, _, _, _ in parts]
+        flange_R_base = np.repeat(np.stack([rotation_from_rotvec(p[3:6]).T for _, _, p, _ in parts]), sizes, axis=0)
+        window = np.repeat([k for _, _, _, k in parts], sizes)
         compensated = self._calibration.compensate(wrench, flange_R_base)
-        self.dashboard.log_wrench_batch(time_s, None, compensated)  # the raw samples were logged as they came
+        ends = np.flatnonzero(np.diff(window)) + 1  # where the next window starts
+        for rows in np.split(np.arange(time_s.size), ends):  # a line per window, ended by a NaN row
+            self.dashboard.log_wrench_batch(time_s[rows], None, compensated[rows])  # raw: logged as it came
+            self.dashboard.break_lines(float(time_s[rows].max()) + LINE_BREAK_AFTER_S, COMPENSATED_PATHS)
+
+    def _fed_arm(self, event: events.FedWrenches) -> None:
+        """The arm in the controller cycles the bridge fed, at most :data:`ARM_RATE_HZ` (flange pose by the DH
+        model, as the link frames)."""
+        q = event.joint_positions_rad
+        if q is None or self.model is None or not len(event.time_s):
+            return
+        time_s = np.asarray(event.time_s, dtype=float)
+        q = np.asarray(q, dtype=float).reshape(-1, 6)
+        keep = np.flatnonzero(np.isfinite(time_s) & np.isfinite(q).all(axis=1))
+        tick = np.floor(time_s[keep] * ARM_RATE_HZ)
+        _, first = np.unique(tick, return_index=True)  # the first cycle of each 1/ARM_RATE_HZ tick …
+        keep = keep[first[tick[first] > self._fed_arm_tick]]  # … not drawn yet
+        if not keep.size:
+            return
+        base_T_flange = link_frames(self.model, q[keep])[:, 5]
+        pose = np.hstack([base_T_flange[:, :3, 3], rotvec_from_rotation(base_T_flange[:, :3, :3]).reshape(-1, 3)])
+        self._fed_arm_tick = float(np.floor(time_s[keep[-1]] * ARM_RATE_HZ))
+        self.dashboard.log_arm(time_s[keep], pose, q[keep])
 
     def _robot(self, event: events.RobotState) -> None:
         self._arm.append(event)
@@ -171,6 +208,7 @@ class DashboardListener:
             dash.log_bias_drift(event.time_s, event.offset, event.sigma)
         elif isinstance(event, events.FedWrenches):
             dash.log_fed(event.time_s, event.fed)
+            self._fed_arm(event)
         elif isinstance(event, events.Notice):
             dash.log_text(event.text, level=event.level, time_s=event.time_s,
                           path=LOG_PATHS.get(event.source, f"{LOG}/{event.source}"))
@@ -202,6 +240,9 @@ class DashboardListener:
                 self._send_arm()
         elif isinstance(event, events.PoseMeasured):
             dash.log_pose_measured(now, event.index, event.mean)
+            if self._calibration is not None and event.t_end_s is not None:  # compensated live: end the line
+                end_s = event.t_end_s - (time.time() - time.monotonic())
+                dash.break_lines(end_s + LINE_BREAK_AFTER_S, COMPENSATED_PATHS)
             self._place_backfill(event)
             self._send_arm()
             dash.log_arm(np.array([now]), np.asarray(event.pose)[None, :],

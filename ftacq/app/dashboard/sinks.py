@@ -5,6 +5,10 @@ Without a flag: spawn a native viewer when a display is available, else save an 
 process ftacq starts is bound to 127.0.0.1 (Rerun's own ``spawn`` and ``serve_web_viewer`` listen on every
 interface) and has a start-up deadline. This module does not import ``rerun`` until a recording is opened, so
 adding the flags to a parser costs nothing.
+
+A saved recording is written to a hidden temporary file beside the target and renamed when it is closed; a run
+that recorded nothing (it failed before its first sample, e.g. the robot was unreachable) leaves no file, and
+"view it with …" is said only of a file that exists (:func:`close_recording`).
 """
 
 from __future__ import annotations
@@ -173,12 +177,30 @@ def _serve_web(grpc_port: int, web_port: int):
     return process
 
 
+_SAVES: dict[int, tuple[Path, Path, Callable[[str], None]]] = {}
+"""Recordings being saved by :func:`open_recording`, keyed by ``id(recording)``: (temporary file, target, announce)."""
+_ATTACHED: dict[int, tuple[Callable[[], None], Callable[[], bool]]] = {}
+"""What a :class:`~ftacq.app.dashboard.recorder.Dashboard` attached to a recording (:func:`attach`): a flush of
+the columns it still holds, and whether it recorded anything."""
+
+
+def attach(recording, flush: Callable[[], None], recorded: Callable[[], bool]) -> None:
+    """Have :func:`close_recording` call ``flush`` first (send what the caller still holds) and ask ``recorded``
+    whether a saved file is worth keeping (False: the file is not written)."""
+    _ATTACHED[id(recording)] = (flush, recorded)
+
+
+def is_saved(recording) -> bool:
+    """Return True when ``recording`` was opened by :func:`open_recording` to be saved to a file."""
+    return id(recording) in _SAVES
+
+
 def open_recording(args: argparse.Namespace, app_id: str = APP_ID, *,
                    announce: Callable[[str], None] | None = None):
     """Return a new :class:`rerun.RecordingStream` connected to the sink the flags of :func:`add_sink_args` chose.
 
-    ``announce`` receives one line telling the user where the data goes and how to view it (default: print to
-    stderr). The layout is sent by :class:`~ftacq.app.dashboard.recorder.Dashboard`; the caller owns the stream and ends with
+    ``announce`` receives one line telling the user where the data goes (default: print to stderr); for a saved
+    file, a second line from :func:`close_recording` says how to view it. The layout is sent by :class:`~ftacq.app.dashboard.recorder.Dashboard`; the caller owns the stream and ends with
     :func:`close_recording`.
     """
     import rerun as rr  # here, not at the top: see the package docstring
@@ -189,7 +211,9 @@ def open_recording(args: argparse.Namespace, app_id: str = APP_ID, *,
     if choice.kind == "save":
         path = Path(choice.target)
         path.parent.mkdir(parents=True, exist_ok=True)
-        recording.save(path)
+        partial = path.with_name(f".{path.name}.partial-{os.getpid()}")
+        recording.save(partial)
+        _SAVES[id(recording)] = (partial, path, announce)
     elif choice.kind == "connect":
         recording.connect_grpc(choice.target)
     elif choice.kind == "spawn":
@@ -209,7 +233,7 @@ def _choose_sink(args: argparse.Namespace, app_id: str) -> SinkChoice:
     port = getattr(args, "viewer_port", DEFAULT_VIEWER_PORT)
     if getattr(args, "save", None) is not None:
         path = Path(args.save)
-        return SinkChoice("save", str(path), f"rerun: saving to {path}; view it with: {command('rerun', path)}")
+        return SinkChoice("save", str(path), f"rerun: recording to {path} (written when the run ends)")
     if getattr(args, "connect", None):
         return SinkChoice("connect", args.connect, f"rerun: streaming to the viewer at {args.connect}")
     if getattr(args, "serve", False):
@@ -221,23 +245,39 @@ def _choose_sink(args: argparse.Namespace, app_id: str) -> SinkChoice:
         url = f"rerun+http://{LOCALHOST}:{port}/proxy"
         return SinkChoice("spawn", url, f"rerun: streaming to a native viewer on {url}")
     path = default_rrd_path(app_id)
-    return SinkChoice("save", str(path), f"rerun: no display found, saving to {path}; view it with: "
-                                         f"{command('rerun', path)} "
-                                         "(or pass --serve / --connect URL)")
+    return SinkChoice("save", str(path), f"rerun: no display found, recording to {path} (written when the run "
+                                         "ends; or pass --serve / --connect URL)")
 
 
 def close_recording(recording, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S, *,
                     wait_while_serving: bool = True) -> None:
     """Flush (at most ``timeout_s`` seconds) and close the recording's sinks, finishing an .rrd file.
 
-    A web viewer started by ``--serve`` keeps the data only while it runs: like Rerun's ``script_teardown``,
+    A saved recording is renamed from its temporary file to its target and the user told how to view it, or, when
+    the :class:`~ftacq.app.dashboard.recorder.Dashboard` attached to it recorded nothing, removed and the user told
+    so. A web viewer started by ``--serve`` keeps the data only while it runs: like Rerun's ``script_teardown``,
     this keeps serving until Ctrl-C (unless ``wait_while_serving`` is False), then stops the server.
     """
+    flush, recorded = _ATTACHED.pop(id(recording), (None, None))
+    if flush is not None:
+        try:
+            flush()
+        except Exception:  # noqa: BLE001 - a broken viewer must not fail the caller's shutdown
+            log.warning("rerun: the dashboard's last columns could not be sent", exc_info=True)
     try:
         recording.flush(timeout_sec=timeout_s)
     except Exception:  # noqa: BLE001 - a viewer that went away must not fail the caller's shutdown
         log.warning("rerun: flush did not finish within %.1f s", timeout_s, exc_info=True)
     recording.disconnect()
+    saved = _SAVES.pop(id(recording), None)
+    if saved is not None:
+        partial, path, announce = saved
+        if recorded is not None and not recorded():
+            partial.unlink(missing_ok=True)
+            announce(f"rerun: nothing was recorded; {path} not written")
+        else:
+            os.replace(partial, path)
+            announce(f"rerun: saved {path}; view it with: {command('rerun', path)}")
     served = _WEB_SERVERS.pop(id(recording), None)
     if served is not None:
         process, web_url = served
@@ -251,4 +291,5 @@ def close_recording(recording, timeout_s: float = RECORDING_FLUSH_TIMEOUT_S, *,
             _stop_process_group(process, timeout_s)
 
 
-__all__ = ["add_sink_args", "open_recording", "close_recording", "has_display", "default_rrd_path", "SinkChoice"]
+__all__ = ["add_sink_args", "attach", "is_saved", "open_recording", "close_recording", "has_display",
+           "default_rrd_path", "SinkChoice"]
