@@ -137,6 +137,9 @@ class ScriptedInput:
                                received_s=float(self.received_s[k]), tcp_pose=np.zeros(6),
                                target_qd=self.target_qd[k].copy(), target_qdd=self.qdd[k].copy())
 
+    def queued(self) -> bool:
+        return False  # a scripted cycle is always the newest: no start-up backlog
+
     def write(self, wrench) -> None:
         self.written.append(np.asarray(wrench))
 
@@ -224,7 +227,7 @@ def run(model: str, cycles: int, seed: int, profile: bool, breakdown: bool = Fal
         pstats.Stats(profiler).sort_stats("tottime").print_stats(25)
     if bridge._trip:
         raise SystemExit(f"{model}: the feed tripped: {bridge._trip}")
-    fed = bridge._log.data[:bridge._log.count, FED_COLUMNS].copy()
+    fed = bridge._log.rows(bridge._log.first_kept, bridge._log.count)[:, FED_COLUMNS].copy()
     for name, spent in parts.items():
         print(f"    {name:34s} {1e6 * spent[0] / cycles:7.1f} µs per cycle (wrapper included)")
     return 1e6 * (marks[1] - marks[0]) / (cycles - 1 - WARMUP_CYCLES), fed
