@@ -193,10 +193,12 @@ def with_biases(calibration: Calibration, force_bias: np.ndarray, torque_bias: n
                    torque_bias=np.asarray(torque_bias, dtype=float), uncertainty=uncertainty, metadata=metadata)
 
 
-def apply_estimate(calibration: Calibration, estimate: BiasEstimate, time: str | None = None) -> Calibration:
-    """Return the calibration with the estimate's biases and 1σ, the tare recorded in ``bias_history``."""
+def apply_estimate(calibration: Calibration, estimate: BiasEstimate, time: str | None = None,
+                   **history_extra: Any) -> Calibration:
+    """Return the calibration with the estimate's biases and 1σ, the tare recorded in ``bias_history`` (with
+    ``history_extra``, e.g. ``sensor``: the serial number of the sensor it was tared on)."""
     sigma = estimate.sigma
-    extra: dict[str, Any] = {"poses": estimate.poses}
+    extra: dict[str, Any] = {"poses": estimate.poses, **history_extra}
     if np.isfinite(estimate.chi2_per_dof):
         extra["chi2_per_dof"] = estimate.chi2_per_dof
     return with_biases(calibration, estimate.force_bias, estimate.torque_bias, sigma[:3], sigma[3:],

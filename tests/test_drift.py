@@ -193,3 +193,22 @@ def test_drift_compensator_applies_the_tracked_offset_only_with_auto_tare(calibr
         np.testing.assert_allclose(drift_events[-1].offset[:3], offset[:3], atol=0.003)
     np.testing.assert_allclose(results[False][:3], offset[:3], atol=0.003)  # untouched: the drift shows
     np.testing.assert_allclose(results[True][:3], 0.0, atol=0.003)  # auto-tare removed it
+
+
+def test_the_monitors_drift_line_prints_each_sigma_with_two_significant_digits(calibration) -> None:
+    """The summary line of `ftacq monitor` gives the tracked offset ± 1σ; 1σ of a few 10⁻⁴ N or 10⁻⁵ N·m printed
+    with a fixed 4 or 5 decimals showed one significant digit."""
+    import re
+    from types import SimpleNamespace
+
+    from ftacq.app.commands.monitor import format_drift
+
+    feeder = Feeder(calibration, CellTruth(), seed=11)
+    feeder.still(20.0)
+    line = format_drift(SimpleNamespace(health=feeder.health))
+    sigmas = re.findall(r"([+-]\d+\.\d+)±(\d+\.\d+)", line)
+    assert len(sigmas) == 6, line
+    for value, sigma in sigmas:
+        digits = sigma.replace(".", "").lstrip("0")
+        assert len(digits) == 2, f"1σ {sigma} in: {line}"
+        assert len(value.partition(".")[2]) == len(sigma.partition(".")[2])  # the value to the same decimal

@@ -320,10 +320,12 @@ def format_drift(compensator) -> str:
         return (f"drift tracker: no estimate: {tracker.rejected_contact} rest windows refused as contact, "
                 f"{tracker.rejected_gate} by the gate" if tracker.rejected_contact + tracker.rejected_gate else
                 "drift tracker: no estimate: the arm was never still long enough (0.5 s settle + 0.5 s windows)")
+    from ftacq.sigma_text import format_with_sigma
+
     offset, sigma = tracker.offset(tracker.time_s), tracker.sigma(tracker.time_s)
     return ("drift tracker: biases moved since the calibration file by F ["
-            + ", ".join(f"{o:+.4f}±{s:.4f}" for o, s in zip(offset[:3], sigma[:3])) + "] N, T ["
-            + ", ".join(f"{o:+.5f}±{s:.5f}" for o, s in zip(offset[3:], sigma[3:])) + "] N·m; rate F ["
+            + ", ".join(format_with_sigma(o, s) for o, s in zip(offset[:3], sigma[:3])) + "] N, T ["
+            + ", ".join(format_with_sigma(o, s) for o, s in zip(offset[3:], sigma[3:])) + "] N·m; rate F ["
             + ", ".join(f"{r:+.3f}" for r in tracker.rate_per_h[:3]) + f"] N/h; rest windows used {tracker.accepted},"
             f" refused as contact {tracker.rejected_contact}, by the gate {tracker.rejected_gate}"
             + ("; applied (--auto-tare)" if compensator.health.auto_tare else
