@@ -99,7 +99,9 @@ def test_a_push_on_the_still_tool_is_not_absorbed_and_a_swapped_tool_is_flagged(
         warned_before = len(warnings())
         cell.swap_tool(0.9, (0.0, 0.01, 0.04))
         wait_until(lambda: len(warnings()) > warned_before, "the at-rest warning after the swap")
-        assert "not drift" in warnings()[-1].text
+        assert "not the tracked drift" in warnings()[warned_before].text
+        wait_until(lambda: any("a step, not drift" in w.text for w in warnings()[warned_before:]),
+                   "the swap called a step")
     finally:
         stop.set()
         thread.join(30.0)
