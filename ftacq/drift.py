@@ -24,8 +24,8 @@ change since the file, plus the calibration's model error at this orientation, p
    changes by its own size within τ, so a fast drift must be allowed a fast-changing rate, while a slow one keeps
    the tight base walk (and the tracker its precision). Chosen over a fixed larger walk (which would loosen the
    gate against steps at every rate) and over a timed warm-up mode (the software does not know when the sensor was
-   powered on). The rate prior (``rate_prior_per_h``, 30 N/h, 1 N·m/h) lets the first still period find a warm-up
-   rate of 60 N/h (2σ) before the gate closes.
+   powered on). The rate prior (``rate_prior_per_h``, 1σ 60 N/h and 2 N·m/h) lets the first still period find a
+   warm-up at those rates on all six channels at once (a χ² of about 6 over 6 channels) before the gate closes.
    Measurement: a window mean z = b + m + v with R = std²/count (sensor noise, samples independent). m carries
    the model error (:func:`ftacq.bias_estimate.compensation_sigma` without the bias terms): constant at one
    orientation, it does not average out over the windows taken there, so the offset's 1σ stays honest. Prior:
@@ -36,7 +36,8 @@ change since the file, plus the calibration's model error at this orientation, p
 5. **Drift or step** (:mod:`ftacq.drift_or_step`). Refused windows at one orientation spanning
    ``reacquire_after_s`` are tested for continuity with the track: a line through them that joins it smoothly is
    drift faster than tracked (the filter restarts from the line: "re-acquired"); otherwise it is a **step**, kept
-   refused until windows agree with the track again.
+   refused until windows agree with the track again, gated with the prediction's variance as it was when the step
+   was found (the track's growing uncertainty never swallows it; no second drift-or-step test while it stands).
 6. **At-rest check** (:class:`RestCheck`). The wrench the user sees at rest (the residual minus the applied
    correction) is *off* when a channel exceeds max(``warn_sigmas`` × the 1σ the calibration, the tracker and the
    window's noise explain, ``noise_fraction`` × one sample's noise) for ``warn_after_s``: significant and visible.
@@ -98,7 +99,7 @@ class DriftSettings:
 
     window_s: float = 0.5
     settle_s: float = 0.5
-    rate_prior_per_h: tuple[float, ...] = (30.0, 30.0, 30.0, 1.0, 1.0, 1.0)
+    rate_prior_per_h: tuple[float, ...] = (60.0, 60.0, 60.0, 2.0, 2.0, 2.0)
     rate_walk_per_h: tuple[float, ...] = (10.0, 10.0, 10.0, 0.3, 0.3, 0.3)
     warmup_time_constant_s: float = 600.0
     max_rate_per_h: tuple[float, ...] = (200.0, 200.0, 200.0, 7.0, 7.0, 7.0)
@@ -256,11 +257,14 @@ class Observation:
 
 @dataclass(frozen=True)
 class Step:
-    """A step the drift-or-step test found: ``size`` (6,) against the tracked drift, seen from ``time_s``."""
+    """A step the drift-or-step test found: ``size`` (6,) against the tracked drift, seen from ``time_s``;
+    ``innovation_variance`` (6,): the prediction's variance when it was found, which later windows are gated with
+    at most (the track's uncertainty must not grow until it swallows the step)."""
 
     time_s: float
     size: np.ndarray
     reason: str
+    innovation_variance: np.ndarray
 
 
 class DriftTracker:
@@ -409,19 +413,20 @@ class DriftTracker:
         HP = P[:, 0, :] + P[:, 2, :] + P[:, 3, :]  # H = [1, 0, 1, 1]: z = b + m + c + v
         S = HP[:, 0] + HP[:, 2] + HP[:, 3] + window.noise_variance + 1e-30
         innovation = window.mean - x[:, 0] - x[:, 2] - x[:, 3]
-        nis = float(np.sum(innovation**2 / S))
+        S_gate = S if self.step is None else np.minimum(S, self.step.innovation_variance)
+        nis = float(np.sum(innovation**2 / S_gate))
         reason = self.contact_reason(window, x[:, 1] if self.accepted else None)
         if not reason and nis > self.settings.gate_chi2:
-            worst = int(np.argmax(innovation**2 / S))
+            worst = int(np.argmax(innovation**2 / S_gate))
             unit = "N" if worst < 3 else "N·m"
             reason = (f"gate: {CHANNELS[worst]} off by {innovation[worst]:+.4g} {unit} "
-                      f"({math.sqrt(innovation[worst] ** 2 / S[worst]):.0f}σ), not drift")
+                      f"({math.sqrt(innovation[worst] ** 2 / S_gate[worst]):.0f}σ), not drift")
         if reason.startswith("contact"):
             self.rejected_contact += 1
             return Observation(window, False, reason, nis, innovation)
         if reason:
             self.rejected_gate += 1
-            judgement = self._judge_refused(window)
+            judgement = self._judge_refused(window, S)
             return Observation(window, False, reason, nis, innovation, judgement)
         gain = HP / S[:, None]  # (6, 4)
         self.x = x + gain * innovation[:, None]
@@ -440,10 +445,12 @@ class DriftTracker:
         self._reference_std.append(window.std)
         del self._reference_std[:-REFERENCE_NOISE_WINDOWS]
 
-    def _judge_refused(self, window: RestWindow) -> Judgement | None:
+    def _judge_refused(self, window: RestWindow, innovation_variance: np.ndarray) -> Judgement | None:
         """Keep the refused window; when those at its orientation (consecutive) span ``reacquire_after_s``, test
         drift or step (module docstring, step 5): re-acquire on drift, record the step otherwise."""
         s = self.settings
+        if self.step is not None:
+            return None  # a step stands: only windows that agree with the track (gated as when found) clear it
         if self._refused and not (same_orientation(window.flange_R_base, self._refused[-1].flange_R_base)
                                   and window.start_s - self._refused[-1].end_s <= 2.0 * s.window_s):
             self._refused.clear()  # another still period: the test starts again with it
@@ -453,20 +460,28 @@ class DriftTracker:
                 self._refused[-1].mid_s - self._refused[0].mid_s < s.reacquire_after_s - 1e-9:
             return None
         gap = self._refused[-1].mid_s - self.time_s
-        track_P = self.P[:, :2, :2]
+        # the track's level where the windows are: b + c, plus m at the same orientation (else a fresh m's prior)
+        same = self.accepted > 0 and same_orientation(window.flange_R_base, self.orientation)
+        h = np.array([1.0, 0.0, 1.0 if same else 0.0, 1.0])
+        g = np.array([0.0, 1.0, 0.0, 0.0])
+        track_x = np.stack([self.x @ h, self.x[:, 1]], axis=1)
+        track_P = np.empty((6, 2, 2))
+        track_P[:, 0, 0] = np.einsum("i,cij,j->c", h, self.P, h)
+        track_P[:, 0, 1] = track_P[:, 1, 0] = np.einsum("i,cij,j->c", h, self.P, g)
+        track_P[:, 1, 1] = self.P[:, 1, 1]
+        fresh_m = 0.0 if same else (1.0 - COMMON_MODEL_FRACTION) * self.model_sigma(window.flange_R_base) ** 2
         judgement = judge([w.mid_s for w in self._refused], np.array([w.mean for w in self._refused]),
-                          np.array([w.noise_variance for w in self._refused]), self.time_s, self.x[:, :2], track_P,
-                          self.model_sigma(window.flange_R_base), s.q_bias * gap + s.q_rate * gap**3 / 3.0,
-                          s.gate_chi2, s.max_rate)
+                          np.array([w.noise_variance for w in self._refused]), self.time_s, track_x, track_P,
+                          np.sqrt(fresh_m), s.q_bias * gap + s.q_rate * gap**3 / 3.0, s.gate_chi2, s.max_rate)
         if judgement.drift:
             self._restart_from(judgement, window)
         else:
-            self.step = Step(self._refused[0].start_s, judgement.step, judgement.reason)
+            self.step = Step(self._refused[0].start_s, judgement.step, judgement.reason, innovation_variance)
         return judgement
 
     def _restart_from(self, judgement: Judgement, window: RestWindow) -> None:
         """Restart the filter from the line through the refused windows (drift faster than tracked)."""
-        level, covariance = judgement.line.at(window.mid_s)
+        level, covariance = judgement.line.at(window.mid_s)  # of b + m + c: split by the model's prior
         model = self.model_sigma(window.flange_R_base) ** 2
         own, common = (1.0 - COMMON_MODEL_FRACTION) * model, COMMON_MODEL_FRACTION * model
         self.x = np.zeros((6, 4))
@@ -661,8 +676,8 @@ class BiasHealth:
         step = self.tracker.step
         assert step is not None
         return HealthNotice(time_s, "WARN",
-                            f"a step, not drift: {_step_text(step.size)} against the tracked drift since "
-                            f"{step.time_s:.1f} s ({step.reason}): a push held on the tool, a changed tool or a bias "
+                            f"a step, not drift: {_step_text(step.size)} against the tracked drift, seen for "
+                            f"{time_s - step.time_s:.1f} s ({step.reason}): a push held on the tool, a changed tool or a bias "
                             "step (a box bias or power cycle); not absorbed"
                             + ("; the tracked offset is no longer applied" if self.auto_tare else ""),
                             {"step": step.size.tolist()})

@@ -12,14 +12,11 @@ That happens for two different reasons, which need opposite answers:
 
 :func:`judge` fits a straight line (level and rate per channel, weighted by each window's noise, std²/count)
 through the refused windows taken at one orientation and tests continuity with the last accepted state (offset
-b_a, rate r_a at t_a). If the rate moved linearly from r_a to the line's rate s over the gap, the offset moved by
-the trapezoid (r_a + s)/2 · (t_c − t_a), so
-
-    D = L(t_c) − b_a − (r_a + s)/2 · (t_c − t_a)
-
-(L the line's level at the windows' centre t_c) is zero up to its variance: the line's and the track's covariance
-through the same linear combination, the calibration's model 1σ² at the new orientation (the line's level includes
-the model error there, the track's offset does not) and the base process noise over the gap. Drift when
+b_a, rate r_a at t_a). If the rate moved from r_a to the line's rate s over the gap (monotonically, on any path),
+the offset moved by between r_a (t_c − t_a) and s (t_c − t_a), so the distance D of L(t_c) − b_a from that interval
+(L the line's level at the windows' centre t_c; 0 inside it) is zero up to its variance: the line's and the track's
+covariance through the trapezoid's linear combination (L − b_a − (r_a + s)/2 · (t_c − t_a)), the model error's variance at a new orientation (the line's level includes
+the model error there; the track knows it only where it last learnt) and the base process noise over the gap. Drift when
 Σ D²/var(D) over the six channels is within the χ² gate, the line fits its windows (χ²/dof ≤
 ``MAX_LINE_CHI2_PER_DOF``: a drift is smooth) and no channel's rate exceeds the largest plausible drift rate;
 otherwise a step, whose size is the jump against the track's own prediction, L(t_c) − b_a − r_a (t_c − t_a).
@@ -96,9 +93,10 @@ def judge(time_s: Sequence[float], mean: np.ndarray, variance: np.ndarray, track
 
     Args:
         time_s, mean, variance: the refused windows' mid times (n,), means (n, 6) and noise variances (n, 6).
-        track_time_s, track_x, track_P: the last accepted state: offset and rate (6, 2) and their covariance
-            (6, 2, 2) at ``track_time_s``.
-        model_sigma: (6,) the calibration's model 1σ at the windows' orientation.
+        track_time_s, track_x, track_P: the last accepted state: the level it predicts at the windows'
+            orientation (offset plus the model error known there) and the rate (6, 2), their covariance (6, 2, 2),
+            at ``track_time_s``.
+        model_sigma: (6,) the model error's 1σ at the windows' orientation not in the track (0 at the same one).
         gap_variance: (6,) the base process noise's offset variance over the gap.
         gate_chi2: the continuity threshold (χ², 6 degrees of freedom). max_rate: (6,) the largest drift rate, /s.
     """
@@ -106,7 +104,9 @@ def judge(time_s: Sequence[float], mean: np.ndarray, variance: np.ndarray, track
                     np.asarray(variance, dtype=float))
     gap = line.time_s - track_time_s
     b_a, r_a = track_x[:, 0], track_x[:, 1]
-    continuity = line.level - b_a - 0.5 * (r_a + line.rate) * gap
+    change = line.level - b_a  # what the offset did over the gap; a drift's rate went from r_a to s on some path
+    low, high = np.minimum(r_a, line.rate) * gap, np.maximum(r_a, line.rate) * gap
+    continuity = change - np.clip(change, low, high)
     a_line = np.array([1.0, -0.5 * gap])
     a_track = np.array([1.0, 0.5 * gap])
     var = (np.einsum("i,cij,j->c", a_line, line.covariance, a_line)
