@@ -11,10 +11,9 @@ change since the file, plus the calibration's model error at this orientation, p
 2. **Contact detector.** A window is contact (not used) when any channel's std exceeds ``std_ratio`` × the sensor's
    reference noise (the median std of recent accepted windows), or its in-window slope differs from the tracked
    drift rate by more than ``slope_sigmas`` standard errors: a hand on the tool trembles and comes and goes.
-3. **Kalman filter** (:class:`DriftTracker`), per channel c independently, state x = [offset b, rate ḃ, model error
-   m] (b: the biases' offset from the file's, N or N·m; ḃ per s; m: the calibration's model error at the current
-   orientation, constant while the orientation is, drawn afresh, 0 ± the model 1σ, at each new one). Process
-   model (integrated random walk):
+3. **Kalman filter** (:class:`DriftTracker`), per channel independently, state x = [offset b, rate ḃ, model error
+   m, common model error c] (b: the biases' offset from the file's, N or N·m; ḃ per s; m, c below). Process model
+   (integrated random walk; m and c constant):
 
        b(t+Δ) = b(t) + Δ ḃ(t) + w_b,     ḃ(t+Δ) = ḃ(t) + w_r,     m unchanged
        Q = [[q_b Δ + q_r Δ³/3, q_r Δ²/2], [q_r Δ²/2, q_r Δ]],   q_b = bias_walk²
@@ -26,9 +25,11 @@ change since the file, plus the calibration's model error at this orientation, p
    gate against steps at every rate) and over a timed warm-up mode (the software does not know when the sensor was
    powered on). The rate prior (``rate_prior_per_h``, 1σ 60 N/h and 2 N·m/h) lets the first still period find a
    warm-up at those rates on all six channels at once (a χ² of about 6 over 6 channels) before the gate closes.
-   Measurement: a window mean z = b + m + v with R = std²/count (sensor noise, samples independent). m carries
-   the model error (:func:`ftacq.bias_estimate.compensation_sigma` without the bias terms): constant at one
-   orientation, it does not average out over the windows taken there, so the offset's 1σ stays honest. Prior:
+   Measurement: a window mean z = b + m + c + v with R = std²/count (sensor noise, samples independent). m and c
+   carry the calibration's model error (:func:`ftacq.bias_estimate.compensation_variance_parts`, bias terms
+   excluded): c the parameters' part (one set of errors for every orientation, its prior set at the first window),
+   m the per-pose part (τ, σ_θ), drawn afresh at each new orientation. Constant at one orientation, neither
+   averages out over the windows taken there, so the offset's 1σ stays honest. Prior:
    b ~ N(0, σ_bias² + (rate_prior · age)²) with σ_bias the file's bias 1σ and age the time since the last
    calibration or tare (capped at ``MAX_PRIOR_AGE_S``); ḃ ~ N(0, rate_prior²).
 4. **Innovation gate.** A window whose normalised innovation squared Σ_c ν_c² / S_c exceeds ``gate_chi2`` (χ², 6
@@ -59,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from ftacq.bias_estimate import compensation_sigma
+from ftacq.bias_estimate import compensation_variance_parts
 from ftacq.calibration import Calibration
 from ftacq.drift_or_step import Judgement, judge
 
@@ -68,9 +69,6 @@ MAX_PRIOR_AGE_S = 3600.0
 """The prior's drift allowance counts at most this much time since the last calibration or tare, s."""
 REFERENCE_NOISE_WINDOWS = 21
 """Accepted windows whose median std is the contact detector's reference noise."""
-COMMON_MODEL_FRACTION = 0.5
-"""Share of the model error's variance common to every orientation (the identified parameters' errors act at all
-of them alike and never average out); the rest is drawn afresh at each orientation."""
 SAME_ORIENTATION_RAD = 0.01
 """Two windows whose flange orientations differ by less than this angle (rad) share the model error m."""
 REACQUIRE_WINDOWS = 40
@@ -299,7 +297,7 @@ class DriftTracker:
         """The step standing against the track (None once windows agree with it again)."""
         self._refused: list[RestWindow] = []
         self._reference_std: list[np.ndarray] = []
-        self._model_sigma_cache: tuple[bytes, np.ndarray] | None = None
+        self._model_cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ state
 
@@ -354,15 +352,21 @@ class DriftTracker:
             return None
         return np.median(np.array(self._reference_std), axis=0)
 
+    def model_variance(self, flange_R_base: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The calibration's model variance at this orientation (biases excluded), (6,) each: the parameters'
+        part (common to every orientation: the prior of c) and the per-pose part (the prior of m)."""
+        if flange_R_base is None:
+            return np.zeros(6), np.zeros(6)
+        key = np.round(np.asarray(flange_R_base, dtype=float), 4).tobytes()
+        if self._model_cache is None or self._model_cache[0] != key:
+            self._model_cache = (key, *compensation_variance_parts(self.calibration, flange_R_base,
+                                                                   include_biases=False))
+        return self._model_cache[1], self._model_cache[2]
+
     def model_sigma(self, flange_R_base: np.ndarray | None) -> np.ndarray:
         """(6,) the calibration's model 1σ at this orientation (biases excluded), N and N·m."""
-        if flange_R_base is None:
-            return np.zeros(6)
-        key = np.round(np.asarray(flange_R_base, dtype=float), 4).tobytes()
-        if self._model_sigma_cache is None or self._model_sigma_cache[0] != key:
-            self._model_sigma_cache = (key, compensation_sigma(self.calibration, flange_R_base,
-                                                               include_biases=False))
-        return self._model_sigma_cache[1]
+        common, own = self.model_variance(flange_R_base)
+        return np.sqrt(common + own)
 
     # ------------------------------------------------------------------ update
 
@@ -397,13 +401,13 @@ class DriftTracker:
         if self.accepted and same_orientation(window.flange_R_base, self.orientation):
             return x, P
         x, P = x.copy(), P.copy()
-        model = self.model_sigma(window.flange_R_base) ** 2
+        common, own = self.model_variance(window.flange_R_base)
         if not self._common_set:
-            P[:, 3, 3] = COMMON_MODEL_FRACTION * model
+            P[:, 3, 3] = common
         x[:, 2] = 0.0
         P[:, 2, :] = 0.0
         P[:, :, 2] = 0.0
-        P[:, 2, 2] = (1.0 - COMMON_MODEL_FRACTION) * model
+        P[:, 2, 2] = own
         return x, P
 
     def observe(self, window: RestWindow) -> Observation:
@@ -469,7 +473,7 @@ class DriftTracker:
         track_P[:, 0, 0] = np.einsum("i,cij,j->c", h, self.P, h)
         track_P[:, 0, 1] = track_P[:, 1, 0] = np.einsum("i,cij,j->c", h, self.P, g)
         track_P[:, 1, 1] = self.P[:, 1, 1]
-        fresh_m = 0.0 if same else (1.0 - COMMON_MODEL_FRACTION) * self.model_sigma(window.flange_R_base) ** 2
+        fresh_m = 0.0 if same else self.model_variance(window.flange_R_base)[1]
         judgement = judge([w.mid_s for w in self._refused], np.array([w.mean for w in self._refused]),
                           np.array([w.noise_variance for w in self._refused]), self.time_s, track_x, track_P,
                           np.sqrt(fresh_m), s.q_bias * gap + s.q_rate * gap**3 / 3.0, s.gate_chi2, s.max_rate)
@@ -482,8 +486,8 @@ class DriftTracker:
     def _restart_from(self, judgement: Judgement, window: RestWindow) -> None:
         """Restart the filter from the line through the refused windows (drift faster than tracked)."""
         level, covariance = judgement.line.at(window.mid_s)  # of b + m + c: split by the model's prior
-        model = self.model_sigma(window.flange_R_base) ** 2
-        own, common = (1.0 - COMMON_MODEL_FRACTION) * model, COMMON_MODEL_FRACTION * model
+        common, own = self.model_variance(window.flange_R_base)
+        model = common + own
         self.x = np.zeros((6, 4))
         self.x[:, 0] = level
         self.x[:, 1] = judgement.line.rate
