@@ -339,5 +339,8 @@ def format_drift(compensator) -> str:
             + ", ".join(format_with_sigma(o, s) for o, s in zip(offset[3:], sigma[3:])) + "] N·m; rate F ["
             + ", ".join(f"{r:+.3f}" for r in tracker.rate_per_h[:3]) + f"] N/h; rest windows used {tracker.accepted},"
             f" refused as contact {tracker.rejected_contact}, by the gate {tracker.rejected_gate}"
-            + ("; applied (--auto-tare)" if compensator.health.auto_tare else
-               "; not applied (use --auto-tare, or `ftacq tare`)"))
+            + (f", re-acquired {tracker.reacquired}×" if tracker.reacquired else "")
+            + ("; a step stands against it (not drift: check the tool, then `ftacq tare`)" if tracker.step else "")
+            + (("; applied (--auto-tare)" if compensator.health.trusted else
+                f"; not applied now (--auto-tare suspended: {compensator.health.distrust_reason})")
+               if compensator.health.auto_tare else "; not applied (use --auto-tare, or `ftacq tare`)"))
