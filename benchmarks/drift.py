@@ -207,12 +207,12 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
             "final_offset": health.tracker.offset(), "true_change": physics.bias_at(duration_s) - physics._bias}
 
 
-def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> list[float]:
+def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> tuple[list[float], list[float]]:
     """Per trial: a few still/move periods, then a tool swap during a move; return seconds from the next
-    stillness to the warning (inf when none within that still period)."""
+    stillness to the warning and to the notice calling it a step (inf when none within that still period)."""
     rng = np.random.default_rng(seed)
     truth = cell_truth()
-    out = []
+    out, steps = [], []
     for trial in range(count):
         source = SettablePose()
         physics = SensorPhysics(truth, source, seed=seed + 100 + trial)
@@ -220,7 +220,7 @@ def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> li
         periods = schedule(240.0, rng, push_fraction=0.0)
         swapped_at = None
         still_after_swap = None
-        warned = None
+        warned = stepped = None
         for period in periods:
             flange_R_base = rotation_from_rotvec(period.pose[3:6]).T
             if not period.still:
@@ -242,13 +242,16 @@ def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> li
                 wrench = physics.noiseless_wrench(period.pose, float(t[0])) + \
                     rng.standard_normal((len(t), 6)) * physics._noise_sigma
                 notices = health.feed(t, calibration.compensate(wrench, flange_R_base), True, flange_R_base)
-                if still_after_swap is not None and any(n.level == "WARN" for n in notices):
+                if still_after_swap is not None and warned is None and any(n.level == "WARN" for n in notices):
                     warned = next(n.time_s for n in notices if n.level == "WARN")
+                if still_after_swap is not None and any("a step, not drift" in n.text for n in notices):
+                    stepped = next(n.time_s for n in notices if "a step, not drift" in n.text)
                     break
-            if warned is not None or still_after_swap is not None:
+            if stepped is not None or still_after_swap is not None:
                 break
         out.append(float("inf") if warned is None else warned - still_after_swap)
-    return out
+        steps.append(float("inf") if stepped is None else stepped - still_after_swap)
+    return out, steps
 
 
 RATE_ROWS = (("force", 1.0), ("force", 10.0), ("force", 30.0), ("force", 60.0), ("torque", 0.5), ("torque", 2.0))
@@ -416,11 +419,14 @@ def main() -> int:
         result = run_hour(args.minutes * 60.0, args.seed, calibration, settings, thermal)
         report(result, args.minutes, sigma_bias, thermal)
     if args.swaps:
-        delays = run_swaps(args.swaps, args.seed + 7, calibration, settings)
+        delays, steps = run_swaps(args.swaps, args.seed + 7, calibration, settings)
         finite = [d for d in delays if np.isfinite(d)]
+        called = [d for d in steps if np.isfinite(d)]
         print("")
         print(f"tool swaps: {len(finite)}/{len(delays)} flagged; time from the next stillness to the warning: "
-              + (f"median {np.median(finite):.2f} s, max {max(finite):.2f} s" if finite else "never"))
+              + (f"median {np.median(finite):.2f} s, max {max(finite):.2f} s" if finite else "never")
+              + f"; {len(called)}/{len(steps)} called a step, "
+              + (f"median {np.median(called):.2f} s, max {max(called):.2f} s after the stillness" if called else ""))
     print(f"wall time {time.perf_counter() - started:.1f} s")
     return 0
 
