@@ -134,7 +134,7 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
     tare_offset = np.zeros(6)
     next_tare_s = TARE_EVERY_S
     absorbed = pushes_seen = contact_rejects = gate_rejects = warnings_in_push = warnings_clean = 0
-    tares_done = 0
+    tares_done = suspended = 0
     n_batch = int(RATE_HZ * BATCH_S)
     still_rest = []  # (window start, end) of push-free windows: error measured there
     for period in schedule(duration_s, rng):
@@ -162,6 +162,7 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
                 in_push = bool(np.any(np.abs(contact) > 0))
             residual = calibration.compensate(wrench, flange_R_base)
             observations_before, windows_before = health.tracker.accepted, health.observations
+            was_applied = health.applied  # --auto-tare withdraws the offset while a step stands (after a push)
             notices = health.feed(t, residual, True, flange_R_base)
             for notice in notices:
                 if notice.level == "WARN":
@@ -187,7 +188,10 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
                     true_contact_free = calibration.compensate(physics.noiseless_wrench(period.pose, w.mid_s)
                                                                - physics.contact_wrench, flange_R_base)
                     none.record(w.mid_s, true_contact_free)
-                    tracker.record(w.mid_s, true_contact_free - health.last_applied)
+                    if was_applied:
+                        tracker.record(w.mid_s, true_contact_free - health.last_applied)
+                    else:
+                        suspended += 1
                     baseline.record(w.mid_s, calibration.compensate(
                         physics.noiseless_wrench(period.pose, 0.0) - physics.contact_wrench, flange_R_base))
                     if w.mid_s >= next_tare_s:  # the technician tares now (arm still, nobody touching)
@@ -204,6 +208,7 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
     return {"strategies": (none, periodic, tracker, baseline), "absorbed": absorbed, "pushes": pushes_seen,
             "contact_rejects": contact_rejects, "gate_rejects": gate_rejects, "accepted": health.tracker.accepted,
             "warnings_in_push": warnings_in_push, "warnings_clean": warnings_clean, "tares": tares_done,
+            "suspended": suspended,
             "final_offset": health.tracker.offset(), "true_change": physics.bias_at(duration_s) - physics._bias}
 
 
@@ -388,7 +393,9 @@ def report(result: dict, minutes: float, sigma_bias: np.ndarray, thermal: bool) 
           f"{result['absorbed']}; windows rejected as contact {result['contact_rejects']}, by the innovation gate "
           f"{result['gate_rejects']}, accepted {result['accepted']}")
     print(f"  at-rest warnings: {result['warnings_in_push']} during pushes (held > 1 s), {result['warnings_clean']} "
-          f"with nothing touching the tool; periodic tares done: {result['tares']}")
+          f"with nothing touching the tool; periodic tares done: {result['tares']}; push-free rest windows while "
+          f"--auto-tare was suspended (a steady push called a step, until the next window on the track; left out of "
+          f"the live tracker's column): {result['suspended']}")
 
 
 def main() -> int:

@@ -37,8 +37,8 @@ change since the file, plus the calibration's model error at this orientation, p
 5. **Drift or step** (:mod:`ftacq.drift_or_step`). Refused windows at one orientation spanning
    ``reacquire_after_s`` are tested for continuity with the track: a line through them that joins it smoothly is
    drift faster than tracked (the filter restarts from the line: "re-acquired"); otherwise it is a **step**, kept
-   refused until windows agree with the track again, gated with the prediction's variance as it was when the step
-   was found (the track's growing uncertainty never swallows it; no second drift-or-step test while it stands).
+   refused until windows agree with the track again and are nearer it than the track plus the step (the track's
+   growing uncertainty never swallows it; no second drift-or-step test while it stands).
 6. **At-rest check** (:class:`RestCheck`). The wrench the user sees at rest (the residual minus the applied
    correction) is *off* when a channel exceeds max(``warn_sigmas`` × the 1σ the calibration, the tracker and the
    window's noise explain, ``noise_fraction`` × one sample's noise) for ``warn_after_s``: significant and visible.
@@ -255,14 +255,13 @@ class Observation:
 
 @dataclass(frozen=True)
 class Step:
-    """A step the drift-or-step test found: ``size`` (6,) against the tracked drift, seen from ``time_s``;
-    ``innovation_variance`` (6,): the prediction's variance when it was found, which later windows are gated with
-    at most (the track's uncertainty must not grow until it swallows the step)."""
+    """A step the drift-or-step test found: ``size`` (6,) against the tracked drift, seen from ``time_s``. While
+    it stands, a window is used only if it is nearer the track than the track plus the step (the track's growing
+    uncertainty never swallows the step)."""
 
     time_s: float
     size: np.ndarray
     reason: str
-    innovation_variance: np.ndarray
 
 
 class DriftTracker:
@@ -417,20 +416,22 @@ class DriftTracker:
         HP = P[:, 0, :] + P[:, 2, :] + P[:, 3, :]  # H = [1, 0, 1, 1]: z = b + m + c + v
         S = HP[:, 0] + HP[:, 2] + HP[:, 3] + window.noise_variance + 1e-30
         innovation = window.mean - x[:, 0] - x[:, 2] - x[:, 3]
-        S_gate = S if self.step is None else np.minimum(S, self.step.innovation_variance)
-        nis = float(np.sum(innovation**2 / S_gate))
+        nis = float(np.sum(innovation**2 / S))
         reason = self.contact_reason(window, x[:, 1] if self.accepted else None)
         if not reason and nis > self.settings.gate_chi2:
-            worst = int(np.argmax(innovation**2 / S_gate))
+            worst = int(np.argmax(innovation**2 / S))
             unit = "N" if worst < 3 else "N·m"
             reason = (f"gate: {CHANNELS[worst]} off by {innovation[worst]:+.4g} {unit} "
-                      f"({math.sqrt(innovation[worst] ** 2 / S_gate[worst]):.0f}σ), not drift")
+                      f"({math.sqrt(innovation[worst] ** 2 / S[worst]):.0f}σ), not drift")
+        if not reason and self.step is not None and \
+                nis >= float(np.sum((innovation - self.step.size) ** 2 / S)):
+            reason = "gate: nearer the level after the step than the track: the step stands"
         if reason.startswith("contact"):
             self.rejected_contact += 1
             return Observation(window, False, reason, nis, innovation)
         if reason:
             self.rejected_gate += 1
-            judgement = self._judge_refused(window, S)
+            judgement = self._judge_refused(window)
             return Observation(window, False, reason, nis, innovation, judgement)
         gain = HP / S[:, None]  # (6, 4)
         self.x = x + gain * innovation[:, None]
@@ -449,12 +450,12 @@ class DriftTracker:
         self._reference_std.append(window.std)
         del self._reference_std[:-REFERENCE_NOISE_WINDOWS]
 
-    def _judge_refused(self, window: RestWindow, innovation_variance: np.ndarray) -> Judgement | None:
+    def _judge_refused(self, window: RestWindow) -> Judgement | None:
         """Keep the refused window; when those at its orientation (consecutive) span ``reacquire_after_s``, test
         drift or step (module docstring, step 5): re-acquire on drift, record the step otherwise."""
         s = self.settings
         if self.step is not None:
-            return None  # a step stands: only windows that agree with the track (gated as when found) clear it
+            return None  # a step stands: only windows nearer the track than the step clear it
         if self._refused and not (same_orientation(window.flange_R_base, self._refused[-1].flange_R_base)
                                   and window.start_s - self._refused[-1].end_s <= 2.0 * s.window_s):
             self._refused.clear()  # another still period: the test starts again with it
@@ -480,7 +481,7 @@ class DriftTracker:
         if judgement.drift:
             self._restart_from(judgement, window)
         else:
-            self.step = Step(self._refused[0].start_s, judgement.step, judgement.reason, innovation_variance)
+            self.step = Step(self._refused[0].start_s, judgement.step, judgement.reason)
         return judgement
 
     def _restart_from(self, judgement: Judgement, window: RestWindow) -> None:

@@ -315,3 +315,26 @@ def test_drift_faster_than_tracked_is_reacquired_not_called_a_step(calibration) 
     assert np.all(np.abs(drift.offset(results["drift"].t) - true_offset) <= 3.0 * drift.sigma(results["drift"].t))
     assert step.reacquired == 0 and step.step is not None
     assert any("a step, not drift" in n.text for n in results["step"].notices)
+
+
+def test_a_push_held_into_a_move_does_not_lock_the_tracker_out(calibration) -> None:
+    """A steady push still held when the arm moves off (called a step, --auto-tare suspended) is gone at the next
+    stillness, at another orientation, after the drift moved on: the tracker takes up the track again and applies
+    it (the benchmark found the offset withdrawn for the rest of the hour)."""
+    feeder = Feeder(calibration, warmup_truth(20.0, 0.5), seed=27)
+    for _ in range(3):
+        feeder.still(15.0)
+        feeder.move(5.0)
+    start = feeder.t
+
+    def push(t):
+        return np.clip((t - (start + 2.0)) / 0.15, 0.0, 1.0)[:, None] * np.array([2.0, -1.0, 3.0, 0.05, 0.0, 0.02])
+
+    feeder.still(8.0, push)  # held until the arm moves
+    assert feeder.health.tracker.step is not None and not feeder.health.trusted
+    feeder.move(15.0)
+    other = np.array([0.45, 0.05, 0.35, np.pi - 0.3, 0.2, 0.1])
+    feeder.still(10.0, pose=other)
+    assert feeder.health.tracker.step is None and feeder.health.trusted
+    true_offset = feeder.physics.bias_at(feeder.t) - np.concatenate([calibration.force_bias, calibration.torque_bias])
+    np.testing.assert_allclose(feeder.health.correction(feeder.t)[:3], true_offset[:3], atol=0.01)
