@@ -134,7 +134,7 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
     tare_offset = np.zeros(6)
     next_tare_s = TARE_EVERY_S
     absorbed = pushes_seen = contact_rejects = gate_rejects = warnings_in_push = warnings_clean = 0
-    tares_done = 0
+    tares_done = suspended = 0
     n_batch = int(RATE_HZ * BATCH_S)
     still_rest = []  # (window start, end) of push-free windows: error measured there
     for period in schedule(duration_s, rng):
@@ -162,6 +162,7 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
                 in_push = bool(np.any(np.abs(contact) > 0))
             residual = calibration.compensate(wrench, flange_R_base)
             observations_before, windows_before = health.tracker.accepted, health.observations
+            was_applied = health.applied  # --auto-tare withdraws the offset while a step stands (after a push)
             notices = health.feed(t, residual, True, flange_R_base)
             for notice in notices:
                 if notice.level == "WARN":
@@ -187,7 +188,10 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
                     true_contact_free = calibration.compensate(physics.noiseless_wrench(period.pose, w.mid_s)
                                                                - physics.contact_wrench, flange_R_base)
                     none.record(w.mid_s, true_contact_free)
-                    tracker.record(w.mid_s, true_contact_free - health.last_applied)
+                    if was_applied:
+                        tracker.record(w.mid_s, true_contact_free - health.last_applied)
+                    else:
+                        suspended += 1
                     baseline.record(w.mid_s, calibration.compensate(
                         physics.noiseless_wrench(period.pose, 0.0) - physics.contact_wrench, flange_R_base))
                     if w.mid_s >= next_tare_s:  # the technician tares now (arm still, nobody touching)
@@ -204,15 +208,16 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
     return {"strategies": (none, periodic, tracker, baseline), "absorbed": absorbed, "pushes": pushes_seen,
             "contact_rejects": contact_rejects, "gate_rejects": gate_rejects, "accepted": health.tracker.accepted,
             "warnings_in_push": warnings_in_push, "warnings_clean": warnings_clean, "tares": tares_done,
+            "suspended": suspended,
             "final_offset": health.tracker.offset(), "true_change": physics.bias_at(duration_s) - physics._bias}
 
 
-def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> list[float]:
+def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> tuple[list[float], list[float]]:
     """Per trial: a few still/move periods, then a tool swap during a move; return seconds from the next
-    stillness to the warning (inf when none within that still period)."""
+    stillness to the warning and to the notice calling it a step (inf when none within that still period)."""
     rng = np.random.default_rng(seed)
     truth = cell_truth()
-    out = []
+    out, steps = [], []
     for trial in range(count):
         source = SettablePose()
         physics = SensorPhysics(truth, source, seed=seed + 100 + trial)
@@ -220,7 +225,7 @@ def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> li
         periods = schedule(240.0, rng, push_fraction=0.0)
         swapped_at = None
         still_after_swap = None
-        warned = None
+        warned = stepped = None
         for period in periods:
             flange_R_base = rotation_from_rotvec(period.pose[3:6]).T
             if not period.still:
@@ -242,13 +247,117 @@ def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> li
                 wrench = physics.noiseless_wrench(period.pose, float(t[0])) + \
                     rng.standard_normal((len(t), 6)) * physics._noise_sigma
                 notices = health.feed(t, calibration.compensate(wrench, flange_R_base), True, flange_R_base)
-                if still_after_swap is not None and any(n.level == "WARN" for n in notices):
+                if still_after_swap is not None and warned is None and any(n.level == "WARN" for n in notices):
                     warned = next(n.time_s for n in notices if n.level == "WARN")
+                if still_after_swap is not None and any("a step, not drift" in n.text for n in notices):
+                    stepped = next(n.time_s for n in notices if "a step, not drift" in n.text)
                     break
-            if warned is not None or still_after_swap is not None:
+            if stepped is not None or still_after_swap is not None:
                 break
         out.append(float("inf") if warned is None else warned - still_after_swap)
-    return out
+        steps.append(float("inf") if stepped is None else stepped - still_after_swap)
+    return out, steps
+
+
+RATE_ROWS = (("force", 1.0), ("force", 10.0), ("force", 30.0), ("force", 60.0), ("torque", 0.5), ("torque", 2.0))
+"""The drift-rate table's rows: channel group and rate (N/h or N·m/h) on each of its three channels (+, −, +)."""
+WARMUP_TAU_S = 600.0
+STEP_CASE = (np.array([0.5, 0.0, -0.3, 0.0, 0.0, 0.0]), 10.0)
+"""The step case: this bias step (N, N·m), half-way through, on a warm-up starting at this rate (N/h)."""
+
+
+def drift_truth(group: str, rate_per_h: float, shape: str) -> CellTruth:
+    """The cell with drift on one group of channels: a linear ramp at ``rate_per_h``, or a warm-up A (1 − e^(−t/τ))
+    starting at that rate (A = rate × τ)."""
+    zero, signs = (0.0, 0.0, 0.0), np.array([1.0, -1.0, 1.0])
+    rate = tuple(float(v) for v in signs * rate_per_h / 3600.0)
+    if shape == "ramp":
+        return replace(CellTruth(), drift_n_per_s=rate if group == "force" else zero,
+                       drift_nm_per_s=rate if group == "torque" else zero)
+    amplitude = tuple(float(v) * WARMUP_TAU_S for v in rate)
+    return replace(CellTruth(), thermal_step_n=amplitude if group == "force" else zero,
+                   thermal_step_nm=amplitude if group == "torque" else zero, thermal_step_at_s=0.0,
+                   thermal_time_constant_s=WARMUP_TAU_S)
+
+
+def run_rate(duration_s: float, seed: int, calibration, settings: DriftSettings, truth: CellTruth,
+             group: str, step: np.ndarray | None = None) -> dict:
+    """Drive the live tracker (with --auto-tare, biases of unknown age) through a push-free schedule on ``truth``;
+    per rest window after the first still period: (offset − true offset) / the tracker's printed 1σ on the group's
+    channels. ``step`` is added to the biases half-way through (during a move or a still period, as it falls)."""
+    rng = np.random.default_rng(seed)
+    physics = SensorPhysics(truth, SettablePose(), seed=seed + 1)
+    health = BiasHealth(calibration, settings, age_s=3600.0, auto_tare=True)
+    file_bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+    channels = slice(0, 3) if group == "force" else slice(3, 6)
+    ratios, errors, gated, windows, notices = [], [], 0, 0, []
+    n_batch = int(RATE_HZ * BATCH_S)
+    first_still_end = None
+    stepped = False
+    for period in schedule(duration_s, rng, push_fraction=0.0):
+        flange_R_base = rotation_from_rotvec(period.pose[3:6]).T
+        if step is not None and not stepped and period.start_s >= duration_s / 2:
+            physics._bias = physics._bias + step
+            stepped = True
+        if not period.still:
+            health.feed(np.array([period.start_s]), np.zeros((1, 6)), False)
+            continue
+        first_still_end = period.end_s if first_still_end is None else first_still_end
+        t0 = period.start_s
+        while t0 < period.end_s - 1e-9:
+            t = t0 + np.arange(n_batch) / RATE_HZ
+            t = t[t < period.end_s]
+            t0 += BATCH_S
+            if len(t) == 0:
+                break
+            mean = physics.noiseless_wrench(period.pose, float(t[0]))
+            frac = (t - t[0]) / max(t[-1] - t[0], 1e-9)
+            wrench = mean + frac[:, None] * (physics.bias_at(float(t[-1])) - physics.bias_at(float(t[0]))) \
+                + rng.standard_normal((len(t), 6)) * physics._noise_sigma
+            before = health.observations
+            notices += health.feed(t, calibration.compensate(wrench, flange_R_base), True, flange_R_base)
+            if health.observations == before or health.last is None:
+                continue
+            window = health.last.window
+            windows += 1
+            gated += int(health.last.reason.startswith("gate"))
+            if window.mid_s <= first_still_end:
+                continue
+            true_offset = physics.bias_at(window.mid_s) - file_bias
+            error = health.tracker.offset(window.mid_s) - true_offset
+            errors.append(error[channels])
+            ratios.append(error[channels] / health.tracker.sigma(window.mid_s)[channels])
+    ratios_a = np.abs(np.array(ratios))
+    return {"max": float(ratios_a.max()), "rms": float(np.sqrt(np.mean(ratios_a**2))),
+            "beyond3": float(np.mean(ratios_a > 3.0) * 100), "gated": gated / max(windows, 1) * 100,
+            "windows": windows, "reacquired": health.tracker.reacquired,
+            "steps": sum("a step, not drift" in n.text for n in notices),
+            "suspended": sum("auto-tare suspended" in n.text for n in notices),
+            "max_error": float(np.abs(np.array(errors)).max()),
+            "change": float(np.abs(physics.bias_at(duration_s) - physics.bias_at(0.0))[channels].max())}
+
+
+def report_rates(minutes: float, seed: int, calibration, settings: DriftSettings) -> None:
+    """Print the drift-rate table (one row per rate and shape) and the step case."""
+    print("")
+    print(f"== drift rates: {minutes:g} simulated min each, push-free, --auto-tare, biases of unknown age; error = "
+          "tracked offset − true offset, per rest window after the first still period, in the tracker's printed 1σ "
+          "(the group's three channels)")
+    print(f"  {'drift':>16} {'shape':>8} {'change':>11} {'max e/σ':>8} {'RMS e/σ':>8} {'> 3σ':>7} {'gated':>7} "
+          f"{'windows':>8} {'re-acq':>6} {'steps':>5} {'max |e|':>10}")
+    for group, rate in RATE_ROWS:
+        unit = "N" if group == "force" else "N·m"
+        for shape in ("ramp", "warm-up"):
+            row = run_rate(minutes * 60.0, seed, calibration, settings, drift_truth(group, rate, shape), group)
+            print(f"  {rate:>9g} {unit + '/h':>6} {shape:>8} {row['change']:>7.3g} {unit:<3} {row['max']:>8.2f} "
+                  f"{row['rms']:>8.2f} {row['beyond3']:>6.2f}% {row['gated']:>6.2f}% {row['windows']:>8d} "
+                  f"{row['reacquired']:>6d} {row['steps']:>5d} {row['max_error'] * 1e3:>7.2f} m{unit}")
+    size, rate = STEP_CASE
+    row = run_rate(minutes * 60.0, seed, calibration, settings, drift_truth("force", rate, "warm-up"), "force",
+                   step=size)
+    print(f"  step case: warm-up from {rate:g} N/h and a bias step of {size[:3].tolist()} N half-way: called a step "
+          f"{row['steps']} time(s), re-acquired {row['reacquired']}, auto-tare suspended {row['suspended']} time(s), "
+          f"{row['gated']:.1f} % of {row['windows']} rest windows gated (every one after the step: tare)")
 
 
 def report(result: dict, minutes: float, sigma_bias: np.ndarray, thermal: bool) -> None:
@@ -284,7 +393,9 @@ def report(result: dict, minutes: float, sigma_bias: np.ndarray, thermal: bool) 
           f"{result['absorbed']}; windows rejected as contact {result['contact_rejects']}, by the innovation gate "
           f"{result['gate_rejects']}, accepted {result['accepted']}")
     print(f"  at-rest warnings: {result['warnings_in_push']} during pushes (held > 1 s), {result['warnings_clean']} "
-          f"with nothing touching the tool; periodic tares done: {result['tares']}")
+          f"with nothing touching the tool; periodic tares done: {result['tares']}; push-free rest windows while "
+          f"--auto-tare was suspended (a steady push called a step, until the next window on the track; left out of "
+          f"the live tracker's column): {result['suspended']}")
 
 
 def main() -> int:
@@ -293,6 +404,9 @@ def main() -> int:
     parser.add_argument("--swaps", type=int, default=10)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--rate-walk", type=float, default=None, help="override DriftSettings.rate_walk_per_h (force)")
+    parser.add_argument("--rate-minutes", type=float, default=30.0,
+                        help="simulated minutes per row of the drift-rate table (0: skip it)")
+    parser.add_argument("--rates-only", action="store_true", help="print only the drift-rate table")
     args = parser.parse_args()
     started = time.perf_counter()
     calibration = identify(example_record(seed=args.seed), mount="floor").calibration
@@ -303,15 +417,23 @@ def main() -> int:
     print(f"bias drift benchmark: {args.minutes:g} simulated minutes at {RATE_HZ:.0f} Hz (time-scaled, tracker fed "
           f"with simulated batches), calibration force-bias 1σ "
           + " ".join(f"{v * 1000:.2f}" for v in sigma_bias) + " mN")
+    if args.rate_minutes > 0:
+        report_rates(args.rate_minutes, args.seed, calibration, settings)
+    if args.rates_only:
+        print(f"wall time {time.perf_counter() - started:.1f} s")
+        return 0
     for thermal in (False, True):
         result = run_hour(args.minutes * 60.0, args.seed, calibration, settings, thermal)
         report(result, args.minutes, sigma_bias, thermal)
     if args.swaps:
-        delays = run_swaps(args.swaps, args.seed + 7, calibration, settings)
+        delays, steps = run_swaps(args.swaps, args.seed + 7, calibration, settings)
         finite = [d for d in delays if np.isfinite(d)]
+        called = [d for d in steps if np.isfinite(d)]
         print("")
         print(f"tool swaps: {len(finite)}/{len(delays)} flagged; time from the next stillness to the warning: "
-              + (f"median {np.median(finite):.2f} s, max {max(finite):.2f} s" if finite else "never"))
+              + (f"median {np.median(finite):.2f} s, max {max(finite):.2f} s" if finite else "never")
+              + f"; {len(called)}/{len(steps)} called a step, "
+              + (f"median {np.median(called):.2f} s, max {max(called):.2f} s after the stillness" if called else ""))
     print(f"wall time {time.perf_counter() - started:.1f} s")
     return 0
 

@@ -122,12 +122,20 @@ def compensation_sigma(calibration: Calibration, flange_R_base: np.ndarray, incl
     Parameters are taken as independent (the file stores no correlations), which overstates the error where the
     identification's correlations cancel: a conservative figure, used for thresholds.
     """
+    parameters, per_pose = compensation_variance_parts(calibration, flange_R_base, include_biases)
+    return np.sqrt(parameters + per_pose)
+
+
+def compensation_variance_parts(calibration: Calibration, flange_R_base: np.ndarray,
+                                include_biases: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Return the two parts of :func:`compensation_sigma`'s variance (6,) each [N², (N·m)²]: the parameters'
+    (one set of errors for every orientation) and the per-pose part (τ and σ_θ, drawn afresh at each pose)."""
     rotations = np.asarray(flange_R_base, dtype=float).reshape(-1, 3, 3)[:1]
     names = MODEL_PARAMETERS + (("force_bias", "torque_bias") if include_biases else ())
     j = model_jacobian(calibration, rotations, names)[0]
-    covariance = j @ _parameter_covariance(calibration, names) @ j.T
-    covariance += pose_noise_covariance(calibration, rotations, np.zeros((1, 6)))[0]
-    return np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    parameters = np.diag(j @ _parameter_covariance(calibration, names) @ j.T)
+    per_pose = np.diag(pose_noise_covariance(calibration, rotations, np.zeros((1, 6)))[0])
+    return np.maximum(parameters, 0.0), np.maximum(per_pose, 0.0)
 
 
 def estimate_biases(calibration: Calibration, flange_R_base: np.ndarray, wrench: np.ndarray,
@@ -193,10 +201,12 @@ def with_biases(calibration: Calibration, force_bias: np.ndarray, torque_bias: n
                    torque_bias=np.asarray(torque_bias, dtype=float), uncertainty=uncertainty, metadata=metadata)
 
 
-def apply_estimate(calibration: Calibration, estimate: BiasEstimate, time: str | None = None) -> Calibration:
-    """Return the calibration with the estimate's biases and 1σ, the tare recorded in ``bias_history``."""
+def apply_estimate(calibration: Calibration, estimate: BiasEstimate, time: str | None = None,
+                   **history_extra: Any) -> Calibration:
+    """Return the calibration with the estimate's biases and 1σ, the tare recorded in ``bias_history`` (with
+    ``history_extra``, e.g. ``sensor``: the serial number of the sensor it was tared on)."""
     sigma = estimate.sigma
-    extra: dict[str, Any] = {"poses": estimate.poses}
+    extra: dict[str, Any] = {"poses": estimate.poses, **history_extra}
     if np.isfinite(estimate.chi2_per_dof):
         extra["chi2_per_dof"] = estimate.chi2_per_dof
     return with_biases(calibration, estimate.force_bias, estimate.torque_bias, sigma[:3], sigma[3:],
@@ -204,4 +214,5 @@ def apply_estimate(calibration: Calibration, estimate: BiasEstimate, time: str |
 
 
 __all__ = ["BiasEstimate", "estimate_biases", "apply_estimate", "with_biases", "compensation_sigma",
+           "compensation_variance_parts",
            "pose_noise_covariance", "model_jacobian"]

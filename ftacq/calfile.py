@@ -315,6 +315,9 @@ def _check_provenance(path: Path, document: dict) -> None:
             _array(path, {f"bias_history[{index}].{key}": entry.get(key)}, f"bias_history[{index}].{key}", (3,))
         if not isinstance(entry.get("time"), (str, type(None))) or not isinstance(entry.get("method", ""), str):
             raise InputError(f"{where}: 'time' and 'method' must be strings")
+        for key in ("sensor", "previous_sensor"):
+            if not isinstance(entry.get(key, ""), str):
+                raise InputError(f"{where}: '{key}' must be a string (a serial number), got {shown(entry[key])}")
 
 
 def load_calibration(path: str | os.PathLike) -> Calibration:

@@ -98,15 +98,15 @@ class DriftCompensator:
             self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window
         elif good.any():
             self.notices += self.health.feed(time_s[good], residual[good], still, flange_R_base)
-        if self.health.auto_tare:
-            residual -= self.health.correction(float(time_s[-1]))
+        if self.health.auto_tare:  # the tracked offset while trusted, nothing once it is not (BiasHealth.correction)
+            residual -= self.health.correction(float(time_s[-1]), flange_R_base)
         return residual
 
     def snapshot(self, time_s: float) -> BiasDrift:
         """Return the tracker's estimate now."""
         tracker = self.health.tracker
         return BiasDrift(time_s=time_s, offset=tracker.offset(time_s), sigma=tracker.sigma(time_s),
-                         rate_per_h=tracker.rate_per_h, applied=self.health.auto_tare, accepted=tracker.accepted,
+                         rate_per_h=tracker.rate_per_h, applied=self.health.applied, accepted=tracker.accepted,
                          rejected_contact=tracker.rejected_contact, rejected_gate=tracker.rejected_gate,
                          warning=self.health.check.warning)
 

@@ -157,7 +157,26 @@ def test_cli_refuses_a_calibration_of_another_sensor_unless_forced(shifted_cell,
     assert main(["tare", "--config", config, "--calibration", str(tmp_path / "cal.json"), "-o", str(out),
                  "--force"]) == 0
     assert "WARNING (--force)" in capsys.readouterr().err
-    assert load_calibration(out).metadata["sensor"]["serial"] == "FT99999"  # the calibration's record is kept
+    tared = load_calibration(out)
+    assert tared.metadata["sensor"]["serial"] == "FT12345"  # the biases were measured on the sensor connected
+    entry = tared.metadata["bias_history"][-1]
+    assert entry["method"].startswith("tare") and entry["sensor"] == "FT12345"
+    assert entry["previous_sensor"] == "FT99999"  # and the tare says whose calibration it was
+
+
+def test_tare_prints_each_sigma_with_two_significant_digits() -> None:
+    """1σ of 0.00045 N and 0.000034 N·m print as 0.00045 and 0.000034 (not 0.0004 and 0.00003); each value to
+    the same decimal."""
+    from ftacq.app.commands.tare import format_estimate
+    from ftacq.bias_estimate import BiasEstimate
+
+    sigma = np.array([0.00045, 0.0012, 0.0031, 0.000034, 0.000051, 0.000027])
+    estimate = BiasEstimate(force_bias=np.array([3.21234, -1.5, 7.8]), torque_bias=np.array([0.12, -0.31, 0.05]),
+                            covariance=np.diag(sigma**2), previous=np.array([3.2, -1.5, 7.8, 0.12, -0.31, 0.05]),
+                            poses=1, residuals=np.zeros((1, 6)), chi2_per_dof=float("nan"), method="tare, 1 pose")
+    rows = format_estimate(estimate, 3500).splitlines()[2:]
+    assert rows[0].split()[2:] == ["3.20000", "3.21234", "0.00045", "+0.01234"]
+    assert rows[3].split()[3:5] == ["0.120000", "0.000034"]
 
 
 def test_cli_tares_a_version_1_file_into_version_2_with_provenance(shifted_cell, tmp_path, capsys) -> None:

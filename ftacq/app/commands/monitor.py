@@ -1,7 +1,8 @@
 """``ftacq monitor``: stream raw and gravity-compensated wrenches, the arm and sensor health to Rerun.
 
     ftacq monitor --config CELL.toml --calibration CALIBRATION.json [viewer flags] [--seconds S] [--record FILE.csv]
-    ftacq monitor --sim [viewer flags] [--seconds S] [--sim-drift N_PER_H] [--sim-swap-tool S] [--auto-tare]
+    ftacq monitor --sim [viewer flags] [--seconds S] [--sim-drift N_PER_H] [--sim-warmup N_PER_H]
+                  [--sim-swap-tool S] [--auto-tare]
 
 The monitor only reads the robot (its state, at the reader's own rate); it never moves it. With a calibration it
 checks that the calibration belongs to the sensor (refused unless --force) and runs the live drift tracker and the
@@ -46,6 +47,8 @@ SIM_CONTACT_DURATION_S = 2.0
 SIM_CONTACT_WRENCH = np.array([0.0, 6.0, -15.0, 0.3, 0.0, 0.0])
 """The simulated push on the tool (sensor frame, N and N·m), SIM_CONTACT_START_S into every still phase, held
 SIM_CONTACT_DURATION_S with a hand's 5 % tremble at 4 Hz."""
+SIM_WARMUP_TAU_S = 600.0
+"""--sim-warmup: the simulated sensor's warm-up time constant, s (ATI asks for a 30 min warm-up: about 3 τ)."""
 SIM_SWAPPED_TOOL = (1.0, (0.01, -0.005, 0.05))
 """--sim-swap-tool puts this tool (kg, centre of mass in the sensor frame, m) on the simulated sensor."""
 
@@ -149,6 +152,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--sim-drift", type=float, default=0.0, metavar="N_PER_H",
                         help="with --sim: the simulated sensor's force biases drift by this much per hour (N/h; "
                              "torque 1/50 of it in N·m/h)")
+    parser.add_argument("--sim-warmup", type=float, default=0.0, metavar="N_PER_H",
+                        help="with --sim: the simulated sensor warms up from power-on: its force biases move as "
+                             f"A (1 − e^(−t/τ)), τ {SIM_WARMUP_TAU_S / 60:g} min, starting at this rate (N/h; A = "
+                             "rate × τ; torque 1/30 of it in N·m/h)")
     parser.add_argument("--sim-swap-tool", type=float, metavar="S",
                         help="with --sim: after S seconds put another tool on the simulated sensor without telling "
                              "the software (the at-rest warning should follow at the next stillness)")
@@ -195,8 +202,12 @@ def run(args: argparse.Namespace) -> int:
             from ftacq.app.simcell import simulated_truth
 
             drift_n_per_s = args.sim_drift / 3600.0
+            warmup_n = args.sim_warmup / 3600.0 * SIM_WARMUP_TAU_S
             truth = simulated_truth(drift_n_per_s=(drift_n_per_s, -drift_n_per_s, drift_n_per_s),
-                                    drift_nm_per_s=(drift_n_per_s / 50, -drift_n_per_s / 50, drift_n_per_s / 50))
+                                    drift_nm_per_s=(drift_n_per_s / 50, -drift_n_per_s / 50, drift_n_per_s / 50),
+                                    thermal_step_n=(warmup_n, -warmup_n, warmup_n),
+                                    thermal_step_nm=(warmup_n / 30, -warmup_n / 30, warmup_n / 30),
+                                    thermal_step_at_s=0.0, thermal_time_constant_s=SIM_WARMUP_TAU_S)
             cell = stack.enter_context(simulated_cell(truth=truth, sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
             robot_host, sensor_url = cell.robot_host, cell.sensor_url
             model_name = getattr(cell, "model_name", DEFAULT_SIM_MODEL)
@@ -321,11 +332,16 @@ def format_drift(compensator) -> str:
         return (f"drift tracker: no estimate: {tracker.rejected_contact} rest windows refused as contact, "
                 f"{tracker.rejected_gate} by the gate" if tracker.rejected_contact + tracker.rejected_gate else
                 "drift tracker: no estimate: the arm was never still long enough (0.5 s settle + 0.5 s windows)")
+    from ftacq.sigma_text import format_with_sigma
+
     offset, sigma = tracker.offset(tracker.time_s), tracker.sigma(tracker.time_s)
     return ("drift tracker: biases moved since the calibration file by F ["
-            + ", ".join(f"{o:+.4f}±{s:.4f}" for o, s in zip(offset[:3], sigma[:3])) + "] N, T ["
-            + ", ".join(f"{o:+.5f}±{s:.5f}" for o, s in zip(offset[3:], sigma[3:])) + "] N·m; rate F ["
+            + ", ".join(format_with_sigma(o, s) for o, s in zip(offset[:3], sigma[:3])) + "] N, T ["
+            + ", ".join(format_with_sigma(o, s) for o, s in zip(offset[3:], sigma[3:])) + "] N·m; rate F ["
             + ", ".join(f"{r:+.3f}" for r in tracker.rate_per_h[:3]) + f"] N/h; rest windows used {tracker.accepted},"
             f" refused as contact {tracker.rejected_contact}, by the gate {tracker.rejected_gate}"
-            + ("; applied (--auto-tare)" if compensator.health.auto_tare else
-               "; not applied (use --auto-tare, or `ftacq tare`)"))
+            + (f", re-acquired {tracker.reacquired}×" if tracker.reacquired else "")
+            + ("; a step stands against it (not drift: check the tool, then `ftacq tare`)" if tracker.step else "")
+            + (("; applied (--auto-tare)" if compensator.health.trusted else
+                f"; not applied now (--auto-tare suspended: {compensator.health.distrust_reason})")
+               if compensator.health.auto_tare else "; not applied (use --auto-tare, or `ftacq tare`)"))

@@ -163,9 +163,14 @@ def run(args: argparse.Namespace) -> int:
                 raise AbortedError(f"tare {outcome.status}: {outcome.message}; the robot was stopped; "
                                    "the calibration file was not written") from outcome.error
             result = procedure.result
-        tared = apply_estimate(calibration, result.estimate)
+        tared_on = sensor_record(sensor.info)
+        previous = (calibration.metadata.get("sensor") or {}).get("serial") or ""
+        sensor_keys = {"sensor": tared_on["serial"]} if tared_on["serial"] else {}
+        if previous and tared_on["serial"] and previous != tared_on["serial"]:
+            sensor_keys["previous_sensor"] = previous  # --force: the biases now belong to another sensor
+        tared = apply_estimate(calibration, result.estimate, **sensor_keys)
         metadata = dict(tared.metadata)
-        metadata.setdefault("sensor", sensor_record(sensor.info))
+        metadata["sensor"] = tared_on  # the biases were measured on this sensor: the file now belongs to it
         tool = tool_record(getattr(config.tool, "name", None))
         if tool is not None:
             metadata.setdefault("tool", tool)
@@ -190,10 +195,14 @@ def _as_dict(sampling) -> dict:
 
 def format_estimate(estimate, samples: int) -> str:
     """Return the table printed by ``ftacq tare``: old and new biases, 1σ and change per channel."""
+    from ftacq.sigma_text import decimals_for, format_sigma
+
     lines = [f"{estimate.method} ({samples} samples averaged)"
              + (f", pose scatter χ²/dof {estimate.chi2_per_dof:.2f}" if np.isfinite(estimate.chi2_per_dof) else ""),
-             f"  {'':9} {'old':>10} {'new':>10} {'1σ':>9} {'change':>10}"]
+             f"  {'':9} {'old':>11} {'new':>11} {'1σ':>9} {'change':>11}"]
     for name, old, new, sigma, change in zip(CHANNELS, estimate.previous, estimate.bias, estimate.sigma,
                                              estimate.change):
-        lines.append(f"  {name:9} {old:10.4f} {new:10.4f} {sigma:9.5f} {change:+10.4f}")
+        places = decimals_for(sigma)  # the values to the 1σ's last printed digit
+        lines.append(f"  {name:9} {old:11.{places}f} {new:11.{places}f} {format_sigma(sigma):>9} "
+                     f"{change:+11.{places}f}")
     return "\n".join(lines)
