@@ -390,6 +390,8 @@ class SensorPhysics:
             times = start_time_s + np.arange(n) * (1.0 / self.rate_hz if period_s is None else period_s)
         if state is None or self.robot is None or state.at_rest:
             mean = self.noiseless_wrench(pose, elapsed)
+            if start_time_s is not None:  # the drift at each sample's own time
+                mean = mean - self.bias_at(elapsed) + self.bias_at((times - self.start_time_s)[:, None])
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
