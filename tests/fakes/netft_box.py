@@ -140,6 +140,7 @@ class NetFTBox:
         self._clock_t0 = time.monotonic()  # host time of power-up: the box's internal sample 0
         self._last_index = 0  # internal sample number of the last record produced (ft_sequence's clock)
         self._next_burst_s = 0.0
+        self._paused_until_s = 0.0
 
         self._lock = threading.Condition()
         self._settings = {"comrdtrate": 0.0, "comrdtbsiz": int(buffer_size), "comrdte": 1, "setuserfilter": 0,
@@ -355,6 +356,12 @@ class NetFTBox:
         with self._lock:
             self._restart_requested = True
 
+    def deschedule(self, seconds: float) -> None:
+        """The sender sends nothing for ``seconds`` of host time from now, as when the fake's process is not
+        scheduled on a loaded host; the box samples on (``max_backlog_s`` then decides what is skipped)."""
+        with self._lock:
+            self._paused_until_s = time.monotonic() + float(seconds)
+
     def stall_ft_sequence(self, records: int) -> None:
         """The next ``records`` records repeat the previous ``ft_sequence`` (rdt_sequence still advances)."""
         with self._lock:
@@ -492,6 +499,8 @@ class NetFTBox:
         with self._lock:
             if self._target is None:
                 return POLL_S
+            if now < self._paused_until_s:
+                return self._paused_until_s - now
             if self.burst_interval_s > 0.0:
                 return max(0.0, self._next_burst_s - now)
             records_per_datagram = self._settings["comrdtbsiz"] if self._mode == RDT_START_BUFFERED else 1
@@ -506,6 +515,8 @@ class NetFTBox:
                 return [], None
             buffered = self._mode == RDT_START_BUFFERED
             per_datagram = self._settings["comrdtbsiz"] if buffered else 1
+            if now < self._paused_until_s:
+                return [], None
             until = now
             if self.burst_interval_s > 0.0 and not first:
                 if now < self._next_burst_s:
