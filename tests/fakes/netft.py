@@ -15,8 +15,10 @@ host (port 0 in tests):
 - **HTTP**: ``/netftapi2.xml`` and ``/netftcalapi.xml`` (query ignored) and the CGI pages ``comm.cgi``,
   ``setting.cgi``, ``config.cgi``, ``moncon.cgi`` (``k=v&k=v``), which update what the XML and RDT show.
 
-Records are paced at ``comrdtrate`` (quantised to 7000/n Hz, rounded up) against an absolute deadline and sent in
-small bursts, so Python keeps up at 7 kHz. ``max_rate_hz`` above 7000 lets a benchmark run the fake faster than a
+Records are paced at ``comrdtrate`` (quantised to 7000/n Hz, rounded up) on the box's own sample clock
+(``clock_rate_error`` off the host's; ``ft_sequence`` counts its samples) and sent as due or, with
+``burst_interval_s``, in bursts with jitter; a sender that falls behind by more than ``max_backlog_s`` skips samples
+(tests/fakes/netft_box.py, docs/simulation.md "Simulated clocks"). ``max_rate_hz`` above 7000 lets a benchmark run the fake faster than a
 real box (an unfaithful extension, off by default). The wrench comes from a
 :class:`tests.fakes.world.SensorPhysics`, converted to the configured units and counts:
 ``counts = round(value_in_device_units × counts_per_unit)``, torque possibly in N-mm.
