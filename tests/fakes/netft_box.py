@@ -22,7 +22,7 @@ power cycle (nothing sent or heard while off; on power-up both sequences start a
 start); :meth:`restart` resets both sequences mid-stream. Everything put on the wire is logged
 (:meth:`sent_records`) so a test can check that every record sent reached the client exactly once.
 
-Why one class of ~690 lines: the settings (HTTP), the calibration answers (TCP), the stream and the fault knobs
+Why one class of ~790 lines: the settings (HTTP), the calibration answers (TCP), the stream and the fault knobs
 all read and write one state under one lock (a CGI rate change moves the stream's schedule, a TCP bias changes
 the next records, a start resets the sequence the knobs act on); splitting them would only pass that state around.
 """
