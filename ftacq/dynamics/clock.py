@@ -343,8 +343,15 @@ class SampleClock:
         arrival = np.asarray(arrival_s, dtype=float)
         if device.size == 0 or not np.isfinite(device[-1]):
             return arrival.copy()
-        self.clock.observe(device, arrival)
-        out = self.clock.host_times(device)
+        back = np.flatnonzero(np.diff(device) < -self.clock.block_s)
+        if back.size == 0:
+            self.clock.observe(device, arrival)
+            out = self.clock.host_times(device)
+        else:  # the device restarted its clock inside the batch: each run on the line of its own session
+            out = np.empty_like(arrival)
+            for run in np.split(np.arange(device.size), back + 1):
+                self.clock.observe(device[run], arrival[run])
+                out[run] = self.clock.host_times(device[run])
         self._last = (device_time_s, out)
         return out.copy()
 
