@@ -84,8 +84,20 @@ def read_record(path: Path) -> dict[str, np.ndarray]:
                 break
         wanted = ["time_s", "x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz",
                   "contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz"]
-        values = np.loadtxt(handle, delimiter=",", usecols=[columns.index(name) for name in wanted], ndmin=2)
+        wanted += [name for name in ("sample_time_s",) if name in columns]  # the sample's host time, if recorded
+        rows = (_filled(line) for line in handle)  # empty fields (an uncompensated batch) read as NaN
+        values = np.loadtxt(rows, delimiter=",", usecols=[columns.index(name) for name in wanted], ndmin=2)
     return {name: values[:, i] for i, name in enumerate(wanted)}
+
+
+def _filled(line: str) -> str:
+    """A CSV line with its empty fields written as nan."""
+    line = line.rstrip("\n")
+    while ",," in line:
+        line = line.replace(",,", ",nan,")
+    if line.endswith(","):
+        line += "nan"
+    return "nan" + line if line.startswith(",") else line
 
 
 def rms(values: np.ndarray) -> float:
@@ -136,7 +148,7 @@ def per_minute(run: dict, static) -> list[str]:
     from ftacq.so3 import rotation_from_rotvec
 
     record, moves = run["record"], run["moves"]
-    t = record["time_s"]
+    t = record.get("sample_time_s", record["time_s"])  # when the sample was taken, else when it was received
     contact = np.column_stack([record[f"contact_{c}"] for c in ("fx", "fy", "fz", "tx", "ty", "tz")])
     raw = np.column_stack([record[c] for c in ("fx", "fy", "fz", "tx", "ty", "tz")])
     moving = np.zeros(t.size, dtype=bool)
@@ -145,16 +157,17 @@ def per_minute(run: dict, static) -> list[str]:
         moving |= (t >= move["start_s"]) & (t <= move["end_s"])
         following = moves[index + 1]["start_s"] if index + 1 < len(moves) else move["end_s"] + 10.0
         rest |= (t >= move["end_s"] + REST_MARGIN_S) & (t <= following - REST_MARGIN_S)
-    valid = np.all(np.isfinite(contact), axis=1) & np.all(np.isfinite(raw), axis=1)
+    valid = np.all(np.isfinite(contact), axis=1) & np.all(np.isfinite(raw), axis=1) & np.isfinite(t)
     first = moves[0]["start_s"]
     minute = np.floor((t - first) / 60.0).astype(int)
-    lines = [f"{'minute':>6} {'moving':>7} {'noise F N':>10} {'noise T N·m':>12} {'dynamic F RMS (max)':>22} "
+    lines = [f"{'minute':>6} {'moving':>7} {'uncomp.':>7} {'noise F N':>10} {'noise T N·m':>12} {'dynamic F RMS (max)':>22} "
              f"{'dynamic T RMS (max)':>22} {'×F':>5} {'×T':>5} {'static F RMS':>13} {'static T RMS':>13} "
              f"{'×F':>5} {'×T':>5}"]
     worst = [0.0, 0.0, np.inf, np.inf]
     for m in range(int(minute[moving].max()) + 1 if moving.any() else 0):
         here = valid & (minute == m)
         on, still = here & moving, here & rest
+        uncompensated = int(np.count_nonzero(~valid & (minute == m) & moving))
         if not on.any() or still.sum() < 100:
             continue
         noise = contact[still].std(axis=0)
@@ -165,7 +178,7 @@ def per_minute(run: dict, static) -> list[str]:
         dyn_f, dyn_t, st_f, st_t = rms(dyn[:, :3]), rms(dyn[:, 3:]), rms(stat[:, :3]), rms(stat[:, 3:])
         worst = [max(worst[0], dyn_f / noise_f), max(worst[1], dyn_t / noise_t), min(worst[2], st_f / noise_f),
                  min(worst[3], st_t / noise_t)]
-        lines.append(f"{m + 1:>6} {on.sum():>7} {noise_f:>10.4f} {noise_t:>12.5f} "
+        lines.append(f"{m + 1:>6} {on.sum():>7} {uncompensated:>7} {noise_f:>10.4f} {noise_t:>12.5f} "
                      f"{f'{dyn_f:.4f} ({np.abs(dyn[:, :3]).max():.3f})':>22} "
                      f"{f'{dyn_t:.5f} ({np.abs(dyn[:, 3:]).max():.4f})':>22} {dyn_f / noise_f:>5.2f} "
                      f"{dyn_t / noise_t:>5.2f} {st_f:>13.4f} {st_t:>13.5f} {st_f / noise_f:>5.1f} {st_t / noise_t:>5.1f}")
