@@ -92,12 +92,14 @@ def main() -> int:
     parser.add_argument("--sensor-backlog-s", type=float, default=0.02,
                         help="with --live-minutes: the simulated sensor skips what it could not send within this, s")
     parser.add_argument("--seed", type=int, default=7, help="with --live-minutes: the jog's seed")
+    parser.add_argument("--keep", type=Path, metavar="DIR", help="with --live-minutes: keep the monitor's record, "
+                        "its stderr and the jog's moves there")
     args = parser.parse_args()
     if args.live_minutes > 0:
         import dynamics_live
 
         return dynamics_live.main(args.live_minutes, args.every_s, args.burners, args.sensor_rate_error,
-                                  args.sensor_backlog_s, args.seed)
+                                  args.sensor_backlog_s, args.seed, args.keep)
     truth = CellTruth(motion_noise_gain=0.0)
     model = ur_model("UR5e")
     settings = PlanSettings(joint_speed_rad_s=SPEED, joint_acceleration_rad_s2=ACCELERATION)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -104,7 +105,8 @@ def rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(values)))) if values.size else float("nan")
 
 
-def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folder: Path, seed: int) -> dict:
+def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folder: Path, seed: int,
+             keep: Path | None = None) -> dict:
     """Run the monitor and the jog for ``minutes``; return the record, the moves and the monitor's figures."""
     import psutil
 
@@ -135,6 +137,11 @@ def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folde
         out, _ = monitor.communicate(timeout=120)
     if jog.returncode != 0:
         raise RuntimeError(f"jog failed: {jog.stderr[-2000:]}")
+    (folder / "jog.jsonl").write_text(jog.stdout, encoding="utf-8")
+    if keep is not None:  # the record and the jog's moves, to look into a run afterwards
+        keep.mkdir(parents=True, exist_ok=True)
+        for name in ("record.csv", "jog.jsonl", "monitor.err"):
+            shutil.copy(folder / name, keep / name)
     lines = [json.loads(line) for line in jog.stdout.splitlines() if line.startswith("{")]
     return {"record": read_record(record_path), "moves": [line for line in lines if "move" in line],
             "summary": [line for line in out.splitlines() if line.startswith(("ftacq monitor:", "dynamic"))],
@@ -189,7 +196,7 @@ def per_minute(run: dict, static) -> list[str]:
 
 
 def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: float, backlog_s: float,
-         seed: int) -> int:
+         seed: int, keep: Path | None = None) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
@@ -238,7 +245,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
                          f"about the COM; goal ≤ 2 %), mass {1e3 * (dynamic.mass_kg - truth.mass_kg):+.2f} g, lag "
                          f"{1e3 * identified.lag_s:.2f} ms")
             save_calibration(folder / "calibration.json", dynamic)
-            run = live_run(cell, folder / "calibration.json", minutes, every_s, folder, seed)
+            run = live_run(cell, folder / "calibration.json", minutes, every_s, folder, seed, keep)
         lines += per_minute(run, static)
         lines.append(f"monitor (own process, dynamic, --record at 7 kHz): CPU {100 * run['cpu_fraction']:.1f} % of one "
                      f"core (goal < 50 %); the sensor skipped {run['skipped_live']} samples meanwhile")
