@@ -6,7 +6,7 @@ the tool and tool swaps.
 
 Time-scaled, without sockets: the simulated sensor's physics (tests/fakes/world.py SensorPhysics, the same code
 the simulated Net F/T serves) is sampled directly at 7 kHz in 0.1 s batches along a schedule, and the batches go
-through exactly what `ftacq monitor` runs (Calibration.compensate, then ftacq.drift.BiasHealth). Moving periods
+through exactly what `ftacq monitor` runs (Calibration.compensate, then ftacq.drift_health.BiasHealth). Moving periods
 are not sampled (the tracker ignores them; it only learns they happened). Wall time is a few seconds.
 
 Cell: the default simulated truth with a drift of +0.5, −0.5, +0.5 N/h (force) and ±0.01 N·m/h (torque), plus a
@@ -40,7 +40,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from ftacq.bias_estimate import estimate_biases  # noqa: E402
-from ftacq.drift import BiasHealth, DriftSettings  # noqa: E402
+from ftacq.drift import DriftSettings  # noqa: E402
+from ftacq.drift_health import BiasHealth  # noqa: E402
 from ftacq.identification import identify  # noqa: E402
 from ftacq.so3 import rotation_from_rotvec  # noqa: E402
 from tests.fakes.pose_records import cone_orientations, example_record, poses_from_orientations  # noqa: E402

@@ -8,7 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ftacq.drift import BiasHealth, DriftSettings, RestWindows, summarise_window
+from ftacq.drift import DriftSettings
+from ftacq.drift_health import BiasHealth
+from ftacq.rest_windows import RestWindows, summarise_window
 from ftacq.identification import identify
 from ftacq.so3 import rotation_from_rotvec
 from tests.fakes.pose_records import cone_orientations, example_record, poses_from_orientations
