@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from ftacq.bias_estimate import estimate_biases  # noqa: E402
+from ftacq.calibration import Calibration  # noqa: E402
 from ftacq.drift import DriftSettings  # noqa: E402
 from ftacq.drift_health import BiasHealth  # noqa: E402
 from ftacq.identification import identify  # noqa: E402
@@ -332,10 +333,15 @@ def run_rate(duration_s: float, seed: int, calibration, settings: DriftSettings,
             "change": float(np.abs(physics.bias_at(duration_s) - physics.bias_at(0.0))[channels].max())}
 
 
-def report_rates(minutes: float, seeds: list[int], settings: DriftSettings) -> None:
+def calibrate(seed: int, samples_per_pose: int) -> Calibration:
+    """The calibration identified from the simulated 48-pose record of ``seed`` (``samples_per_pose`` per pose)."""
+    return identify(example_record(seed=seed, samples_per_pose=samples_per_pose), mount="floor").calibration
+
+
+def report_rates(minutes: float, seeds: list[int], settings: DriftSettings, samples_per_pose: int) -> None:
     """Print the drift-rate table (one row per rate and shape; with several seeds, each seed its own calibration
     and schedule, the figures pooled over them) and the step case (first seed)."""
-    calibrations = {seed: identify(example_record(seed=seed), mount="floor").calibration for seed in seeds}
+    calibrations = {seed: calibrate(seed, samples_per_pose) for seed in seeds}
     print("")
     print(f"== drift rates: {minutes:g} simulated min each, push-free, --auto-tare, biases of unknown age, seed"
           + (f"s {seeds[0]}-{seeds[-1]} (a calibration and a schedule each; pooled)" if len(seeds) > 1
@@ -418,11 +424,13 @@ def main() -> int:
     parser.add_argument("--rate-minutes", type=float, default=30.0,
                         help="simulated minutes per row of the drift-rate table (0: skip it)")
     parser.add_argument("--rates-only", action="store_true", help="print only the drift-rate table")
+    parser.add_argument("--samples-per-pose", type=int, default=500,
+                        help="samples averaged per pose of the calibration's record (a default run: 0.5 s at 7 kHz = 3500)")
     parser.add_argument("--seeds", type=int, default=1,
                         help="drift-rate table over this many seeds from --seed on (a calibration and schedule each)")
     args = parser.parse_args()
     started = time.perf_counter()
-    calibration = identify(example_record(seed=args.seed), mount="floor").calibration
+    calibration = calibrate(args.seed, args.samples_per_pose)
     settings = DriftSettings()
     if args.rate_walk is not None:
         settings = replace(settings, rate_walk_per_h=(args.rate_walk,) * 3 + (args.rate_walk * 0.03,) * 3)
@@ -431,7 +439,8 @@ def main() -> int:
           f"with simulated batches), calibration force-bias 1σ "
           + " ".join(f"{v * 1000:.2f}" for v in sigma_bias) + " mN")
     if args.rate_minutes > 0:
-        report_rates(args.rate_minutes, list(range(args.seed, args.seed + args.seeds)), settings)
+        report_rates(args.rate_minutes, list(range(args.seed, args.seed + args.seeds)), settings,
+                     args.samples_per_pose)
     if args.rates_only:
         print(f"wall time {time.perf_counter() - started:.1f} s")
         return 0
