@@ -3,6 +3,7 @@ the tool and tool swaps.
 
     .venv/bin/python benchmarks/drift.py            # one simulated hour + 10 tool swaps
     .venv/bin/python benchmarks/drift.py --minutes 20 --swaps 3
+    .venv/bin/python benchmarks/drift.py --rates-only --seeds 8 --rate-minutes 10   # the 1σ over 8 calibrations
 
 Time-scaled, without sockets: the simulated sensor's physics (tests/fakes/world.py SensorPhysics, the same code
 the simulated Net F/T serves) is sampled directly at 7 kHz in 0.1 s batches along a schedule, and the batches go

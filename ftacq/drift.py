@@ -5,9 +5,9 @@ reading minus the predicted tool weight and the file's biases), the batch's stil
 the robot's joint motion) and the flange orientation. At rest and without contact that residual is the biases'
 change since the file, plus the calibration's model error at this orientation, plus noise.
 
-1. **Rest windows** (:class:`ftacq.rest_windows.RestWindows`). After the arm has been still for ``settle_s``, consecutive windows of
-   ``window_s`` are summarised: mean, sample std, count, and the least-squares slope of each channel within the
-   window. Motion discards the open window.
+1. **Rest windows** (:class:`ftacq.rest_windows.RestWindows`). After the arm has been still for ``settle_s``,
+   consecutive windows of ``window_s`` are summarised: mean, sample std, count, and the least-squares slope of
+   each channel within the window. Motion discards the open window.
 2. **Contact detector.** A window is contact (not used) when any channel's std exceeds ``std_ratio`` × the sensor's
    reference noise (the median std of recent accepted windows), or its in-window slope differs from the tracked
    drift rate by more than ``slope_sigmas`` standard errors: a hand on the tool trembles and comes and goes.
@@ -39,14 +39,15 @@ change since the file, plus the calibration's model error at this orientation, p
    drift faster than tracked (the filter restarts from the line: "re-acquired"); otherwise it is a **step**, kept
    refused until windows agree with the track again and are nearer it than the track plus the step (the track's
    growing uncertainty never swallows it; no second drift-or-step test while it stands).
-6. **At-rest check** (:class:`ftacq.drift_health.RestCheck`). The wrench the user sees at rest (the residual minus the applied
-   correction) is *off* when a channel exceeds max(``warn_sigmas`` × the 1σ the calibration, the tracker and the
-   window's noise explain, ``noise_fraction`` × one sample's noise) for ``warn_after_s``: significant and visible.
-   Windows the contact detector flags (a trembling hand) are not at rest and are skipped; a perfectly steady push
-   held longer than ``warn_after_s`` is reported (at one pose it looks like a changed tool or a bias step).
-7. **Trust** (:class:`ftacq.drift_health.BiasHealth`): ``--auto-tare`` subtracts the tracked offset only while it is trusted: no step
-   stands against it and its 1σ now is within ``trust_noise_fraction`` × one sample's noise. Otherwise the
-   correction is withdrawn (the stream is the calibration's compensation) and a notice says why.
+6. **At-rest check** (:class:`ftacq.drift_health.RestCheck`). The wrench the user sees at rest (the residual minus
+   the applied correction) is *off* when a channel exceeds max(``warn_sigmas`` × the 1σ the calibration, the tracker
+   and the window's noise explain, ``noise_fraction`` × one sample's noise) for ``warn_after_s``: significant and
+   visible. Windows the contact detector flags (a trembling hand) are not at rest and are skipped; a perfectly
+   steady push held longer than ``warn_after_s`` is reported (at one pose it looks like a changed tool or a bias
+   step).
+7. **Trust** (:class:`ftacq.drift_health.BiasHealth`): ``--auto-tare`` subtracts the tracked offset only while it is
+   trusted: no step stands against it and its 1σ now is within ``trust_noise_fraction`` × one sample's noise.
+   Otherwise the correction is withdrawn (the stream is the calibration's compensation) and a notice says why.
 
 Modules: the rest windows (step 1) :mod:`ftacq.rest_windows`; the tracker (steps 2-5) here; the drift-or-step test
 :mod:`ftacq.drift_or_step`; the at-rest check and trust (steps 6-7) :mod:`ftacq.drift_health`. One set of thresholds
