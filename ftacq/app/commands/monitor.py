@@ -306,7 +306,8 @@ def _drift_health(calibration, sensor_info,
                   args: argparse.Namespace) -> tuple[DriftCompensator, list[HealthCheck], str]:
     """Check the calibration belongs to the sensor (refused unless --force) and build the drift tracker's
     compensator and health check; return (compensator, checks, a line saying when the biases were measured)."""
-    from ftacq.drift import MAX_PRIOR_AGE_S, BiasHealth
+    from ftacq.drift import MAX_PRIOR_AGE_S
+    from ftacq.drift_health import BiasHealth
     from ftacq.provenance import age_s, biases_measured_utc, require_same_sensor
     from procedures.bias_health import DriftCheck, DriftCompensator
 
