@@ -91,7 +91,7 @@ def format_summary(summary) -> str:
     uncertainty = getattr(summary, "clock_uncertainty_s", float("inf"))
     if uncertainty < float("inf"):
         text += (f"; sensor clock {1e6 * summary.clock_rate_error:+.1f} ppm from the host's, sample times known to "
-                 f"{1e3 * uncertainty:.2f} ms")
+                 f"{1e3 * uncertainty:.3f} ms")
     if summary.record_path:
         text += f"; recorded {summary.record_path}"
     if summary.interrupted:
