@@ -255,7 +255,10 @@ def run(args: argparse.Namespace) -> int:
         header = [f"ftacq {__version__} monitor recording", f"source: {source}", f"sensor: {sensor_url}",
                   f"robot: {robot_host} ({model.name})",
                   f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
-                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
+                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange",
+                  "times: time_s = receive time; sample_time_s = the sensor's own clock (device_time_s) on the host "
+                  "monotonic clock through the minimum-delay line, clock_uncertainty_s its uncertainty "
+                  "(docs/dynamics.md, How the clocks are aligned)"]
         readout = LiveReadout()
         stack.callback(readout.close)
         dynamic = None
