@@ -418,8 +418,9 @@ class Bridge:
             compensated = self.dynamic.compensate(batch, None)
             if compensated is not None:
                 return compensated
-        # static; or dynamic with no cycle state within MAX_STATE_GAP_S of the samples: this cycle's orientation (such
-        # samples are over 50 ms old, and the age watchdog stops the feed before one of them is written)
+        # static; or dynamic with no cycle state within MAX_STATE_GAP_S of the samples: this cycle's orientation. The
+        # samples and this cycle are then over 50 ms apart: samples that old trip the age watchdog before one is
+        # written; a cycle whose package arrived that late is answered late (counted in late_answers)
         return self.calibration.compensate(batch.wrench, self._flange_rotation(cycle.q).T)
 
     def _feed(self) -> None:
