@@ -409,7 +409,8 @@ class LiveMonitor:
             self._publisher(events.RobotState(now_s, joints, pose))
             self._last_robot_s = now_s
         if now_s - self._last_status_s >= 1.0 / self.status_rate_hz:
-            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples))
+            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples,
+                                                self.sample_clock.uncertainty_s))
             self._check_robot(now_s, summary)
             self._last_status_s = now_s
 
