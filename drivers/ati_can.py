@@ -364,8 +364,7 @@ class AtiCanSensor(SensorBase):
         fresh = batch.sequence >= first_sequence
         if fresh.all():
             return batch
-        return WrenchBatch(batch.time_s[fresh], batch.wrench[fresh], batch.counts[fresh], batch.status[fresh],
-                           batch.sequence[fresh], batch.saturated[fresh])
+        return batch.select(fresh)
 
     def _lost_between(self, before: SensorHealth, after: SensorHealth) -> int:
         """Polls in the window left unanswered, wholly (timeouts) or partly (lost)."""
@@ -715,6 +714,7 @@ class AtiCanSensor(SensorBase):
             status=table[:, 1].astype(np.uint32),
             sequence=table[:, 8].astype(np.int64),
             saturated=table[:, 10].astype(bool),
+            device_time_s=np.full(len(rows), np.nan),  # polled: the sensor has no sample clock of its own
         )
 
 _URL_KEYS: dict[str, tuple[str, Callable[[str], Any]]] = {

@@ -53,6 +53,9 @@ class WrenchBatch:
         status: (N,) uint32 device status word per sample.
         sequence: (N,) int64 device sequence number (RDT rdt_sequence, or a host counter for polled CAN).
         saturated: (N,) bool, True where the sample is saturated or its status reports an error.
+        device_time_s: (N,) float, the sample's time on the device's own clock, seconds (the Net F/T: its sample
+            counter ``ft_sequence`` over its internal rate, so skipped samples show as gaps); NaN where the device
+            has no sample clock (a polled CAN sensor: use ``time_s``). Defaults to NaN.
     """
 
     time_s: np.ndarray
@@ -61,9 +64,19 @@ class WrenchBatch:
     status: np.ndarray
     sequence: np.ndarray
     saturated: np.ndarray
+    device_time_s: np.ndarray = None  # type: ignore[assignment]  # NaN (N,) when not given: see __post_init__
+
+    def __post_init__(self) -> None:
+        if self.device_time_s is None:
+            object.__setattr__(self, "device_time_s", np.full(np.shape(self.time_s)[:1], np.nan))
 
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
+
+    def select(self, index) -> "WrenchBatch":
+        """Return the samples at ``index`` (a boolean mask or indices), every field alike."""
+        return WrenchBatch(self.time_s[index], self.wrench[index], self.counts[index], self.status[index],
+                           self.sequence[index], self.saturated[index], self.device_time_s[index])
 
     @staticmethod
     def empty() -> "WrenchBatch":
@@ -89,6 +102,7 @@ class WrenchBatch:
             status=np.concatenate([b.status for b in batches]),
             sequence=np.concatenate([b.sequence for b in batches]),
             saturated=np.concatenate([b.saturated for b in batches]),
+            device_time_s=np.concatenate([b.device_time_s for b in batches]),
         )
 
 

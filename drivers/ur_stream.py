@@ -8,11 +8,12 @@ on arrival with the host's ``time.monotonic()``, to a fixed-size ring of numpy r
 
 Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``
 (rad, rad/s, rad/s²).
-The controller's timestamp maps onto the host clock through the lower envelope of (arrival − timestamp), allowed to
-follow the two clocks' drift (:class:`ftacq.dynamics.timing.ControllerClock`; each row keeps the offset known when it
-arrived, and :meth:`URStateStream.window` settles them with the rows after, :func:`ftacq.dynamics.timing.settled_offsets`):
-host times free of receive jitter, also after hours of streaming. Each read of the socket (often several packages)
-is parsed, mapped and stored as one numpy batch. Every call has a deadline; a controller that stops sending is
+The controller's timestamp maps onto the host clock through the minimum-delay line of (timestamp, arrival − timestamp)
+(:class:`ftacq.dynamics.clock.DeviceClock`, the same estimator as the sensor's: it follows the two clocks' rate error,
+±200 ppm and more, without ever mapping a state later than it arrived): host times free of receive jitter, also
+after hours of streaming. :meth:`URStateStream.window` maps the rows within the clock's window with its newest line;
+each row also keeps an offset, known when it arrived and rewritten once :data:`SETTLE_AFTER_S` later, for the rows
+older than the window and those of an earlier session. Each read of the socket (often several packages) is parsed, mapped and stored as one numpy batch. Every call has a deadline; a controller that stops sending is
 reported by :attr:`stale`.
 """
 
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ftacq.dynamics.timing import ControllerClock, settled_offsets
+from ftacq.dynamics.clock import CLOCK_WINDOW_S, DeviceClock
 from ftacq.errors import DeviceConnectionError, DeviceError
 
 log = logging.getLogger(__name__)
@@ -44,8 +45,14 @@ DEFAULT_CAPACITY = 1 << 18
 """Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
 ROW_COLUMNS = 27
 """Columns of one kept state row: arrival (host s), timestamp (controller s), q (6), q̇ (6), target q̇ (6), target q̈ (6),
-offset (host − controller s, as :class:`ftacq.dynamics.timing.ControllerClock` knew it when the row arrived)."""
+offset (host − controller s, as :class:`ftacq.dynamics.clock.DeviceClock` knew it when the row arrived)."""
 OFFSET_COLUMN = ROW_COLUMNS - 1
+SETTLE_AFTER_S = 0.5 * CLOCK_WINDOW_S
+"""A row's kept offset is rewritten once, with the line of the packages up to this long after it (controller s):
+the packages after a row that waited less correct it too, and the line's window still holds the row; a row older
+than the clock's window is mapped with this offset."""
+SETTLE_ROWS = 64
+"""Rows settled at most per read (a read brings a few packages: the settling keeps up, a backlog catches up)."""
 _DATA_PACKAGE = np.dtype([("size", ">u2"), ("type", "u1"), ("recipe", "u1"), ("values", ">f8", (OFFSET_COLUMN - 1,))])
 """One RTDE data package of the output recipe (header, recipe id, the outputs' doubles), as it is on the wire."""
 
@@ -68,12 +75,19 @@ class StateWindow:
         return int(self.time_s.shape[0])
 
     @classmethod
-    def from_rows(cls, rows: np.ndarray) -> "StateWindow":
+    def from_rows(cls, rows: np.ndarray, clock: DeviceClock | None = None) -> "StateWindow":
         """The window of rows laid out as :data:`ROW_COLUMNS` (arrival, timestamp, q, q̇, target q̇, target q̈,
-        offset), oldest first, on the host clock as timestamp + the row's offset settled with the rows after it
-        (:func:`ftacq.dynamics.timing.settled_offsets`)."""
-        time_s = rows[:, 1] + settled_offsets(rows[:, 1], rows[:, OFFSET_COLUMN])
-        return cls(time_s, rows[:, 0], rows[:, 1], rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
+        offset), oldest first, on the host clock: the rows within ``clock``'s window through its newest line (a later
+        package that waited less corrects the rows before it too), the older ones (or all, without a clock or with
+        timestamps out of order: two controller sessions) as timestamp + the offset known when they arrived."""
+        timestamp = rows[:, 1]
+        time_s = timestamp + rows[:, OFFSET_COLUMN]
+        since = clock.valid_from_s if clock is not None else None
+        if since is not None and clock is not None and timestamp.size and not np.any(np.diff(timestamp) < 0):
+            first = int(np.searchsorted(timestamp, since, side="left"))
+            if first < timestamp.size:
+                time_s[first:] = clock.host_times(timestamp[first:])
+        return cls(time_s, rows[:, 0], timestamp, rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
 
 
 class URStateStream:
@@ -93,8 +107,10 @@ class URStateStream:
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self.clock = ControllerClock()
+        self.clock = DeviceClock()
         """The controller's timestamp on the host clock (written by the reader thread only)."""
+        self._settled = 0
+        """Rows (counted from the first) whose offset was rewritten with a line fitted SETTLE_AFTER_S after them."""
         self._last_arrival = 0.0
         self.error: str | None = None
 
@@ -187,17 +203,41 @@ class URStateStream:
 
     def _store(self, values: np.ndarray, arrival_s: float) -> None:
         """Keep one read's data packages (their output values, oldest first), all stamped ``arrival_s`` (host s)."""
-        offsets = self.clock.observe(arrival_s, values[:, 0])
+        restarts = self.clock.restarts
+        self.clock.observe(values[:, 0], arrival_s)
+        offsets = self.clock.host_times(values[:, 0]) - values[:, 0]
         capacity = self._rows.shape[0]
         n = len(values)
         kept = min(n, capacity)  # a read longer than the ring keeps its newest rows
         with self._lock:
+            if self.clock.restarts != restarts:  # a new session: the older rows keep the offsets of their own
+                self._settled = self._count
             index = np.arange(self._count + n - kept, self._count + n) % capacity
             self._rows[index, 0] = arrival_s
             self._rows[index, 1:OFFSET_COLUMN] = values[n - kept:]
             self._rows[index, OFFSET_COLUMN] = offsets[n - kept:]
             self._count += n
             self._last_arrival = arrival_s
+            self._settle(float(values[-1, 0]) - SETTLE_AFTER_S)
+
+    def _settle(self, before_s: float) -> None:
+        """Give the rows older than ``before_s`` (controller s) and not settled yet the offset of the newest line,
+        at most :data:`SETTLE_ROWS` per read (amortised O(1) per row; lock held)."""
+        capacity = self._rows.shape[0]
+        start = max(self._settled, self._count - capacity)
+        stop = min(start + SETTLE_ROWS, self._count)
+        if stop <= start:
+            return
+        index = np.arange(start, stop) % capacity
+        timestamp = self._rows[index, 1]
+        due = int(np.searchsorted(timestamp, before_s, side="left"))  # in order within a session
+        valid_from = self.clock.valid_from_s
+        if due == 0 or valid_from is None:
+            return
+        index, timestamp = index[:due], timestamp[:due]
+        inside = timestamp >= valid_from  # rows the line was fitted over (the others keep their offsets)
+        self._rows[index[inside], OFFSET_COLUMN] = self.clock.host_times(timestamp[inside]) - timestamp[inside]
+        self._settled = start + due
 
     # ------------------------------------------------------------------ reading
     @property
@@ -220,10 +260,9 @@ class URStateStream:
                 n = min(n, last)
             index = np.arange(count - n, count) % capacity
             rows = self._rows[index]
-        window = StateWindow.from_rows(rows)
+        window = StateWindow.from_rows(rows, self.clock)
         if since_s is not None:
-            # host times keep the rows' order, so this is the newest rows: settled as in the whole window
-            window = StateWindow.from_rows(rows[window.time_s >= since_s])
+            window = StateWindow.from_rows(rows[window.time_s >= since_s], self.clock)
         return window
 
     def wait_for_samples(self, count: int, timeout_s: float) -> bool:

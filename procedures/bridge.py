@@ -40,10 +40,10 @@ cycles while the input was enabled: from the enable call to the end of the feed,
 (all of the feed when a PolyScope program enables the input).
 
 Watchdog (feed thread, every cycle): the newest sample is older than ``max_staleness_s`` (sensor silent or the
-bridge starved; a sample's age runs from its sample time, the sensor's own count on the host clock
-(:class:`procedures.dynamic_compensation.SensorClock`), not from its arrival: a burst of late samples is old), a
-sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` / ``jump_torque_nm`` in
-one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
+bridge starved; a sample's age runs from its sample time, the sensor's own clock on the host's
+(:class:`ftacq.dynamics.clock.SampleClock`, shared with the dynamic compensation), not from its arrival: a burst of
+late samples is old), a sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` /
+``jump_torque_nm`` in one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
 written (the last written value was fresh and checked), the caller's thread disables the input and says why; if
 the disable cannot arrive within 0.1 s the controller's own watchdog pauses the program. Ctrl-C disables first
 (while still feeding fresh values), then stops feeding.
@@ -71,12 +71,11 @@ from drivers.ur_ft_input import ControllerCycle
 from drivers.ur_stream import OFFSET_COLUMN, ROW_COLUMNS, StateWindow
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
-from ftacq.dynamics.timing import ControllerClock
+from ftacq.dynamics.clock import DeviceClock, SampleClock
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import FlangeRotation, URModel
-from procedures.dynamic_compensation import DynamicCompensator, SensorClock
+from procedures.dynamic_compensation import DynamicCompensator
 from procedures.events import Event, FedWrenches, Listener, Notice
-from procedures.excitation import counts_samples
 from procedures.realtime import ask_realtime
 
 log = logging.getLogger(__name__)
@@ -257,20 +256,21 @@ def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
 class CycleStates:
     """The controller cycles' joint states as a robot state stream (``window``, as drivers.ur_stream.URStateStream)
     for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, on the host
-    clock as the RTDE state stream puts them (:class:`ftacq.dynamics.timing.ControllerClock`: the lower envelope of
-    arrival − timestamp, following the clocks' drift, one package at a time). Written and read by the feed
+    clock as the RTDE state stream puts them (:class:`ftacq.dynamics.clock.DeviceClock`: the minimum-delay line of
+    arrival − timestamp, following the clocks' rate error, one package at a time). Written and read by the feed
     thread."""
 
     def __init__(self, capacity: int = STATE_CYCLES) -> None:
         self._rows = np.zeros((capacity, ROW_COLUMNS))  # laid out as drivers.ur_stream's kept rows
         self._count = 0
-        self.clock = ControllerClock()
+        self.clock = DeviceClock()
 
     def append(self, cycle: ControllerCycle) -> None:
         row = self._rows[self._count % len(self._rows)]
         row[0], row[1] = cycle.received_s, cycle.timestamp_s
         row[2:8], row[8:14], row[14:20], row[20:26] = cycle.q, cycle.qd, cycle.target_qd, cycle.target_qdd
-        row[OFFSET_COLUMN] = self.clock.observe_one(cycle.received_s, cycle.timestamp_s)
+        self.clock.observe_one(cycle.timestamp_s, cycle.received_s)
+        row[OFFSET_COLUMN] = self.clock.host_time(cycle.timestamp_s) - cycle.timestamp_s
         self._count += 1
 
     def window(self, last: int) -> StateWindow:
@@ -281,7 +281,7 @@ class CycleStates:
             rows = self._rows[start:start + n].copy()
         else:
             rows = np.concatenate([self._rows[start:], self._rows[:start + n - capacity]])
-        return StateWindow.from_rows(rows)
+        return StateWindow.from_rows(rows, self.clock)
 
 
 class _Log:
@@ -376,8 +376,8 @@ class Bridge:
         self.filter = WrenchFilter(self.cutoff_hz, self.sensor_rate_hz, settings.filter_order)
         self._bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
         self._clock_s = clock_s
-        self._sample_clock = SensorClock(counts_samples(sensor), 1.0 / self.sensor_rate_hz)
-        """The samples' sample times (the sensor's own count on the host clock): what their age runs from."""
+        self._sample_clock = SampleClock()
+        """The samples' sample times (the sensor's own clock on the host's): what their age runs from."""
         self.states = CycleStates()
         """Every controller cycle's joint state, on the host clock (the dynamic model's robot stream)."""
         self.dynamic: DynamicCompensator | None = None
@@ -385,8 +385,7 @@ class Bridge:
             self.compensation = "bias only"
         elif calibration.has_dynamics:
             self.compensation = "dynamic"
-            self.dynamic = DynamicCompensator(calibration, model, self.states, counts_samples=counts_samples(sensor),
-                                              sample_rate_hz=self.sensor_rate_hz)
+            self.dynamic = DynamicCompensator(calibration, model, self.states, clock=self._sample_clock)
         else:
             self.compensation = "static"
         self._flange_rotation = FlangeRotation(model)
@@ -419,6 +418,9 @@ class Bridge:
             compensated = self.dynamic.compensate(batch, None)
             if compensated is not None:
                 return compensated
+        # static; or dynamic with no cycle state within MAX_STATE_GAP_S of the samples: this cycle's orientation. The
+        # samples and this cycle are then over 50 ms apart: samples that old trip the age watchdog before one is
+        # written; a cycle whose package arrived that late is answered late (counted in late_answers)
         return self.calibration.compensate(batch.wrench, self._flange_rotation(cycle.q).T)
 
     def _feed(self) -> None:
@@ -463,7 +465,7 @@ class Bridge:
                         return
                     filtered = self.filter(self._sensor_frame(batch, cycle))
                     held = filtered[-1]
-                    newest_s = float(self._sample_clock.host_times(batch.time_s, batch.sequence)[-1])
+                    newest_s = float(self._sample_clock.host_times(batch.time_s, batch.device_time_s)[-1])
                     self._samples += samples
                     row[4] = samples
                 row[3] = newest_s

@@ -2,14 +2,19 @@
 (and the controller bridge's, procedures/bridge.py).
 
 Per sensor batch (≈ 10 ms, 70 samples at 7 kHz in the monitor; 2 ms, 14 samples in the bridge): the samples are put
-on the host clock through their sequence numbers (:class:`SensorClock`), shifted by the lag the identification
-measured, and compensated as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model
+on the host clock through the device's own sample times (:class:`ftacq.dynamics.clock.SampleClock`: the
+minimum-delay line, docs/dynamics.md "How the clocks are aligned"), shifted by the lag the identification measured, and compensated as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model
 (:class:`ftacq.dynamics.model.WrenchPredictor`, Pinocchio's RNEA) is evaluated once per new 500 Hz robot state from
 :class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring, not recomputed for the next batch) and
 interpolated onto the samples. The acceleration is target_qdd while the arm tracks the controller's trajectory, else
-a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new states only. A batch without robot
-states around it (the stream is late or lost) is compensated statically and counted in
-:attr:`DynamicCompensator.static_batches`.
+a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new states only.
+
+A batch the kept predictions do not cover (the reader fell behind by more than the ring, or the state stream is
+late) is compensated statically with the flange orientation *at the samples' time*, interpolated from the state
+stream's rows (counted in :attr:`DynamicCompensator.static_batches`); when no robot state lies within
+:data:`MAX_STATE_GAP_S` of the samples (the stream is lost or far behind) the batch is left uncompensated:
+:meth:`DynamicCompensator.compensate` returns None (the monitor then publishes and records it without a contact
+wrench) and counts it in :attr:`DynamicCompensator.uncompensated_batches`. Never a pose from another time.
 """
 
 from __future__ import annotations
@@ -19,9 +24,9 @@ import numpy as np
 from ftacq.calibration import Calibration
 from ftacq.dynamics.acceleration import DERIVATIVE_HALF_WIDTH, joint_acceleration
 from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
+from ftacq.dynamics.clock import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
-from ftacq.kinematics import URModel
-from ftacq.so3 import rotation_from_rotvec
+from ftacq.kinematics import FlangeRotation, URModel
 
 STATE_WINDOW_ROWS = 64
 """Newest robot states looked at per batch (128 ms at 500 Hz), and predictions kept."""
@@ -29,94 +34,9 @@ TAIL_ROWS = 16
 """Newest robot states read per batch when few are new (the bridge: one per controller cycle; the monitor: about
 five per 10 ms batch)."""
 MAX_STATE_GAP_S = 0.05
-"""A batch whose samples are further than this from the newest robot state is compensated statically, s."""
-ENVELOPE_READS = 2000
-"""Reads (≈ 20 s) over which the sensor clock's lower envelope is taken."""
-PERIOD_FIT_SPAN_S = 10.0
-"""A run shorter than this keeps the sensor's nominal period (when known): a least-squares period over a few
-seconds of delayed arrivals is off by far more than the device clock's error (ppm), s."""
-
-
-class SensorClock:
-    """Host times of a sensor's samples from its sequence numbers (its own clock) and the arrival stamps: the
-    period by least squares over the current run, the offset as the lower envelope of (arrival − sequence·period)
-    over the run's recent reads (one candidate kept per read, re-evaluated with the newest period). A restarted count
-    starts a new run; a stall of the host or of the link does not (the device's clock ran on). With ``nominal_period_s``
-    (the rate the device reports) a run shorter than :data:`PERIOD_FIT_SPAN_S` uses it instead of the fit. A sequence
-    that does not count samples (a polled sensor) leaves the arrival stamps.
-
-    Cost per read (≈ 14 samples in the bridge): the least-squares sums as running Python floats, and the envelope's
-    candidates kept as offsets (arrival − sequence·period) in a ring, re-evaluated over the ring only when the
-    period changes (never while the nominal one holds); the same arithmetic as evaluating every candidate each read.
-    """
-
-    def __init__(self, counts_samples: bool = True, nominal_period_s: float | None = None) -> None:
-        self._usable = counts_samples
-        self._nominal_period_s = nominal_period_s if nominal_period_s and nominal_period_s > 0 else None
-        self._restart()
-
-    def _restart(self) -> None:
-        self._origin: tuple[float, float] | None = None
-        self._n = 0
-        self._sum_s = self._sum_a = self._sum_ss = self._sum_sa = 0.0  # Σs, Σa, Σs², Σsa (relative to the origin)
-        self._points = np.empty((2, ENVELOPE_READS))  # per read: (s, a) of the sample closest to the envelope (a ring)
-        self._candidates = np.empty(ENVELOPE_READS)  # a − s·period of each point, for _candidates_period
-        self._scratch = np.empty(ENVELOPE_READS)
-        self._candidates_period = np.nan
-        self._point_count = 0
-        self._last = -np.inf
-
-    def host_times(self, arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray:
-        arrival = np.asarray(arrival_s, dtype=float)
-        if not self._usable or arrival.size == 0:
-            return arrival
-        seq = np.asarray(sequence, dtype=float)
-        if seq.size > 1 and np.less_equal(seq[1:], seq[:-1]).any():
-            return arrival  # a restart inside one read: this read keeps its arrival stamps
-        # a restarted count starts a new run; a gap in arrival with the count going on (the host stalled, records
-        # were lost or delayed) does not: the device's own clock ran on, and the lower envelope already ignores delay
-        if self._origin is not None and seq[0] - self._origin[0] <= self._last:
-            self._restart()
-        if self._origin is None:
-            self._origin = (float(seq[0]), float(arrival[0]))
-        add = np.add.reduce
-        s, a = seq - self._origin[0], arrival - self._origin[1]
-        self._last = float(s[-1])
-        self._n += s.size
-        self._sum_s += add(s)
-        self._sum_a += add(a)
-        self._sum_ss += add(s * s)
-        self._sum_sa += add(s * a)
-        nominal = self._nominal_period_s
-        if nominal is not None and self._last * nominal < PERIOD_FIT_SPAN_S:
-            period = nominal
-        else:
-            n, ss, sa, sss, ssa = self._n, self._sum_s, self._sum_a, self._sum_ss, self._sum_sa
-            denominator = n * sss - ss * ss
-            if n < 50 or denominator <= 0:
-                return arrival
-            period = float((n * ssa - ss * sa) / denominator)
-            if not period > 0:
-                return arrival
-        shift = s * period
-        below = a - shift
-        best = int(below.argmin())
-        slot = self._point_count % ENVELOPE_READS
-        self._points[0, slot], self._points[1, slot] = s[best], a[best]
-        self._point_count += 1
-        kept = min(self._point_count, ENVELOPE_READS)
-        candidates = self._candidates[:kept]
-        if period == self._candidates_period:
-            candidates[slot] = below[best]  # the same a − s·period as the whole ring's below
-        else:
-            scratch = self._scratch[:kept]
-            np.multiply(self._points[0, :kept], period, out=scratch)
-            np.subtract(self._points[1, :kept], scratch, out=candidates)
-            self._candidates_period = period
-        offset = float(candidates.min())
-        shift += self._origin[1]
-        shift += offset
-        return shift
+"""A batch is compensated dynamically when its samples lie between the oldest kept prediction and this much after
+the newest; statically (with the pose at the samples' time) when a robot state lies within this of every sample;
+else it is left uncompensated, s."""
 
 
 class DynamicCompensator:
@@ -124,8 +44,8 @@ class DynamicCompensator:
 
     Args: calibration (``has_dynamics``), robot (the arm's model), stream (a started URStateStream, or anything with
     its ``window(last=…)``), lag_s (the sensor's lag behind the robot stream; default the one the identification
-    measured), counts_samples and sample_rate_hz (the sensor's reported rate, Hz: its nominal period for
-    :class:`SensorClock`).
+    measured), clock (the samples' :class:`~ftacq.dynamics.clock.SampleClock`, shared with the monitor or the
+    bridge so that each batch is observed once; default its own).
 
     Per batch it reads the newest :data:`TAIL_ROWS` states (all :data:`STATE_WINDOW_ROWS` when the new ones reach
     into their first :data:`~ftacq.dynamics.acceleration.DERIVATIVE_HALF_WIDTH`: the derivative needs that many
@@ -135,7 +55,7 @@ class DynamicCompensator:
     """
 
     def __init__(self, calibration: Calibration, robot: URModel, stream, lag_s: float | None = None,
-                 counts_samples: bool = True, sample_rate_hz: float | None = None) -> None:
+                 clock: SampleClock | None = None) -> None:
         if not calibration.has_dynamics:
             raise ValueError("the calibration has no inertia: use the static GravityCompensator")
         self.calibration = calibration
@@ -145,7 +65,8 @@ class DynamicCompensator:
         measured = calibration.metadata.get("dynamics", {}).get("lag_ms") if isinstance(
             calibration.metadata.get("dynamics"), dict) else None
         self.lag_s = float(lag_s if lag_s is not None else (measured or 0.0) / 1e3)
-        self.clock = SensorClock(counts_samples, 1.0 / sample_rate_hz if sample_rate_hz else None)
+        self.clock = clock if clock is not None else SampleClock()
+        self._flange_rotation = FlangeRotation(robot)
         # the newest STATE_WINDOW_ROWS predictions, written twice (at k and k + rows) so that they are always one
         # contiguous slice, oldest first
         self._ring_times = np.empty(2 * STATE_WINDOW_ROWS)
@@ -153,6 +74,9 @@ class DynamicCompensator:
         self._predictions = 0
         self._last_controller_time = -np.inf
         self.static_batches = 0
+        """Batches compensated statically, with the flange orientation at the samples' time."""
+        self.uncompensated_batches = 0
+        """Batches with no robot state within MAX_STATE_GAP_S of their samples: compensate() returned None."""
         self.dynamic_batches = 0
         self.derivative_states = 0
 
@@ -195,16 +119,47 @@ class DynamicCompensator:
             self._predictions += 1
         self._last_controller_time = float(window.controller_time_s[-1])
 
-    def compensate(self, batch, robot) -> np.ndarray | None:
-        """Return the contact wrench (N, 6) of ``batch``; statically compensated (and counted) without states."""
-        times = self.clock.host_times(batch.time_s, batch.sequence) - self.lag_s
+    def compensate(self, batch, robot=None) -> np.ndarray | None:
+        """Return the contact wrench (N, 6) of ``batch``: dynamically, else statically with the pose at the samples'
+        time, else None (uncompensated: no robot state near the samples). ``robot`` (the newest state from another
+        source) is not used: its pose is from another time."""
+        times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
         self._update_predictions()
         state_times, predicted = self._kept()
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
             contact = interpolate_rows(times, state_times, predicted)
             return np.subtract(batch.wrench, contact, out=contact)
-        self.static_batches += 1
-        if robot is None:
+        flange_R_base = self._orientation_at(times, state_times)
+        if flange_R_base is None:
+            self.uncompensated_batches += 1
             return None
-        return self.calibration.compensate(batch.wrench, rotation_from_rotvec(np.asarray(robot.flange_pose)[3:6]).T)
+        self.static_batches += 1
+        return self.calibration.compensate(batch.wrench, flange_R_base)
+
+    def _orientation_at(self, times: np.ndarray, state_times: np.ndarray) -> np.ndarray | None:
+        """flange_R_base (N, 3, 3) at each sample time, interpolated from the robot states around the batch (their
+        base_R_flange by forward kinematics); None when a sample has no state within MAX_STATE_GAP_S."""
+        if state_times.size == 0 or times[-1] > state_times[-1] + MAX_STATE_GAP_S:
+            return None  # the predictions hold every state received: none reaches these samples
+        period = float(state_times[-1] - state_times[0]) / (state_times.size - 1) if state_times.size >= 2 else 0.002
+        reach = float(state_times[-1] - times[0]) + MAX_STATE_GAP_S
+        rows = int(min(reach / max(period, 1e-4), 1e6)) + 2
+        window = self.stream.window(last=rows)
+        state = window.time_s
+        if state.size == 0:
+            return None
+        low = int(np.searchsorted(state, times[0] - MAX_STATE_GAP_S, side="left"))
+        high = int(np.searchsorted(state, times[-1] + MAX_STATE_GAP_S, side="right"))
+        if high <= low:
+            return None
+        around = state[low:high]
+        # every sample needs a state within MAX_STATE_GAP_S (a gap in the stream inside the batch counts too)
+        after = np.minimum(np.searchsorted(around, times), around.size - 1)
+        before = np.maximum(after - 1, 0)
+        distance = np.minimum(np.abs(times - around[before]), np.abs(around[after] - times))
+        if not np.all(distance <= MAX_STATE_GAP_S):
+            return None
+        base_R_flange = np.array([self._flange_rotation(q) for q in window.q[low:high]]).reshape(-1, 9)
+        rotations = interpolate_rows(times, around, base_R_flange).reshape(-1, 3, 3)
+        return rotations.transpose(0, 2, 1)

@@ -11,9 +11,10 @@ after the operator confirmed it (as for the poses).
 
 Recording: the sensor is read in its own thread, the robot's every RTDE state by :class:`drivers.ur_stream.URStateStream`,
 while this thread issues the moves (each blocking until arrived). Ctrl-C stops the robot and keeps what was
-recorded. Sensor samples are put on the host clock through their sequence numbers
-(:func:`sensor_host_times`), robot samples through the controller's timestamps; the residual lag is measured by
-the identification.
+recorded. Sensor samples are put on the host clock through the device's own sample times (the Net F/T's sample
+counter: a skipped sample is a gap, not a shift of the samples after it) and the minimum-delay line of the whole
+recording (:func:`ftacq.dynamics.clock.device_to_host_clock`), robot samples likewise through the controller's
+timestamps and their arrival stamps; the residual lag is measured by the identification.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 
 from ftacq.dynamics.acceleration import joint_acceleration
 from ftacq.dynamics.identify import MotionRecord
-from ftacq.dynamics.timing import device_to_host_clock
+from ftacq.dynamics.clock import device_to_host_clock
 from ftacq.errors import PlanError
 
 if TYPE_CHECKING:
@@ -42,8 +43,6 @@ DEFAULT_MOVES = 10
 MAX_DRAWS = 200
 """Random targets tried per segment before the plan gives up."""
 SENSOR_READ_TIMEOUT_S = 0.5
-STREAM_GAP_S = 0.05
-"""Samples arriving further apart than this (a reconnect, a stall) start a new run of the sensor's clock."""
 MAX_SILENT_READS = 6
 """Consecutive sensor reads without a sample (3 s) that end the recording as a fault."""
 
@@ -118,37 +117,6 @@ def format_excitation(plan: ExcitationPlan) -> str:
             f"  estimated duration: {plan.estimated_duration_s:.1f} s (ends where it started)")
 
 
-def counts_samples(sensor) -> bool:
-    """True when the sensor's sequence numbers count its own samples at a fixed rate (Net F/T RDT); a polled
-    sensor (CAN) numbers its polls, whose times are the arrival stamps."""
-    return getattr(getattr(sensor, "info", None), "transport", "") == "netft"
-
-
-def sensor_host_times(arrival_s: np.ndarray, sequence: np.ndarray) -> np.ndarray:
-    """Sample times on the host clock from the device's sequence numbers (its own, regular clock) and the
-    arrival stamps: the rate from a line through (sequence, arrival), the offset from the lower envelope
-    (:func:`ftacq.dynamics.timing.device_to_host_clock`). Falls back to the arrival stamps when the sequence does
-    not count samples (a polled sensor)."""
-    arrival = np.asarray(arrival_s, dtype=float)
-    sequence = np.asarray(sequence, dtype=float)
-    if arrival.size < 3:
-        return arrival.copy()
-    # a restarted count or a silence (a reconnect, a stalled stream) starts a new run with its own offset
-    breaks = np.nonzero((np.diff(sequence) <= 0) | (np.diff(arrival) > STREAM_GAP_S))[0] + 1
-    runs = np.split(np.arange(arrival.size), breaks)
-    longest = max(runs, key=len)
-    if longest.size < 3:
-        return arrival.copy()
-    period = np.polyfit(sequence[longest] - sequence[longest[0]], arrival[longest] - arrival[longest[0]], 1)[0]
-    if not (period > 0 and np.isfinite(period)):
-        return arrival.copy()
-    out = np.empty_like(arrival)
-    for run in runs:
-        local = (sequence[run] - sequence[run[0]]) * period
-        out[run] = device_to_host_clock(local, arrival[run] - arrival[run[0]]) + arrival[run[0]]
-    return out
-
-
 @dataclass
 class _SensorRecorder:
     """Reads the sensor in a thread until stopped, keeping every batch."""
@@ -214,24 +182,30 @@ def record_excitation(plan: ExcitationPlan, robot, sensor, stream, move_timeout_
             robot.stop()
         finally:
             recorder.stop()
-            error.motion_record = _assemble(recorder.batches, stream, first_robot,  # type: ignore[attr-defined]
-                                            counts_samples(sensor))
+            error.motion_record = _assemble(recorder.batches, stream, first_robot)  # type: ignore[attr-defined]
         raise
     recorder.stop()
     if recorder.error is not None:
         raise recorder.error
-    return _assemble(recorder.batches, stream, first_robot, counts_samples(sensor))
+    return _assemble(recorder.batches, stream, first_robot)
 
 
-def _assemble(batches: list, stream, first_robot: int, regular: bool = True) -> MotionRecord:
+def _assemble(batches: list, stream, first_robot: int) -> MotionRecord:
+    """The record: sensor samples on the host clock from their device times (arrival stamps for a sensor without
+    a sample clock), robot states from the controller's timestamps, each stream through the minimum-delay line of
+    the whole recording."""
     if batches:
         arrival = np.concatenate([b.time_s for b in batches])
-        sequence = np.concatenate([b.sequence for b in batches])
+        device = np.concatenate([b.device_time_s for b in batches])
         wrench = np.concatenate([b.wrench for b in batches])
     else:
-        arrival, sequence, wrench = np.empty(0), np.empty(0), np.empty((0, 6))
+        arrival, device, wrench = np.empty(0), np.empty(0), np.empty((0, 6))
     window = stream.window(last=max(stream.count - first_robot, 0))
-    qdd, _ = joint_acceleration(window.time_s, window.qd, window.target_qd, window.qdd)
-    times = sensor_host_times(arrival, sequence) if regular else arrival
-    return MotionRecord(times, wrench, window.time_s, window.q, window.qd, qdd,
-                        metadata={"robot_samples": len(window), "sensor_samples": int(arrival.size)})
+    # both streams through the minimum-delay line of the whole recording (the live line's height is the newest
+    # seconds', its slope error would tilt the recording's start against the sensor's)
+    robot_times = device_to_host_clock(window.controller_time_s, window.arrival_s) if len(window) else window.time_s
+    qdd, _ = joint_acceleration(robot_times, window.qd, window.target_qd, window.qdd)
+    times = device_to_host_clock(device, arrival)
+    return MotionRecord(times, wrench, robot_times, window.q, window.qd, qdd,
+                        metadata={"robot_samples": len(window), "sensor_samples": int(arrival.size),
+                                  "sensor_clock": "device" if np.isfinite(device).any() else "arrival"})

@@ -13,8 +13,10 @@ lines for the operator as :class:`~procedures.events.Notice`. The application ch
 
 Acquisition never waits for a listener: events go through a :class:`procedures.delivery.BackgroundListener`,
 whose bounded queue drops (and counts) samples when a viewer is slow: frames on screen are lost, never samples.
-The optional CSV recorder gets every batch. The robot's state is read by its own reader at its own rate
-(:class:`drivers.ur.URStateReader`); the monitor only asks it for the latest joint angles and flange pose.
+The optional CSV recorder gets every batch, with each sample's time on the host clock from the sensor's own clock
+(:class:`ftacq.dynamics.clock.SampleClock`, shared with a dynamic compensator) and the mapping's uncertainty. The
+robot's state is read by its own reader at its own rate (:class:`drivers.ur.URStateReader`); the monitor only asks
+it for the latest joint angles and flange pose.
 Ctrl-C ends the run cleanly: threads joined, file finished. Run from the main thread, :meth:`LiveMonitor.run` turns
 the first SIGINT into its stop event, so the loop ends between two reads and every batch the driver handed over is
 both published and recorded (a KeyboardInterrupt can strike between any two bytecodes: between publishing a batch
@@ -45,6 +47,7 @@ import numpy as np
 
 from drivers.robot import RobotStateSource
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
+from ftacq.dynamics.clock import SampleClock
 from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
 from procedures import events
@@ -125,6 +128,8 @@ class MonitorSummary:
         duration_s: wall time of the run. interrupted: stopped by Ctrl-C. record_path: the CSV written, if any.
         listener_error: the first listener failure ("Type: message"), if any (acquisition went on).
         warnings: the WARN/ERROR notices of the health checks and of the robot state stream.
+        clock_rate_error, clock_uncertainty_s: the sensor clock's mapping at the end of the run (s/s, s; 0 and inf
+            without a device clock): :class:`ftacq.dynamics.clock.DeviceClock`.
     """
 
     samples: int = 0
@@ -142,6 +147,8 @@ class MonitorSummary:
     record_path: Path | None = None
     listener_error: str | None = None
     warnings: list[str] = field(default_factory=list)
+    clock_rate_error: float = 0.0
+    clock_uncertainty_s: float = float("inf")
 
     @property
     def span_s(self) -> float:
@@ -162,12 +169,15 @@ class MonitorSummary:
 RECORD_COLUMNS = (
     "time_s", "x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz",
     "contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz",
-    "sequence", "status", "sample_saturated",
+    "sequence", "status", "sample_saturated", "sample_time_s", "device_time_s", "clock_uncertainty_s",
 )
 """Columns of the ``--record`` CSV, one row per sample: host receive time (s, monotonic clock); the flange pose
-used for compensation (m, rad; base frame, rotation vector; empty without a robot); the raw sensor-frame wrench
-(N, N·m); the compensated contact wrench (empty without a calibration); the device's sequence number, status
-word and saturation flag. The pose and wrench columns are named as in a pose record (:mod:`ftacq.posefile`), so
+read with the batch (m, rad; base frame, rotation vector; empty without a robot); the raw sensor-frame wrench
+(N, N·m); the compensated contact wrench (empty without a calibration, and for a batch left uncompensated: no
+robot state near its samples); the device's sequence number, status word and saturation flag; the sample's time
+on the host clock from the device's own clock (s, monotonic clock: :class:`ftacq.dynamics.clock.SampleClock`; the
+receive time for a sensor without a sample clock), its time on the device's clock (s; empty without one) and the
+mapping's uncertainty when the batch was read (s; empty without a device clock). The pose and wrench columns are named as in a pose record (:mod:`ftacq.posefile`), so
 ``ftacq compensate`` reads a monitor record as it is."""
 
 _STOP = object()
@@ -205,8 +215,8 @@ class _Recorder:
     def start(self) -> None:
         self._thread.start()
 
-    def put(self, samples: events.WrenchSamples) -> None:
-        self._queue.put(samples)
+    def put(self, samples: events.WrenchSamples, sample_time_s: np.ndarray, uncertainty_s: float) -> None:
+        self._queue.put((samples, sample_time_s, uncertainty_s))
 
     def close(self) -> None:
         """Write what is queued, finish the file and join the thread; re-raise its error."""
@@ -223,21 +233,22 @@ class _Recorder:
                 for line in self._header:
                     handle.write(f"# {line}\n")
                 handle.write(",".join(RECORD_COLUMNS) + "\n")
-                while (samples := self._queue.get()) is not _STOP:
-                    handle.write(self._format(samples))
-                    self.rows += len(samples)
+                while (item := self._queue.get()) is not _STOP:
+                    handle.write(self._format(*item))
+                    self.rows += len(item[0])
         except BaseException as error:  # noqa: BLE001 - re-raised by close()
             self.error = error
 
     @staticmethod
-    def _format(samples: events.WrenchSamples) -> str:
+    def _format(samples: events.WrenchSamples, sample_time_s: np.ndarray, uncertainty_s: float) -> str:
         batch = samples.batch
         n = len(batch)
         pose = np.full((n, 6), np.nan) if samples.flange_pose is None else np.broadcast_to(samples.flange_pose, (n, 6))
         contact = np.full((n, 6), np.nan) if samples.compensated is None else samples.compensated
+        uncertainty = np.full(n, uncertainty_s if np.isfinite(uncertainty_s) else np.nan)
         numbers = np.column_stack([batch.time_s, pose, batch.wrench, contact, batch.sequence, batch.status,
-                                   batch.saturated.astype(np.int64)])
-        cells = np.char.mod(["%.9f"] + ["%.9g"] * 6 + ["%.9g"] * 12 + ["%d"] * 3, numbers)
+                                   batch.saturated.astype(np.int64), sample_time_s, batch.device_time_s, uncertainty])
+        cells = np.char.mod(["%.9f"] + ["%.9g"] * 6 + ["%.9g"] * 12 + ["%d"] * 3 + ["%.9f", "%.9f", "%.3g"], numbers)
         cells[cells == "nan"] = ""  # not known: no robot, or no calibration
         return "\n".join(",".join(row) for row in cells) + "\n"
 
@@ -259,6 +270,8 @@ class LiveMonitor:
         record_path: write every sample to this CSV (see :data:`RECORD_COLUMNS`), or None.
         strict: re-raise a listener's failure at the end of :meth:`run` (tests); live, it is only reported.
         queue_batches, listener_period_s: the BackgroundListener's queue bound and delivery period.
+        sample_clock: the samples' :class:`~ftacq.dynamics.clock.SampleClock` (their times on the host clock, for
+            the record); share it with a dynamic compensator so that each batch is observed once. Default: its own.
     """
 
     sensor: ForceTorqueSensor
@@ -275,6 +288,7 @@ class LiveMonitor:
     robot_rate_hz: float = ROBOT_RATE_HZ
     status_rate_hz: float = STATUS_RATE_HZ
     record_header: list[str] = field(default_factory=list)
+    sample_clock: SampleClock = field(default_factory=SampleClock)
 
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> MonitorSummary:
         """Stream until ``duration_s`` seconds have passed, ``stop`` is set, or Ctrl-C; return the summary.
@@ -314,11 +328,12 @@ class LiveMonitor:
                     continue
                 if len(batch) == 0:
                     continue
+                sample_time_s = self.sample_clock.host_times(batch.time_s, batch.device_time_s)
                 samples = self._process(batch)
                 self._count(summary, samples)
                 publisher(samples)
                 if recorder is not None:
-                    recorder.put(samples)
+                    recorder.put(samples, sample_time_s, self.sample_clock.uncertainty_s)
                 self._run_checks(samples, summary)
                 self._publish_periodic(samples, summary)
         except KeyboardInterrupt:
@@ -328,6 +343,8 @@ class LiveMonitor:
                 signal.signal(signal.SIGINT, signal.default_int_handler)
             summary.interrupted = summary.interrupted or interrupted.is_set()
             summary.duration_s = time.monotonic() - start_s
+            summary.clock_rate_error = self.sample_clock.rate_error
+            summary.clock_uncertainty_s = self.sample_clock.uncertainty_s
             try:
                 health = self.sensor.health()
                 summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
@@ -392,7 +409,8 @@ class LiveMonitor:
             self._publisher(events.RobotState(now_s, joints, pose))
             self._last_robot_s = now_s
         if now_s - self._last_status_s >= 1.0 / self.status_rate_hz:
-            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples))
+            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples,
+                                                self.sample_clock.uncertainty_s))
             self._check_robot(now_s, summary)
             self._last_status_s = now_s
 

@@ -42,9 +42,9 @@ class _Clock:
 
 
 class _Sensor(SensorBase):
-    """A Net F/T-like sensor at 7 kHz whose sequence counts its samples (``counts_samples``): each read returns the
-    samples taken up to ``delay_s`` before now on ``clock``, all stamped as arriving now (``arrived_when_taken``:
-    stamped with their own sample times, as if each had arrived at once)."""
+    """A Net F/T-like sensor at 7 kHz with its own sample clock (``device_time_s``: its count over its rate): each
+    read returns the samples taken up to ``delay_s`` before now on ``clock``, all stamped as arriving now
+    (``arrived_when_taken``: stamped with their own sample times, as if each had arrived at once)."""
 
     def __init__(self, clock: _Clock) -> None:
         super().__init__()
@@ -66,7 +66,8 @@ class _Sensor(SensorBase):
         wrench = np.tile(TRUTH.calibration().force_bias.tolist() + TRUTH.calibration().torque_bias.tolist(), (n, 1))
         arrival_s = self.origin_s + sequence / RATE_HZ if self.arrived_when_taken else np.full(n, self.clock())
         return WrenchBatch(time_s=arrival_s, wrench=wrench, counts=np.zeros((n, 6), dtype=np.int64),
-                           status=np.zeros(n, dtype=np.uint32), sequence=sequence, saturated=np.zeros(n, dtype=bool))
+                           status=np.zeros(n, dtype=np.uint32), sequence=sequence, saturated=np.zeros(n, dtype=bool),
+                           device_time_s=sequence / RATE_HZ)
 
 
 class _Controller:

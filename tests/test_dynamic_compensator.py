@@ -1,10 +1,10 @@
-"""The live dynamic compensation's per-batch shortcuts give what the straightforward computation gives.
+"""The live dynamic compensation: its per-batch shortcuts give what the straightforward computation gives, and a
+batch the predictions do not cover is compensated with the pose *at its samples' time*, or not at all.
 
-procedures/dynamic_compensation.py keeps the sensor clock's sums and envelope candidates between reads, reads only
-the newest robot states, runs the model only for the new ones (RNEA, ftacq.dynamics.model.WrenchPredictor) and
-keeps the predictions in a ring; ftacq.dynamics.timing.interpolate_rows avoids temporaries. Each is compared here
-with a plain version of what it replaced: the sensor clock bit for bit, the compensated wrench to 1e-12 N (the
-predictor itself against the regressor: tests/test_dynamics_identify.py).
+procedures/dynamic_compensation.py reads only the newest robot states, runs the model only for the new ones (RNEA,
+ftacq.dynamics.model.WrenchPredictor) and keeps the predictions in a ring; ftacq.dynamics.timing.interpolate_rows
+avoids temporaries. Compared here with a plain version of what it replaced, to 1e-12 N (the predictor itself
+against the regressor: tests/test_dynamics_identify.py; the sensor clock: tests/test_device_clock.py).
 """
 
 from __future__ import annotations
@@ -20,84 +20,12 @@ from ftacq.dynamics.acceleration import joint_acceleration
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import ur_model
 from procedures.bridge import CycleStates
-from procedures.dynamic_compensation import (
-    ENVELOPE_READS,
-    PERIOD_FIT_SPAN_S,
-    STATE_WINDOW_ROWS,
-    DynamicCompensator,
-    SensorClock,
-)
+from ftacq.kinematics import FlangeRotation
+from procedures.dynamic_compensation import MAX_STATE_GAP_S, STATE_WINDOW_ROWS, DynamicCompensator
 from tests.fakes.world import CellTruth
 
 pytest.importorskip("pinocchio")
 MODEL = ur_model("UR5e")
-
-
-class PlainSensorClock:
-    """The sensor clock as every read evaluated it before: sums in an array, all candidates re-evaluated."""
-
-    def __init__(self, nominal_period_s: float | None) -> None:
-        self.nominal = nominal_period_s
-        self.restart()
-
-    def restart(self) -> None:
-        self.origin: tuple[float, float] | None = None
-        self.sums = np.zeros(5)
-        self.points = np.empty((ENVELOPE_READS, 2))
-        self.count = 0
-        self.last = -np.inf
-
-    def host_times(self, arrival: np.ndarray, sequence: np.ndarray) -> np.ndarray:
-        seq = np.asarray(sequence, dtype=float)
-        if np.any(np.diff(seq) <= 0):
-            return arrival
-        if self.origin is not None and seq[0] - self.origin[0] <= self.last:
-            self.restart()
-        if self.origin is None:
-            self.origin = (float(seq[0]), float(arrival[0]))
-        s, a = seq - self.origin[0], arrival - self.origin[1]
-        self.last = float(s[-1])
-        self.sums += (s.size, s.sum(), a.sum(), (s * s).sum(), (s * a).sum())
-        n, ss, sa, sss, ssa = self.sums
-        if self.nominal is not None and self.last * self.nominal < PERIOD_FIT_SPAN_S:
-            period = self.nominal
-        else:
-            denominator = n * sss - ss * ss
-            if n < 50 or denominator <= 0:
-                return arrival
-            period = (n * ssa - ss * sa) / denominator
-        best = int(np.argmin(a - s * period))
-        self.points[self.count % ENVELOPE_READS] = s[best], a[best]
-        self.count += 1
-        points = self.points[:min(self.count, ENVELOPE_READS)]
-        return self.origin[1] + s * period + float(np.min(points[:, 1] - points[:, 0] * period))
-
-
-def sensor_reads(seconds: float, seed: int, restart_at_s: float | None = None):
-    """(arrival, sequence) reads of 10-18 samples at 7 kHz with a jittered, coalesced arrival (and a restart)."""
-    rng = np.random.default_rng(seed)
-    n = int(seconds * 7000)
-    sequence = np.arange(n) + 17
-    arrival = 500.0 + sequence / 7000.0 * (1 + 3e-5) + 0.0003 + rng.exponential(0.0004, n)
-    arrival = np.maximum.accumulate(arrival)
-    if restart_at_s is not None:
-        k = int(restart_at_s * 7000)
-        sequence[k:] -= sequence[k] - 1
-    reads, i = [], 0
-    while i < n:
-        size = int(rng.integers(10, 19))
-        reads.append((arrival[i:i + size].copy(), sequence[i:i + size].copy()))
-        i += size
-    return reads
-
-
-@pytest.mark.parametrize("nominal", [1 / 7000, None])
-def test_sensor_clock_gives_the_plain_evaluation_bit_for_bit(nominal):
-    # 14 s: the nominal period, then the least-squares one (PERIOD_FIT_SPAN_S), with a restarted count at 12 s
-    reads = sensor_reads(14.0, seed=2, restart_at_s=12.0)
-    clock, plain = SensorClock(True, nominal), PlainSensorClock(nominal)
-    for arrival, sequence in reads:
-        np.testing.assert_array_equal(clock.host_times(arrival, sequence), plain.host_times(arrival, sequence))
 
 
 def cycles(count: int, seed: int):
@@ -136,8 +64,8 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
     truth = CellTruth()
     calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
     states = CycleStates()
-    # a sensor whose sequence does not count samples: the batch keeps its times (the clock is compared above)
-    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0012, counts_samples=False)
+    # a sensor without a sample clock (NaN device times): the batch keeps its receive times
+    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0012)
     kept = {"times": np.empty(0), "predicted": np.empty((0, 6)), "last": -np.inf}
     rng = np.random.default_rng(6)
     compared = 0
@@ -147,16 +75,51 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
             continue  # a stall (many new states at the next batch), and batches skipped now and then
         newest_state_s = float(states.window(last=1).time_s[-1])
         offsets = np.sort(rng.uniform(-0.003, 0.0008, int(rng.integers(8, 20))))
-        batch = SimpleNamespace(time_s=newest_state_s + compensator.lag_s + offsets, sequence=np.arange(len(offsets)),
+        batch = SimpleNamespace(time_s=newest_state_s + compensator.lag_s + offsets,
+                                device_time_s=np.full(len(offsets), np.nan),
                                 wrench=rng.normal(size=(len(offsets), 6)))
         if k == 700:
-            batch.time_s = batch.time_s - 1.0  # no states around it: compensated statically (None without a pose)
+            batch.time_s = batch.time_s - 1.0  # older than every state kept: left uncompensated
         got = compensator.compensate(batch, None)
         expected = plain_compensation(compensator, states, batch, kept)
-        if expected is None:
-            assert got is None
+        if expected is None:  # the first cycles (fewer than two states): static, with the pose at the samples' time
+            assert (got is None) == (k == 700)
             continue
         compared += 1
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
     assert compared > 1000
-    assert compensator.static_batches >= 1 and compensator.derivative_states > 0  # both paths ran
+    assert compensator.uncompensated_batches >= 1 and compensator.derivative_states > 0  # both paths ran
+
+
+
+def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_samples_time():
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    states = CycleStates()  # 0.5 s of controller cycles kept
+    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0)
+    flange = FlangeRotation(MODEL)
+    all_cycles = list(cycles(200, seed=3))
+    for cycle in all_cycles:
+        states.append(cycle)
+    window = states.window(last=200)
+    wrench = np.random.default_rng(1).normal(size=(14, 6))
+    # the reader fell behind: a batch 0.3 s old, older than the STATE_WINDOW_ROWS predictions (0.128 s) but within
+    # the states kept, while the arm moves fast (the newest pose would be off by tenths of a radian)
+    at = np.sort(window.time_s[40] + np.random.default_rng(2).uniform(0.0, 0.003, 14))
+    batch = SimpleNamespace(time_s=at, device_time_s=np.full(14, np.nan), wrench=wrench)
+    got = compensator.compensate(batch, None)
+    assert got is not None and compensator.static_batches == 1 and compensator.dynamic_batches == 0
+    # the expected: each sample's flange orientation interpolated between the states around it
+    rotations = np.array([flange(q) for q in window.q]).reshape(-1, 9)
+    at_samples = interpolate_rows(at, window.time_s, rotations).reshape(-1, 3, 3)
+    expected = calibration.compensate(wrench, at_samples.transpose(0, 2, 1))
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    newest = calibration.compensate(wrench, flange(window.q[-1]).T)
+    assert np.abs(newest - expected).max() > 1.0  # the newest pose would have been wrong by more than a newton
+    # the state stream is late (no state within MAX_STATE_GAP_S of the samples): uncompensated, said by None
+    late = SimpleNamespace(time_s=window.time_s[-1] + MAX_STATE_GAP_S + 0.01 + np.arange(14) / 7000.0,
+                           device_time_s=np.full(14, np.nan), wrench=wrench)
+    assert compensator.compensate(late, None) is None and compensator.uncompensated_batches == 1
+    # a gap in the stream inside the batch's span counts too
+    assert compensator.compensate(SimpleNamespace(time_s=window.time_s[0] - 0.2 + np.arange(3) * 0.1,
+                                                  device_time_s=np.full(3, np.nan), wrench=wrench[:3]), None) is None

@@ -10,7 +10,7 @@ import pytest
 
 from ftacq.app.cli import main as ftacq_main
 from ftacq.calfile import save_calibration
-from procedures.dynamic_compensation import SensorClock
+from ftacq.dynamics.clock import SampleClock
 from tests.fakes.world import CellTruth
 
 pytest.importorskip("rtde_control")
@@ -35,16 +35,18 @@ def test_monitor_chooses_the_model_by_the_calibration(tmp_path, capsys, with_ine
         assert "static compensation: this calibration has no inertia" in err
 
 
-def test_sensor_clock_removes_arrival_jitter_and_restarts_after_a_stall():
+def test_sensor_clock_removes_arrival_jitter_and_restarts_after_a_power_cycle():
     rng = np.random.default_rng(1)
-    clock = SensorClock()
-    sequence = np.arange(20000)
-    true = 50.0 + sequence / 7000.0
-    arrival = true + 0.0003 + rng.exponential(0.001, sequence.size)
-    arrival[12000:] += 0.2  # a stall: the rest arrives 0.2 s later (and a real reconnect restarts the count)
-    sequence = sequence.copy()
-    sequence[12000:] -= 12000
-    out = np.concatenate([clock.host_times(arrival[i:i + 70], sequence[i:i + 70]) for i in range(0, 20000, 70)])
-    settled = slice(2000, 11900)  # the read that straddles the stall keeps its arrival stamps
+    clock = SampleClock()
+    counter = np.arange(20000)
+    true = 50.0 + counter / 7000.0
+    arrival = true + 0.0003 + rng.exponential(0.001, counter.size)
+    arrival[12000:] += 0.2  # a stall: the rest arrives 0.2 s later, and the box power-cycled (its counter restarts)
+    device = np.where(counter < 12000, 1000.0 + counter / 7000.0, (counter - 12000) / 7000.0)
+    out = np.concatenate([clock.host_times(arrival[i:i + 70], device[i:i + 70]) for i in range(0, 20000, 70)])
+    settled = slice(2000, 12000)
     assert np.abs(out[settled] - (true[settled] + 0.0003)).max() < 2e-4
     assert np.abs(out[14100:] - (true[14100:] + 0.2003)).max() < 2e-4
+    assert clock.clock.restarts == 1
+    # no device clock (a polled CAN sensor): the receive stamps
+    np.testing.assert_array_equal(SampleClock().host_times(arrival[:70], np.full(70, np.nan)), arrival[:70])

@@ -4,6 +4,8 @@ within the CELL.toml limits and the plan, the recorded motion identifies the ine
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,9 @@ from ftacq.calfile import load_calibration, save_calibration
 from ftacq.dynamics.motionfile import read_motion_csv, write_motion_csv
 from ftacq.errors import InputError
 from ftacq.kinematics import ur_model
-from procedures.excitation import plan_excitation, record_excitation, sensor_host_times
+from drivers.sensor import WrenchBatch
+from drivers.ur_stream import StateWindow
+from procedures.excitation import _assemble, plan_excitation, record_excitation
 from procedures.plan import PlanSettings, check_path, home_configuration_rad
 from tests.fakes.cell import SimulatedCell
 from tests.fakes.world import CellTruth
@@ -71,13 +75,29 @@ def test_recorded_excitation_stays_within_the_limits_and_identifies_the_inertia(
     assert np.all(result.held_out_rms_dynamic[3:5] < result.held_out_rms_static[3:5])
 
 
-def test_sensor_times_follow_the_device_sequence():
-    rng = np.random.default_rng(0)
-    sequence = np.arange(5000) + 17
-    true = 100.0 + sequence / 7000.0
-    arrival = true + 0.0004 + rng.exponential(0.0008, sequence.size)  # transport delay ≥ 0.4 ms
-    times = sensor_host_times(arrival, sequence)
-    assert np.abs(times - (true + 0.0004)).max() < 5e-5
+def test_recorded_sensor_times_come_from_the_device_clock_so_skipped_samples_shift_nothing():
+    # a 7 kHz sensor 150 ppm off the host, bursting through a queue, 1 % of its samples and a few runs skipped: the
+    # record's sensor times are the samples' true times (the old fit on the packet count shifted them by 20-30 ms)
+    from tests.clock_arrivals import bursting_sensor
+    from tests.test_device_clock import BOUND_S
+
+    device, truth, arrival = bursting_sensor(30.0, 150e-6, seed=4)
+    parts = np.array_split(np.arange(device.size), 3000)
+    batches = [WrenchBatch(time_s=arrival[p], wrench=np.zeros((p.size, 6)), counts=np.zeros((p.size, 6), np.int64),
+                           status=np.zeros(p.size, np.uint32), sequence=p.astype(np.int64),  # packets received
+                           saturated=np.zeros(p.size, bool), device_time_s=device[p]) for p in parts]
+    robot_t = np.arange(0.0, 30.0, 0.002)
+    zeros = np.zeros((robot_t.size, 6))
+    stream = SimpleNamespace(count=robot_t.size, window=lambda last: StateWindow(
+        robot_t[-last:], robot_t[-last:], robot_t[-last:], zeros[-last:], zeros[-last:], zeros[-last:], zeros[-last:]))
+    record = _assemble(batches, stream, first_robot=0)
+    assert record.metadata["sensor_clock"] == "device"
+    assert np.abs(record.sensor_time_s - truth).max() <= BOUND_S
+    # without a device clock (a polled sensor) the arrival stamps are the times
+    polled = [WrenchBatch(b.time_s, b.wrench, b.counts, b.status, b.sequence, b.saturated) for b in batches[:10]]
+    record = _assemble(polled, stream, first_robot=0)
+    assert record.metadata["sensor_clock"] == "arrival"
+    np.testing.assert_array_equal(record.sensor_time_s, np.concatenate([b.time_s for b in batches[:10]]))
 
 
 def test_motion_file_round_trip_and_identify_command(tmp_path, capsys):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from drivers.netft import NetFTSensor
+from drivers.sensor import WrenchBatch
 from ftacq.errors import DeviceTimeoutError, SensorFaultError
 from tests.fakes.netft import FakeNetFT
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
@@ -72,6 +73,29 @@ def test_dropped_records_count_as_lost(sensor, fake) -> None:
     settle(sensor, fake)
     assert counters(sensor) == expect(lost=5)
     assert fake.records_dropped == 5
+
+
+def test_dropped_records_are_a_gap_in_device_time(sensor, fake) -> None:
+    # the box's own sample counter (ft_sequence) counts the samples the host never received: the device time of the
+    # delivered samples steps over them instead of compressing the clock (what the packet count would do)
+    fake.drop(5)
+    batches = settle(sensor, fake)
+    period_s = 1.0 / RATE_HZ
+    for _ in range(RECORDS_PAST_FAULT):  # the records past the gap may still be held for late ones: read them
+        batch = WrenchBatch.concatenate(batches)
+        if np.any(np.diff(batch.device_time_s) > 1.5 * period_s):
+            break
+        batches.append(sensor.read(timeout_s=READ_TIMEOUT_S))
+    batch = WrenchBatch.concatenate(batches)
+    steps = np.diff(batch.device_time_s)
+    gap = np.flatnonzero(steps > 1.5 * period_s)
+    assert gap.size == 1 and steps[gap[0]] == pytest.approx(6 * period_s)
+    np.testing.assert_allclose(np.delete(steps, gap), period_s)
+    assert np.all(np.diff(batch.sequence)[np.delete(np.arange(steps.size), gap)] == 1)
+    sent = fake.sent_records()
+    ft_of = dict(zip(sent["rdt_sequence"].tolist(), sent["ft_sequence"].tolist()))
+    expected = np.array([ft_of[int(r)] for r in batch.sequence]) / 7000.0
+    np.testing.assert_allclose(batch.device_time_s, expected, rtol=0, atol=1e-9)
 
 
 def test_duplicated_record_is_counted_and_dropped(sensor, fake) -> None:

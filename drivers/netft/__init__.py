@@ -3,6 +3,7 @@
 - :mod:`drivers.netft.protocol`: commands, the 36-byte record, status bits (docs/protocols-ati.md).
 - :mod:`drivers.netft.discovery`: scaling from HTTP and TCP, cross-checked; rate and buffer settings.
 - :mod:`drivers.netft.sequence`: the pure sequence tracker (order, losses, restarts, bias).
+- :mod:`drivers.netft.device_time`: the box's own sample time from its sample counter ``ft_sequence``.
 - :mod:`drivers.netft.receiver`: the UDP socket, its receive thread and byte ring, the re-send schedule.
 - :mod:`drivers.netft.driver`: :class:`NetFTSensor`, which puts them together behind the sensor contract.
 

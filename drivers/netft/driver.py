@@ -4,8 +4,9 @@
 socket and its receive thread (:mod:`drivers.netft.receiver`), sends the start command and waits for the first
 record. Readers (``read``, ``average``, ``health``) take what the receive thread wrote, put it in sequence order
 and account for losses with :class:`drivers.netft.sequence.SequenceTracker`, and decode whole batches with numpy
-(``np.frombuffer`` of the 36-byte record): no per-sample Python objects on the fast path. Values are converted to
-SI once: ``wrench = counts × (SI per unit) / counts_per_unit``. Status: a sample with an error bit is flagged in
+(``np.frombuffer`` of the 36-byte record): no per-sample Python objects on the fast path. Each sample carries the
+box's own sample time (``WrenchBatch.device_time_s``, from ``ft_sequence``: :mod:`drivers.netft.device_time`).
+Values are converted to SI once: ``wrench = counts × (SI per unit) / counts_per_unit``. Status: a sample with an error bit is flagged in
 ``WrenchBatch.saturated`` and never averaged; the Net F/T and Ethernet Axia bit maps are both known. Protocol facts:
 docs/protocols-ati.md.
 
@@ -50,6 +51,7 @@ from drivers.netft.protocol import (
     rdt_command,
     status_text,
 )
+from drivers.netft.device_time import SampleCounterClock
 from drivers.netft.receiver import COALESCE_S, POLL_S, RdtReceiver
 from drivers.netft.sequence import REORDER_WINDOW_S, SequenceTracker
 from drivers.sensor import SensorBase, SensorHealth, SensorInfo, WrenchBatch, check_range, query_items
@@ -145,6 +147,7 @@ class NetFTSensor(SensorBase):
         # decode side (under _decode_lock)
         self._decode_lock = threading.RLock()
         self._tracker = SequenceTracker(reorder_window_s=reorder_window_s)
+        self._sample_clock = SampleCounterClock()
         self._decoded: collections.deque[WrenchBatch] = collections.deque()
         self._decoded_samples = 0
         self._bias_done = threading.Event()
@@ -239,6 +242,7 @@ class NetFTSensor(SensorBase):
         self._tracker.rate_hz = rate
         internal_rate = to_float(api.get("runrate"))
         self._tracker.internal_rate_hz = internal_rate if internal_rate and internal_rate > 0 else INTERNAL_RATE_HZ
+        self._sample_clock.internal_rate_hz = self._tracker.internal_rate_hz
         self.info = SensorInfo(
             transport="netft",
             serial=api.get("cfgcalsn") or calibration_page.get("calsn", ""),
@@ -414,7 +418,8 @@ class NetFTSensor(SensorBase):
                 self._status_error_count += int(error_count)
             self._last_status = int(status[-1])
             batch = WrenchBatch(time_s=times, wrench=counts * self._scale, counts=counts, status=status,
-                                sequence=records["rdt_sequence"].astype(np.int64), saturated=errors)
+                                sequence=records["rdt_sequence"].astype(np.int64), saturated=errors,
+                                device_time_s=self._sample_clock.device_times(records["ft_sequence"]))
             self.delivered += len(batch)
             self._decoded.append(batch)
             self._decoded_samples += len(batch)

@@ -2,15 +2,17 @@
 
 - :mod:`ftacq.dynamics.model`: Pinocchio's sensor-frame motion and body regressor; the predicted wrench (RNEA).
 - :mod:`ftacq.dynamics.identify`: physically consistent least squares, 1σ, conditioning, held-out error, lag.
-- :mod:`ftacq.dynamics.timing`: one host clock for sensor and robot samples; resampling between their rates.
+- :mod:`ftacq.dynamics.clock`: one host clock for sensor and robot samples (the minimum-delay line).
+- :mod:`ftacq.dynamics.timing`: resampling between the sensor's and the robot's rates.
 - :mod:`ftacq.dynamics.compensate`: :func:`compensate_moving`, the batch compensation every stream uses.
 """
 
 from ftacq.dynamics.compensate import compensate_moving
 from ftacq.dynamics.identify import DynamicsResult, MotionRecord, estimate_lag, identify_dynamics
 from ftacq.dynamics.model import SensorDynamics, WrenchPredictor, inertial_parameters, predict_moving, pseudo_inertia
-from ftacq.dynamics.timing import box_average, device_to_host_clock, interpolate_rows
+from ftacq.dynamics.clock import DeviceClock, device_to_host_clock
+from ftacq.dynamics.timing import box_average, interpolate_rows
 
 __all__ = ["compensate_moving", "DynamicsResult", "MotionRecord", "estimate_lag", "identify_dynamics",
            "SensorDynamics", "WrenchPredictor", "inertial_parameters", "predict_moving", "pseudo_inertia", "box_average",
-           "device_to_host_clock", "interpolate_rows"]
+           "device_to_host_clock", "DeviceClock", "interpolate_rows"]

@@ -24,6 +24,7 @@ import numpy as np
 from ftacq.app.helptext import examples
 
 if TYPE_CHECKING:
+    from ftacq.dynamics.clock import SampleClock
     from procedures.bias_health import DriftCompensator
     from procedures.dynamic_compensation import DynamicCompensator
     from procedures.monitor import HealthCheck
@@ -178,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq import __version__
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.app.readout import LiveReadout, format_summary
+    from ftacq.dynamics.clock import SampleClock
     from ftacq.kinematics import ur_model
     from procedures.monitor import LiveMonitor
 
@@ -253,17 +255,22 @@ def run(args: argparse.Namespace) -> int:
         header = [f"ftacq {__version__} monitor recording", f"source: {source}", f"sensor: {sensor_url}",
                   f"robot: {robot_host} ({model.name})",
                   f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
-                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
+                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange",
+                  "times: time_s = receive time; sample_time_s = the sensor's own clock (device_time_s) on the host "
+                  "monotonic clock through the minimum-delay line, clock_uncertainty_s its uncertainty "
+                  "(docs/dynamics.md, How the clocks are aligned)"]
         readout = LiveReadout()
         stack.callback(readout.close)
         dynamic = None
+        sample_clock = SampleClock()  # one sensor clock for the record and the dynamic compensation
         if calibration is not None:
-            dynamic = _choose_compensator(calibration, model, robot_host, stack, sensor)
+            dynamic = _choose_compensator(calibration, model, robot_host, stack, sample_clock)
             if dynamic is not None and compensator is not None:  # (the drift compensator: built above with it)
                 compensator.moving = dynamic  # the drift tracker's compensation while the arm moves
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=compensator, checks=checks,
-                              listeners=[dashboard, readout], record_path=args.record, record_header=header)
+                              listeners=[dashboard, readout], record_path=args.record, record_header=header,
+                              sample_clock=sample_clock)
         summary = monitor.run(duration_s=args.seconds)
         readout.close()
         dashboard.flush()
@@ -272,15 +279,16 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(summary))
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
-    if dynamic is not None and dynamic.static_batches:
-        print(f"dynamic compensation: {dynamic.static_batches} of "
-              f"{dynamic.static_batches + dynamic.dynamic_batches} reads had no robot state around them and "
-              "were compensated statically")
+    if dynamic is not None and (dynamic.static_batches or dynamic.uncompensated_batches):
+        total = dynamic.static_batches + dynamic.uncompensated_batches + dynamic.dynamic_batches
+        print(f"dynamic compensation: {dynamic.static_batches} of {total} reads fell outside the kept robot states "
+              f"and were compensated statically (pose at the samples' time); {dynamic.uncompensated_batches} had no "
+              "robot state near them and were left uncompensated (empty contact columns in the record)")
     return 0
 
 
 def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack,
-                        sensor) -> DynamicCompensator | None:
+                        sample_clock: SampleClock) -> DynamicCompensator | None:
     """The dynamic compensator when the calibration has inertia (with its own RTDE state stream), else None (the
     static one is kept), saying which on stderr."""
     if not calibration.has_dynamics:
@@ -289,13 +297,11 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
         return None
     from drivers.ur_stream import URStateStream
     from procedures.dynamic_compensation import DynamicCompensator
-    from procedures.excitation import counts_samples
 
     stream = URStateStream(robot_host)
     stack.callback(stream.close)
     stream.start()
-    compensator = DynamicCompensator(calibration, model, stream, counts_samples=counts_samples(sensor),
-                                     sample_rate_hz=sensor.info.rate_hz)
+    compensator = DynamicCompensator(calibration, model, stream, clock=sample_clock)
     print(f"ftacq monitor: dynamic compensation (tool inertia from the calibration; sensor lag "
           f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "
           "trajectory, else a filtered derivative of actual_qd", file=sys.stderr)
