@@ -3,10 +3,11 @@ the tool and tool swaps.
 
     .venv/bin/python benchmarks/drift.py            # one simulated hour + 10 tool swaps
     .venv/bin/python benchmarks/drift.py --minutes 20 --swaps 3
+    .venv/bin/python benchmarks/drift.py --rates-only --seeds 8 --rate-minutes 10   # the 1σ over 8 calibrations
 
 Time-scaled, without sockets: the simulated sensor's physics (tests/fakes/world.py SensorPhysics, the same code
 the simulated Net F/T serves) is sampled directly at 7 kHz in 0.1 s batches along a schedule, and the batches go
-through exactly what `ftacq monitor` runs (Calibration.compensate, then ftacq.drift.BiasHealth). Moving periods
+through exactly what `ftacq monitor` runs (Calibration.compensate, then ftacq.drift_health.BiasHealth). Moving periods
 are not sampled (the tracker ignores them; it only learns they happened). Wall time is a few seconds.
 
 Cell: the default simulated truth with a drift of +0.5, −0.5, +0.5 N/h (force) and ±0.01 N·m/h (torque), plus a
@@ -40,7 +41,9 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from ftacq.bias_estimate import estimate_biases  # noqa: E402
-from ftacq.drift import BiasHealth, DriftSettings  # noqa: E402
+from ftacq.calibration import Calibration  # noqa: E402
+from ftacq.drift import DriftSettings  # noqa: E402
+from ftacq.drift_health import BiasHealth  # noqa: E402
 from ftacq.identification import identify  # noqa: E402
 from ftacq.so3 import rotation_from_rotvec  # noqa: E402
 from tests.fakes.pose_records import cone_orientations, example_record, poses_from_orientations  # noqa: E402
@@ -96,6 +99,24 @@ def schedule(duration_s: float, rng: np.random.Generator, push_fraction: float =
     return [p for p in periods if p.end_s > p.start_s]
 
 
+def still_batches(physics: SensorPhysics, period: Period, rng: np.random.Generator):
+    """Yield (t (N,), wrench (N, 6)) batches of BATCH_S over a still period: the noiseless wrench at the batch's
+    first sample, the bias drift within the batch (linear), the sensor's white noise (what the simulated Net F/T
+    serves, sampled directly)."""
+    n_batch = int(RATE_HZ * BATCH_S)
+    t0 = period.start_s
+    while t0 < period.end_s - 1e-9:
+        t = t0 + np.arange(n_batch) / RATE_HZ
+        t = t[t < period.end_s]
+        t0 += BATCH_S
+        if len(t) == 0:
+            return
+        mean = physics.noiseless_wrench(period.pose, float(t[0]))
+        drift_in_batch = physics.bias_at(float(t[-1])) - physics.bias_at(float(t[0]))
+        frac = (t - t[0]) / max(t[-1] - t[0], 1e-9)
+        yield t, mean + frac[:, None] * drift_in_batch + rng.standard_normal((len(t), 6)) * physics._noise_sigma
+
+
 def push_wrench(push, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(N, 6) the push at sample times ``t`` (0.15 s ramps; trembling pushes wobble 5 %)."""
     start, end, wrench, tremble = push
@@ -126,7 +147,6 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
     truth = cell_truth(thermal)
     source = SettablePose()
     physics = SensorPhysics(truth, source, seed=seed + 1)
-    sigma = physics._noise_sigma  # per-sample noise of the simulated sensor
     health = BiasHealth(calibration, settings, auto_tare=True)
     none, periodic, tracker = Strategy("no tare"), Strategy(f"tare every {TARE_EVERY_S / 60:.0f} min"), \
         Strategy("live tracker")
@@ -135,7 +155,6 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
     next_tare_s = TARE_EVERY_S
     absorbed = pushes_seen = contact_rejects = gate_rejects = warnings_in_push = warnings_clean = 0
     tares_done = suspended = 0
-    n_batch = int(RATE_HZ * BATCH_S)
     still_rest = []  # (window start, end) of push-free windows: error measured there
     for period in schedule(duration_s, rng):
         flange_R_base = rotation_from_rotvec(period.pose[3:6]).T
@@ -144,17 +163,7 @@ def run_hour(duration_s: float, seed: int, calibration, settings: DriftSettings,
             continue
         if period.push is not None:
             pushes_seen += 1
-        t0 = period.start_s
-        while t0 < period.end_s - 1e-9:
-            t = t0 + np.arange(n_batch) / RATE_HZ
-            t = t[t < period.end_s]
-            t0 += BATCH_S
-            if len(t) == 0:
-                break
-            mean = physics.noiseless_wrench(period.pose, float(t[0]))
-            drift_in_batch = (physics.bias_at(float(t[-1])) - physics.bias_at(float(t[0])))
-            frac = (t - t[0]) / max(t[-1] - t[0], 1e-9)
-            wrench = mean + frac[:, None] * drift_in_batch + rng.standard_normal((len(t), 6)) * sigma
+        for t, wrench in still_batches(physics, period, rng):
             in_push = False
             if period.push is not None:
                 contact = push_wrench(period.push, t, rng)
@@ -238,14 +247,7 @@ def run_swaps(count: int, seed: int, calibration, settings: DriftSettings) -> tu
                 continue
             if swapped_at is not None and still_after_swap is None:
                 still_after_swap = period.start_s
-            t0 = period.start_s
-            n_batch = int(RATE_HZ * BATCH_S)
-            while t0 < period.end_s - 1e-9:
-                t = t0 + np.arange(n_batch) / RATE_HZ
-                t = t[t < period.end_s]
-                t0 += BATCH_S
-                wrench = physics.noiseless_wrench(period.pose, float(t[0])) + \
-                    rng.standard_normal((len(t), 6)) * physics._noise_sigma
+            for t, wrench in still_batches(physics, period, rng):
                 notices = health.feed(t, calibration.compensate(wrench, flange_R_base), True, flange_R_base)
                 if still_after_swap is not None and warned is None and any(n.level == "WARN" for n in notices):
                     warned = next(n.time_s for n in notices if n.level == "WARN")
@@ -284,14 +286,15 @@ def run_rate(duration_s: float, seed: int, calibration, settings: DriftSettings,
              group: str, step: np.ndarray | None = None) -> dict:
     """Drive the live tracker (with --auto-tare, biases of unknown age) through a push-free schedule on ``truth``;
     per rest window after the first still period: (offset − true offset) / the tracker's printed 1σ on the group's
-    channels. ``step`` is added to the biases half-way through (during a move or a still period, as it falls)."""
+    channels (``ratios``), and the calibration's own model error at the window's orientation (the noiseless
+    compensated wrench minus the true offset) over the model 1σ the tracker uses there (``model_ratios``). ``step``
+    is added to the biases half-way through (during a move or a still period, as it falls)."""
     rng = np.random.default_rng(seed)
     physics = SensorPhysics(truth, SettablePose(), seed=seed + 1)
     health = BiasHealth(calibration, settings, age_s=3600.0, auto_tare=True)
     file_bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
     channels = slice(0, 3) if group == "force" else slice(3, 6)
-    ratios, errors, gated, windows, notices = [], [], 0, 0, []
-    n_batch = int(RATE_HZ * BATCH_S)
+    ratios, errors, model_ratios, gated, windows, notices = [], [], [], 0, 0, []
     first_still_end = None
     stepped = False
     for period in schedule(duration_s, rng, push_fraction=0.0):
@@ -303,17 +306,7 @@ def run_rate(duration_s: float, seed: int, calibration, settings: DriftSettings,
             health.feed(np.array([period.start_s]), np.zeros((1, 6)), False)
             continue
         first_still_end = period.end_s if first_still_end is None else first_still_end
-        t0 = period.start_s
-        while t0 < period.end_s - 1e-9:
-            t = t0 + np.arange(n_batch) / RATE_HZ
-            t = t[t < period.end_s]
-            t0 += BATCH_S
-            if len(t) == 0:
-                break
-            mean = physics.noiseless_wrench(period.pose, float(t[0]))
-            frac = (t - t[0]) / max(t[-1] - t[0], 1e-9)
-            wrench = mean + frac[:, None] * (physics.bias_at(float(t[-1])) - physics.bias_at(float(t[0]))) \
-                + rng.standard_normal((len(t), 6)) * physics._noise_sigma
+        for t, wrench in still_batches(physics, period, rng):
             before = health.observations
             notices += health.feed(t, calibration.compensate(wrench, flange_R_base), True, flange_R_base)
             if health.observations == before or health.last is None:
@@ -327,8 +320,12 @@ def run_rate(duration_s: float, seed: int, calibration, settings: DriftSettings,
             error = health.tracker.offset(window.mid_s) - true_offset
             errors.append(error[channels])
             ratios.append(error[channels] / health.tracker.sigma(window.mid_s)[channels])
+            model_error = calibration.compensate(physics.noiseless_wrench(period.pose, window.mid_s)
+                                                 - physics.contact_wrench, flange_R_base) - true_offset
+            model_ratios.append(model_error[channels] / health.tracker.model_sigma(flange_R_base)[channels])
     ratios_a = np.abs(np.array(ratios))
-    return {"max": float(ratios_a.max()), "rms": float(np.sqrt(np.mean(ratios_a**2))),
+    return {"ratios": np.array(ratios), "model_ratios": np.array(model_ratios),
+            "max": float(ratios_a.max()), "rms": float(np.sqrt(np.mean(ratios_a**2))),
             "beyond3": float(np.mean(ratios_a > 3.0) * 100), "gated": gated / max(windows, 1) * 100,
             "windows": windows, "reacquired": health.tracker.reacquired,
             "steps": sum("a step, not drift" in n.text for n in notices),
@@ -337,24 +334,45 @@ def run_rate(duration_s: float, seed: int, calibration, settings: DriftSettings,
             "change": float(np.abs(physics.bias_at(duration_s) - physics.bias_at(0.0))[channels].max())}
 
 
-def report_rates(minutes: float, seed: int, calibration, settings: DriftSettings) -> None:
-    """Print the drift-rate table (one row per rate and shape) and the step case."""
+def calibrate(seed: int, samples_per_pose: int) -> Calibration:
+    """The calibration identified from the simulated 48-pose record of ``seed`` (``samples_per_pose`` per pose)."""
+    return identify(example_record(seed=seed, samples_per_pose=samples_per_pose), mount="floor").calibration
+
+
+def report_rates(minutes: float, seeds: list[int], settings: DriftSettings, samples_per_pose: int) -> None:
+    """Print the drift-rate table (one row per rate and shape; with several seeds, each seed its own calibration
+    and schedule, the figures pooled over them) and the step case (first seed)."""
+    calibrations = {seed: calibrate(seed, samples_per_pose) for seed in seeds}
     print("")
-    print(f"== drift rates: {minutes:g} simulated min each, push-free, --auto-tare, biases of unknown age; error = "
-          "tracked offset − true offset, per rest window after the first still period, in the tracker's printed 1σ "
-          "(the group's three channels)")
-    print(f"  {'drift':>16} {'shape':>8} {'change':>11} {'max e/σ':>8} {'RMS e/σ':>8} {'> 3σ':>7} {'gated':>7} "
-          f"{'windows':>8} {'re-acq':>6} {'steps':>5} {'max |e|':>10}")
+    print(f"== drift rates: {minutes:g} simulated min each, push-free, --auto-tare, biases of unknown age, seed"
+          + (f"s {seeds[0]}-{seeds[-1]} (a calibration and a schedule each; pooled)" if len(seeds) > 1
+             else f" {seeds[0]}")
+          + "; error = tracked offset − true offset, per rest window after the first still period, in the "
+          "tracker's printed 1σ (the group's three channels); cal e/σ: the calibration's own model error at the "
+          "windows' orientations over its model 1σ, RMS per channel")
+    print(f"  {'drift':>16} {'shape':>8} {'change':>11} {'max e/σ':>8} {'RMS e/σ':>8} {'> 3σ':>7} {'> 3σ per ch':>12} "
+          f"{'gated':>7} {'windows':>8} {'re-acq':>6} {'steps':>5} {'max |e|':>10} {'cal e/σ':>16}"
+          + ("  per-seed RMS e/σ" if len(seeds) > 1 else ""))
     for group, rate in RATE_ROWS:
         unit = "N" if group == "force" else "N·m"
         for shape in ("ramp", "warm-up"):
-            row = run_rate(minutes * 60.0, seed, calibration, settings, drift_truth(group, rate, shape), group)
-            print(f"  {rate:>9g} {unit + '/h':>6} {shape:>8} {row['change']:>7.3g} {unit:<3} {row['max']:>8.2f} "
-                  f"{row['rms']:>8.2f} {row['beyond3']:>6.2f}% {row['gated']:>6.2f}% {row['windows']:>8d} "
-                  f"{row['reacquired']:>6d} {row['steps']:>5d} {row['max_error'] * 1e3:>7.2f} m{unit}")
+            rows = [run_rate(minutes * 60.0, seed, calibrations[seed], settings, drift_truth(group, rate, shape),
+                             group) for seed in seeds]
+            ratios = np.abs(np.concatenate([row["ratios"] for row in rows]))
+            model = np.concatenate([row["model_ratios"] for row in rows])
+            windows = sum(row["windows"] for row in rows)
+            gated = sum(row["gated"] * row["windows"] for row in rows) / max(windows, 1)
+            per_seed = [row["rms"] for row in rows]
+            print(f"  {rate:>9g} {unit + '/h':>6} {shape:>8} {rows[0]['change']:>7.3g} {unit:<3} "
+                  f"{ratios.max():>8.2f} {np.sqrt(np.mean(ratios**2)):>8.2f} {np.mean(ratios > 3.0) * 100:>6.2f}% "
+                  f"{' '.join(f'{v:d}' for v in (ratios > 3.0).sum(axis=0)):>12} {gated:>6.2f}% {windows:>8d} "
+                  f"{sum(row['reacquired'] for row in rows):>6d} {sum(row['steps'] for row in rows):>5d} "
+                  f"{max(row['max_error'] for row in rows) * 1e3:>7.2f} m{unit} "
+                  f"{' '.join(f'{v:.2f}' for v in np.sqrt(np.mean(model**2, axis=0))):>16}"
+                  + (f"  {min(per_seed):.2f}-{max(per_seed):.2f}" if len(seeds) > 1 else ""), flush=True)
     size, rate = STEP_CASE
-    row = run_rate(minutes * 60.0, seed, calibration, settings, drift_truth("force", rate, "warm-up"), "force",
-                   step=size)
+    row = run_rate(minutes * 60.0, seeds[0], calibrations[seeds[0]], settings,
+                   drift_truth("force", rate, "warm-up"), "force", step=size)
     print(f"  step case: warm-up from {rate:g} N/h and a bias step of {size[:3].tolist()} N half-way: called a step "
           f"{row['steps']} time(s), re-acquired {row['reacquired']}, auto-tare suspended {row['suspended']} time(s), "
           f"{row['gated']:.1f} % of {row['windows']} rest windows gated (every one after the step: tare)")
@@ -407,9 +425,13 @@ def main() -> int:
     parser.add_argument("--rate-minutes", type=float, default=30.0,
                         help="simulated minutes per row of the drift-rate table (0: skip it)")
     parser.add_argument("--rates-only", action="store_true", help="print only the drift-rate table")
+    parser.add_argument("--samples-per-pose", type=int, default=500,
+                        help="samples averaged per pose of the calibration's record (a default run: 0.5 s at 7 kHz = 3500)")
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="drift-rate table over this many seeds from --seed on (a calibration and schedule each)")
     args = parser.parse_args()
     started = time.perf_counter()
-    calibration = identify(example_record(seed=args.seed), mount="floor").calibration
+    calibration = calibrate(args.seed, args.samples_per_pose)
     settings = DriftSettings()
     if args.rate_walk is not None:
         settings = replace(settings, rate_walk_per_h=(args.rate_walk,) * 3 + (args.rate_walk * 0.03,) * 3)
@@ -418,7 +440,8 @@ def main() -> int:
           f"with simulated batches), calibration force-bias 1σ "
           + " ".join(f"{v * 1000:.2f}" for v in sigma_bias) + " mN")
     if args.rate_minutes > 0:
-        report_rates(args.rate_minutes, args.seed, calibration, settings)
+        report_rates(args.rate_minutes, list(range(args.seed, args.seed + args.seeds)), settings,
+                     args.samples_per_pose)
     if args.rates_only:
         print(f"wall time {time.perf_counter() - started:.1f} s")
         return 0

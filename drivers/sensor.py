@@ -73,11 +73,6 @@ class WrenchBatch:
     def __len__(self) -> int:
         return int(self.time_s.shape[0])
 
-    @property
-    def has_device_clock(self) -> bool:
-        """True when the samples carry the device's own times (``device_time_s`` finite)."""
-        return bool(self.device_time_s.shape[0]) and bool(np.isfinite(self.device_time_s[-1]))
-
     def select(self, index) -> "WrenchBatch":
         """Return the samples at ``index`` (a boolean mask or indices), every field alike."""
         return WrenchBatch(self.time_s[index], self.wrench[index], self.counts[index], self.status[index],

@@ -16,7 +16,8 @@ their own error δθ, common to every pose; it enters the estimate as −A δθ 
 
     cov(b̂) = (Σ W_i)⁻¹ + A Σ_θ Aᵀ
 
-with Σ_θ = diag(1σ²) of the calibration file (its correlations are not stored: the diagonal is an approximation).
+with Σ_θ = D R D, D = diag(1σ) of the calibration file and R its ``model_correlation`` (the identification's
+correlations between the kept parameters' errors; a file without it, or the biases, count as uncorrelated).
 With two or more poses, χ²/dof of the poses' scatter about b̂ (model error included) is reported, and the
 covariance is scaled by it when it exceeds 1 (the data say the noise is larger than the model assumed).
 """
@@ -28,12 +29,13 @@ from typing import Any
 
 import numpy as np
 
+from ftacq.calfile import MODEL_CORRELATION_KEY, MODEL_CORRELATION_PARAMETERS
 from ftacq.calibration import Calibration
 from ftacq.identification.pose_error import orientation_sensitivity
 from ftacq.identification.refine import PARAMETER_SLICES, ModelParameters, jacobian
 from ftacq.provenance import bias_entry, bias_history, with_bias_entry
 
-MODEL_PARAMETERS = ("sensor_rotation_rad", "gravity_base", "center_of_mass_m")
+MODEL_PARAMETERS = MODEL_CORRELATION_PARAMETERS
 """The parameters a tare keeps (their 1σ propagate into the new biases)."""
 VARIANCE_FLOOR = 1e-18
 """Added to each channel's variance so exact (noise-free) data stay finite, N² and (N·m)²."""
@@ -78,13 +80,23 @@ class BiasEstimate:
 
 
 def _parameter_covariance(calibration: Calibration, names: tuple[str, ...]) -> np.ndarray:
-    """Return diag(1σ²) of the named parameters (zeros where the calibration gives no 1σ)."""
+    """Return the covariance of the named parameters' errors: their 1σ (zeros where the calibration gives none)
+    with the file's ``model_correlation`` between the parameters it covers (module docstring), else uncorrelated."""
     sigma = []
     for name in names:
         value = calibration.uncertainty.get(name)
         array = np.zeros(3) if value is None else np.asarray(value, dtype=float).reshape(3)
         sigma.append(np.where(np.isfinite(array), array, 0.0))
-    return np.diag(np.concatenate(sigma) ** 2)
+    sd = np.concatenate(sigma)
+    correlation = np.eye(len(sd))
+    entry = calibration.metadata.get(MODEL_CORRELATION_KEY)
+    if entry is not None:
+        stored = np.asarray(entry["matrix"], dtype=float)
+        index = {name: 3 * k for k, name in enumerate(MODEL_CORRELATION_PARAMETERS)}
+        rows = np.array([index[name] + i if name in index else -1 for name in names for i in range(3)])
+        covered = np.flatnonzero(rows >= 0)
+        correlation[np.ix_(covered, covered)] = stored[np.ix_(rows[covered], rows[covered])]
+    return correlation * np.outer(sd, sd)
 
 
 def _columns(names: tuple[str, ...]) -> np.ndarray:
@@ -119,8 +131,8 @@ def compensation_sigma(calibration: Calibration, flange_R_base: np.ndarray, incl
     own uncertainty predicts: every parameter's 1σ (the biases' only if ``include_biases``) through the model,
     plus τ and σ_θ.
 
-    Parameters are taken as independent (the file stores no correlations), which overstates the error where the
-    identification's correlations cancel: a conservative figure, used for thresholds.
+    The parameters' errors are correlated as the file's ``model_correlation`` says (uncorrelated without it,
+    which overstates the error where the identification's correlations cancel).
     """
     parameters, per_pose = compensation_variance_parts(calibration, flange_R_base, include_biases)
     return np.sqrt(parameters + per_pose)

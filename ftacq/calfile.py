@@ -11,8 +11,10 @@ keys below, load as they are):
 Optional keys written from the identification: ``uncertainty`` (1σ per key above, plus
 ``sensor_rotation_rad`` as a small rotation about the sensor axes), ``mount`` and ``base_tilt_relative_deg``,
 ``method``, ``residuals`` (per pose labels and [fx..tz] residual), ``outliers``, ``warnings``,
-``diagnostics``, ``input``, ``software_version``, ``created_utc``. Unknown keys are kept in
-``Calibration.metadata`` on load.
+``diagnostics``, ``input``, ``software_version``, ``created_utc``, and ``model_correlation``: the correlations
+between the errors of ``sensor_rotation_rad``, ``gravity_base`` and ``center_of_mass_m`` (the parameters a tare
+keeps), ``{"parameters": [names], "matrix": 9×9}``, so that their 1σ propagate with their correlations (checked on
+load: symmetric, unit diagonal, |r| ≤ 1). Unknown keys are kept in ``Calibration.metadata`` on load.
 
 Optional dynamics keys (version 2, :mod:`ftacq.dynamics`): ``sensor_offset_m`` [3] m, the sensor origin in the
 flange frame (CELL.toml ``tool.sensor_offset_m``); ``inertia_kg_m2`` 3×3, the tool's inertia about its centre of
@@ -94,6 +96,12 @@ _LIMIT_OF_KEY = {
     "inertia_kg_m2": MAX_INERTIA_KG_M2,
 }
 """|value| bound of every element of each required key (beyond a sensor's range: a unit or file mistake)."""
+MODEL_CORRELATION_KEY = "model_correlation"
+"""Optional key: correlations of the model parameters' errors (module docstring)."""
+MODEL_CORRELATION_PARAMETERS = ("sensor_rotation_rad", "gravity_base", "center_of_mass_m")
+"""The parameters ``model_correlation`` covers, three rows each, in this order."""
+CORRELATION_TOLERANCE = 1e-6
+"""Slack on |r| ≤ 1, symmetry and the unit diagonal of ``model_correlation`` (rounding in the file)."""
 _MODEL_KEYS = set(REQUIRED_KEYS) | set(OPTIONAL_ARRAY_KEYS) | {"format", "version", "uncertainty"}
 
 
@@ -275,6 +283,7 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
                 check_number(item, f"{path}: key 'uncertainty.{name}'" + (f"[{k}]" if isinstance(sigma, list) else ""),
                              low=0.0)
     _check_provenance(path, document)
+    _check_model_correlation(path, document.get(MODEL_CORRELATION_KEY))
     metadata = {key: value for key, value in document.items() if key not in _MODEL_KEYS}
     return Calibration(
         sensor_rotation=rotation,
@@ -286,6 +295,27 @@ def calibration_from_dict(document: Any, path: str | os.PathLike = "<calibration
         metadata=metadata,
         **optional,
     )
+
+
+def _check_model_correlation(path: Path, entry: Any) -> None:
+    """Check ``model_correlation`` (absent is fine): the parameters named, a symmetric 9×9 with unit diagonal."""
+    if entry is None:
+        return
+    where = f"{path}: key '{MODEL_CORRELATION_KEY}'"
+    if not isinstance(entry, dict) or list(entry.get("parameters") or []) != list(MODEL_CORRELATION_PARAMETERS):
+        raise InputError(f"{where}: expected {{\"parameters\": {list(MODEL_CORRELATION_PARAMETERS)}, \"matrix\": "
+                         "9×9}")
+    try:
+        matrix = np.asarray(entry.get("matrix"), dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}.matrix: expected a 9×9 array of numbers") from None
+    size = 3 * len(MODEL_CORRELATION_PARAMETERS)
+    if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)):
+        raise InputError(f"{where}.matrix: expected a {size}×{size} array of numbers, got shape {matrix.shape}")
+    if np.abs(matrix - matrix.T).max() > CORRELATION_TOLERANCE or \
+            np.abs(np.diag(matrix) - 1.0).max() > CORRELATION_TOLERANCE or \
+            np.abs(matrix).max() > 1.0 + CORRELATION_TOLERANCE:
+        raise InputError(f"{where}.matrix: not a correlation matrix (symmetric, unit diagonal, |r| ≤ 1)")
 
 
 def _check_provenance(path: Path, document: dict) -> None:

@@ -5,9 +5,9 @@ reading minus the predicted tool weight and the file's biases), the batch's stil
 the robot's joint motion) and the flange orientation. At rest and without contact that residual is the biases'
 change since the file, plus the calibration's model error at this orientation, plus noise.
 
-1. **Rest windows** (:class:`RestWindows`). After the arm has been still for ``settle_s``, consecutive windows of
-   ``window_s`` are summarised: mean, sample std, count, and the least-squares slope of each channel within the
-   window. Motion discards the open window.
+1. **Rest windows** (:class:`ftacq.rest_windows.RestWindows`). After the arm has been still for ``settle_s``,
+   consecutive windows of ``window_s`` are summarised: mean, sample std, count, and the least-squares slope of
+   each channel within the window. Motion discards the open window.
 2. **Contact detector.** A window is contact (not used) when any channel's std exceeds ``std_ratio`` × the sensor's
    reference noise (the median std of recent accepted windows), or its in-window slope differs from the tracked
    drift rate by more than ``slope_sigmas`` standard errors: a hand on the tool trembles and comes and goes.
@@ -39,38 +39,38 @@ change since the file, plus the calibration's model error at this orientation, p
    drift faster than tracked (the filter restarts from the line: "re-acquired"); otherwise it is a **step**, kept
    refused until windows agree with the track again and are nearer it than the track plus the step (the track's
    growing uncertainty never swallows it; no second drift-or-step test while it stands).
-6. **At-rest check** (:class:`RestCheck`). The wrench the user sees at rest (the residual minus the applied
-   correction) is *off* when a channel exceeds max(``warn_sigmas`` × the 1σ the calibration, the tracker and the
-   window's noise explain, ``noise_fraction`` × one sample's noise) for ``warn_after_s``: significant and visible.
-   Windows the contact detector flags (a trembling hand) are not at rest and are skipped; a perfectly steady push
-   held longer than ``warn_after_s`` is reported (at one pose it looks like a changed tool or a bias step).
-7. **Trust** (:class:`BiasHealth`): ``--auto-tare`` subtracts the tracked offset only while it is trusted: no step
-   stands against it and its 1σ now is within ``trust_noise_fraction`` × one sample's noise. Otherwise the
-   correction is withdrawn (the stream is the calibration's compensation) and a notice says why.
+6. **At-rest check** (:class:`ftacq.drift_health.RestCheck`). The wrench the user sees at rest (the residual minus
+   the applied correction) is *off* when a channel exceeds max(``warn_sigmas`` × the 1σ the calibration, the tracker
+   and the window's noise explain, ``noise_fraction`` × one sample's noise) for ``warn_after_s``: significant and
+   visible. Windows the contact detector flags (a trembling hand) are not at rest and are skipped; a perfectly
+   steady push held longer than ``warn_after_s`` is reported (at one pose it looks like a changed tool or a bias
+   step).
+7. **Trust** (:class:`ftacq.drift_health.BiasHealth`): ``--auto-tare`` subtracts the tracked offset only while it is
+   trusted: no step stands against it and its 1σ now is within ``trust_noise_fraction`` × one sample's noise.
+   Otherwise the correction is withdrawn (the stream is the calibration's compensation) and a notice says why.
 
-This module is over 500 lines: the tracker, its rest windows and the at-rest check share one state and one set of
-thresholds (:class:`DriftSettings`); the drift-or-step test is its own module.
+Modules: the rest windows (step 1) :mod:`ftacq.rest_windows`; the tracker (steps 2-5) here; the drift-or-step test
+:mod:`ftacq.drift_or_step`; the at-rest check and trust (steps 6-7) :mod:`ftacq.drift_health`. One set of thresholds
+for all of them: :class:`DriftSettings`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from ftacq.bias_estimate import compensation_variance_parts
 from ftacq.calibration import Calibration
 from ftacq.drift_or_step import Judgement, judge
+from ftacq.rest_windows import RestWindow, same_orientation
 
 CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 MAX_PRIOR_AGE_S = 3600.0
 """The prior's drift allowance counts at most this much time since the last calibration or tare, s."""
 REFERENCE_NOISE_WINDOWS = 21
 """Accepted windows whose median std is the contact detector's reference noise."""
-SAME_ORIENTATION_RAD = 0.01
-"""Two windows whose flange orientations differ by less than this angle (rad) share the model error m."""
 REACQUIRE_WINDOWS = 40
 """At most this many refused windows are kept for the drift-or-step test."""
 
@@ -133,104 +133,6 @@ class DriftSettings:
 
 
 @dataclass(frozen=True)
-class RestWindow:
-    """One window of samples at rest (residuals: compensated with the file's calibration).
-
-    Attributes:
-        start_s, end_s: first and last sample time, s. count: samples. mean, std: (6,) N and N·m.
-        slope_t: (6,) in-window slope over its standard error. flange_R_base: (3, 3) orientation (or None).
-        slope, slope_se: (6,) in-window slope per s and its standard error (None: not measured).
-    """
-
-    start_s: float
-    end_s: float
-    count: int
-    mean: np.ndarray
-    std: np.ndarray
-    slope_t: np.ndarray
-    flange_R_base: np.ndarray | None
-    slope: np.ndarray | None = None
-    slope_se: np.ndarray | None = None
-
-    @property
-    def mid_s(self) -> float:
-        return 0.5 * (self.start_s + self.end_s)
-
-    @property
-    def noise_variance(self) -> np.ndarray:
-        """(6,) variance of the mean from the sensor's noise, std²/count (samples independent)."""
-        return self.std**2 / max(self.count, 1)
-
-
-def summarise_window(time_s: np.ndarray, values: np.ndarray, flange_R_base: np.ndarray | None) -> RestWindow:
-    """Return the :class:`RestWindow` of samples (N,) s and (N, 6)."""
-    t = time_s - time_s.mean()
-    mean = values.mean(axis=0)
-    centred = values - mean
-    std = centred.std(axis=0, ddof=1) if len(values) > 1 else np.zeros(6)
-    sxx = float(t @ t)
-    if sxx > 0 and len(values) > 2:
-        slope = (t @ centred) / sxx
-        residual = centred - np.outer(t, slope)
-        slope_se = np.sqrt(np.maximum((residual**2).sum(axis=0) / (len(values) - 2), 1e-300) / sxx)
-        return RestWindow(float(time_s[0]), float(time_s[-1]), int(len(values)), mean, std, slope / slope_se,
-                          flange_R_base, slope, slope_se)
-    return RestWindow(float(time_s[0]), float(time_s[-1]), int(len(values)), mean, std, np.zeros(6), flange_R_base)
-
-
-def same_orientation(a: np.ndarray | None, b: np.ndarray | None, tolerance_rad: float = SAME_ORIENTATION_RAD) -> bool:
-    """True when two flange orientations (3, 3) differ by less than ``tolerance_rad`` (two unknowns are the same)."""
-    if a is None or b is None:
-        return a is None and b is None
-    cos = (float(np.trace(np.asarray(a).T @ np.asarray(b))) - 1.0) / 2.0
-    return math.acos(min(1.0, max(-1.0, cos))) < tolerance_rad
-
-
-class RestWindows:
-    """Cuts batches of residual samples into rest windows (module docstring, step 1)."""
-
-    def __init__(self, window_s: float, settle_s: float) -> None:
-        self.window_s = float(window_s)
-        self.settle_s = float(settle_s)
-        self._still_since: float | None = None
-        self._times: list[np.ndarray] = []
-        self._values: list[np.ndarray] = []
-
-    @property
-    def still_since_s(self) -> float | None:
-        """When the current stillness began (s), or None while moving."""
-        return self._still_since
-
-    def feed(self, time_s: np.ndarray, values: np.ndarray, still: bool,
-             flange_R_base: np.ndarray | None = None) -> list[RestWindow]:
-        """Add a batch (all samples share ``still``); return the windows it completed."""
-        if len(time_s) == 0:
-            return []
-        if not still:
-            self._still_since = None
-            self._times.clear()
-            self._values.clear()
-            return []
-        if self._still_since is None:
-            self._still_since = float(time_s[0])
-        start = self._still_since + self.settle_s
-        keep = time_s >= start
-        if not keep.any():
-            return []
-        self._times.append(np.asarray(time_s[keep], dtype=float))
-        self._values.append(np.asarray(values[keep], dtype=float))
-        out = []
-        while self._times and self._times[-1][-1] - self._times[0][0] >= self.window_s:
-            times = np.concatenate(self._times)
-            vals = np.concatenate(self._values)
-            end = int(np.searchsorted(times, times[0] + self.window_s, side="left"))  # [start, start + window)
-            out.append(summarise_window(times[:end], vals[:end], flange_R_base))
-            self._times, self._values = ([times[end:]], [vals[end:]]) if end < len(times) else ([], [])
-        return out
-
-
-
-@dataclass(frozen=True)
 class Observation:
     """What the tracker did with one rest window.
 
@@ -264,6 +166,21 @@ class Step:
     reason: str
 
 
+UNKNOWN_BIAS_SIGMA = {"force_bias": 0.01, "torque_bias": 0.0005}
+"""1σ assumed for a calibration file that gives none for its biases, N and N·m (a typical identification's
+order of magnitude; only the tracker's prior and the at-rest threshold use it)."""
+
+
+def file_bias_sigma(calibration: Calibration) -> np.ndarray:
+    """(6,) the file's 1σ of [force_bias, torque_bias], N and N·m (:data:`UNKNOWN_BIAS_SIGMA` where it gives none)."""
+    out = []
+    for key in ("force_bias", "torque_bias"):
+        value = calibration.uncertainty.get(key)
+        array = np.full(3, np.nan) if value is None else np.asarray(value, dtype=float).reshape(3)
+        out.append(np.where(np.isfinite(array), array, UNKNOWN_BIAS_SIGMA[key]))
+    return np.concatenate(out)
+
+
 class DriftTracker:
     """Kalman filter on the biases' offset from the calibration file, its rate and the model error at the current
     orientation (module docstring, steps 2-5).
@@ -278,7 +195,7 @@ class DriftTracker:
         self.calibration = calibration
         self.settings = settings or DriftSettings()
         s = self.settings
-        sigma_bias = np.concatenate([_sigma(calibration, "force_bias"), _sigma(calibration, "torque_bias")])
+        sigma_bias = file_bias_sigma(calibration)
         age = min(max(float(age_s), 0.0), MAX_PRIOR_AGE_S)
         self.x = np.zeros((6, 4))  # [b, ḃ, m, c] per channel (module docstring, step 3)
         self.P = np.zeros((6, 4, 4))
@@ -503,223 +420,4 @@ class DriftTracker:
         self._accept(window)
 
 
-UNKNOWN_BIAS_SIGMA = {"force_bias": 0.01, "torque_bias": 0.0005}
-"""1σ assumed for a calibration file that gives none for its biases, N and N·m (a typical identification's
-order of magnitude; only the tracker's prior and the at-rest threshold use it)."""
-
-
-def _sigma(calibration: Calibration, key: str) -> np.ndarray:
-    value = calibration.uncertainty.get(key)
-    if value is None:
-        return np.full(3, UNKNOWN_BIAS_SIGMA[key])
-    array = np.asarray(value, dtype=float).reshape(3)
-    return np.where(np.isfinite(array), array, UNKNOWN_BIAS_SIGMA[key])
-
-
-@dataclass(frozen=True)
-class RestVerdict:
-    """The at-rest check of one window: ``off`` channels, the residual the user sees and the thresholds."""
-
-    time_s: float
-    residual: np.ndarray
-    threshold: np.ndarray
-    off: bool
-
-
-class RestCheck:
-    """Decides when the compensated wrench at rest is off (module docstring, step 5); reports state changes."""
-
-    def __init__(self, calibration: Calibration, settings: DriftSettings | None = None) -> None:
-        self.settings = settings or DriftSettings()
-        self.calibration = calibration
-        self.sigma_bias = np.concatenate([_sigma(calibration, "force_bias"), _sigma(calibration, "torque_bias")])
-        self.off_since_s: float | None = None
-        self.warning = False
-
-    def check(self, window: RestWindow, applied: np.ndarray, tracker: DriftTracker) -> tuple[RestVerdict, bool]:
-        """Return (verdict of this window, True when the warning state changed)."""
-        s = self.settings
-        residual = window.mean - applied
-        explained = np.sqrt(self.sigma_bias**2 + tracker.model_sigma(window.flange_R_base) ** 2
-                            + window.std**2 / max(window.count, 1) + tracker.sigma(window.mid_s) ** 2)
-        noise = tracker.reference_std if tracker.reference_std is not None else window.std
-        threshold = np.maximum(s.warn_sigmas * explained, s.noise_fraction * noise)
-        off = bool(np.any(np.abs(residual) > threshold))
-        if not off:
-            self.off_since_s = None
-            state = False
-        else:
-            self.off_since_s = window.start_s if self.off_since_s is None else self.off_since_s
-            state = True if window.end_s - self.off_since_s >= s.warn_after_s - 1e-9 else self.warning
-        changed = state != self.warning
-        self.warning = state
-        return RestVerdict(window.end_s, residual, threshold, off), changed
-
-
-@dataclass
-class HealthNotice:
-    """A line for the console and the dashboard log: ``level`` "INFO" or "WARN", ``time_s`` (sample clock)."""
-
-    time_s: float
-    level: str
-    text: str
-    data: dict[str, Any] = field(default_factory=dict)
-
-
-class BiasHealth:
-    """Rest windows → drift tracker → at-rest check → trust, for a live stream (what ``ftacq monitor`` runs).
-
-    ``feed`` takes each batch's residual (compensated with the file's calibration), its still flag and orientation,
-    and returns notices (state changes only). ``correction(t)`` is what ``--auto-tare`` subtracts: the tracked
-    offset while it is trusted (module docstring, step 7), zeros otherwise and without ``auto_tare``.
-    """
-
-    def __init__(self, calibration: Calibration, settings: DriftSettings | None = None, age_s: float = 0.0,
-                 auto_tare: bool = False) -> None:
-        self.settings = settings or DriftSettings()
-        self.tracker = DriftTracker(calibration, self.settings, age_s)
-        self.check = RestCheck(calibration, self.settings)
-        self.windows = RestWindows(self.settings.window_s, self.settings.settle_s)
-        self.auto_tare = auto_tare
-        self.observations = 0
-        self.last: Observation | None = None
-        self.last_verdict: RestVerdict | None = None
-        self.last_applied = np.zeros(6)
-        self.trusted = False
-        """Whether the tracked offset is trusted now (applied with ``auto_tare``)."""
-        self.distrust_reason = "no rest window accepted yet"
-        self._applied_before = False
-
-    def correction(self, time_s: float | None = None, flange_R_base: np.ndarray | None = None) -> np.ndarray:
-        """(6,) the offset subtracted from the residual: with ``auto_tare`` and while trusted, the tracked offset
-        at ``time_s`` (plus the model error found at ``flange_R_base`` when that is where the tracker last
-        learnt); zeros otherwise."""
-        if not (self.auto_tare and self.trusted):
-            return np.zeros(6)
-        return self.tracker.offset(time_s) + self.tracker.model_error(flange_R_base)
-
-    @property
-    def applied(self) -> bool:
-        """True when the correction is being subtracted (``auto_tare`` and trusted)."""
-        return self.auto_tare and self.trusted
-
-    def feed(self, time_s: np.ndarray, residual: np.ndarray, still: bool,
-             flange_R_base: np.ndarray | None = None) -> list[HealthNotice]:
-        """Process one batch; return the notices it caused."""
-        notices: list[HealthNotice] = []
-        if len(time_s):
-            self.tracker.start(float(time_s[0]))
-        step_told = self.tracker.step is not None
-        for window in self.windows.feed(time_s, residual, still, flange_R_base):
-            applied = self.correction(window.mid_s, window.flange_R_base)  # what was subtracted live
-            self.last_applied = applied
-            observation = self.tracker.observe(window)
-            self.observations += 1
-            self.last = observation
-            if observation.reacquired and observation.judgement is not None:
-                notices.append(self._reacquired_notice(observation))
-            elif observation.judgement is not None and self.tracker.step is not None and not step_told:
-                notices.append(self._step_notice(window.end_s))
-            step_told = self.tracker.step is not None
-            notices += self._update_trust(window.end_s)
-            if observation.reason.startswith("contact"):
-                self.check.off_since_s = None  # a hand on the tool: not "at rest"; persistence starts again after it
-                continue
-            verdict, changed = self.check.check(window, applied, self.tracker)
-            self.last_verdict = verdict
-            if changed:
-                notices.append(self._notice(verdict, observation))
-        if len(time_s):
-            notices += self._update_trust(float(time_s[-1]))
-        return notices
-
-    def _update_trust(self, time_s: float) -> list[HealthNotice]:
-        """Decide whether the offset is trusted at ``time_s`` (module docstring, step 7); a notice on a change
-        (with ``auto_tare`` only: without it nothing is applied either way)."""
-        tracker = self.tracker
-        reason = ""
-        noise = tracker.reference_std
-        if tracker.step is not None:
-            reason = ("a step stands against the tracked drift (" + _step_text(tracker.step.size) + ")")
-        elif not tracker.accepted or noise is None:
-            reason = "no rest window accepted yet"
-        else:
-            sigma = tracker.sigma(time_s)
-            bound = self.settings.trust_noise_fraction * noise
-            if np.any(sigma > bound):
-                worst = int(np.argmax(sigma / np.maximum(bound, 1e-300)))
-                unit = "N" if worst < 3 else "N·m"
-                reason = (f"the offset is no longer known well enough ({CHANNELS[worst]} 1σ {sigma[worst]:.3g} {unit}"
-                          f" > one sample's noise {bound[worst]:.3g} {unit}, {time_s - (tracker.time_s or 0.0):.0f} s "
-                          "since the last rest window used)")
-        trusted = not reason
-        if trusted == self.trusted:
-            self.distrust_reason = reason
-            return []
-        self.trusted, self.distrust_reason = trusted, reason
-        if not self.auto_tare or (not trusted and not tracker.accepted):
-            return []
-        if trusted:
-            again, self._applied_before = (" again" if self._applied_before else ""), True
-            return [HealthNotice(time_s, "INFO", f"auto-tare: applying the tracked offset{again} ("
-                                 + _offset_text(tracker.offset(time_s)) + ")")]
-        return [HealthNotice(time_s, "WARN" if tracker.step is not None else "INFO",
-                             f"auto-tare suspended: {reason}; the stream is the calibration's compensation without "
-                             "the tracked offset until rest windows agree with the track again",
-                             {"reason": reason})]
-
-    def _reacquired_notice(self, observation: Observation) -> HealthNotice:
-        assert observation.judgement is not None
-        tracker = self.tracker
-        return HealthNotice(observation.window.end_s, "INFO",
-                            "drift faster than tracked: the rest "
-                            f"windows refused by the gate {observation.judgement.reason}: re-acquired (drift, not a "
-                            "step); rate now F [" + ", ".join(f"{r:+.1f}" for r in tracker.rate_per_h[:3])
-                            + "] N/h, T [" + ", ".join(f"{r:+.3f}" for r in tracker.rate_per_h[3:]) + "] N·m/h")
-
-    def _step_notice(self, time_s: float) -> HealthNotice:
-        step = self.tracker.step
-        assert step is not None
-        return HealthNotice(time_s, "WARN",
-                            f"a step, not drift: {_step_text(step.size)} against the tracked drift, seen for "
-                            f"{time_s - step.time_s:.1f} s ({step.reason}): a push held on the tool, a changed tool or a bias "
-                            "step (a box bias or power cycle); not absorbed"
-                            + ("; the tracked offset is no longer applied" if self.auto_tare else ""),
-                            {"step": step.size.tolist()})
-
-    def _notice(self, verdict: RestVerdict, observation: Observation) -> HealthNotice:
-        if not self.check.warning:
-            return HealthNotice(verdict.time_s, "INFO", "compensated wrench at rest is back within its threshold")
-        worst = int(np.argmax(np.abs(verdict.residual) / verdict.threshold))
-        unit = "N" if worst < 3 else "N·m"
-        force = float(np.linalg.norm(verdict.residual[:3]))
-        torque = float(np.linalg.norm(verdict.residual[3:]))
-        if observation.accepted and not self.applied:
-            why = ("the biases drifted since the calibration (tracked, the drift model explains it): run "
-                   "`ftacq tare` or monitor with --auto-tare")
-        elif self.tracker.step is not None:
-            why = (f"a step, not drift ({_step_text(self.tracker.step.size)}; {self.tracker.step.reason}): a push "
-                   "held on the tool, a changed tool or a bias step (a box bias or power cycle); if nothing touches "
-                   "the tool, check that the calibration belongs to this tool and run `ftacq tare`")
-        else:
-            why = ("not the tracked drift: a push on the tool, a changed tool, a bias step (a box bias or power "
-                   f"cycle), or drift faster than tracked (told apart after {self.settings.reacquire_after_s:g} s at "
-                   "rest); if nothing touches the tool, check that the calibration belongs to this tool and run "
-                   "`ftacq tare`")
-        text = (f"compensated wrench at rest is off: |F| {force:.3f} N, |T| {torque:.4f} N·m "
-                f"({CHANNELS[worst]} {verdict.residual[worst]:+.4g} {unit}, threshold {verdict.threshold[worst]:.3g} "
-                f"{unit}): {why}")
-        return HealthNotice(verdict.time_s, "WARN", text,
-                            {"residual": verdict.residual.tolist(), "threshold": verdict.threshold.tolist()})
-
-
-def _step_text(size: np.ndarray) -> str:
-    return f"a jump of |F| {float(np.linalg.norm(size[:3])):.3g} N, |T| {float(np.linalg.norm(size[3:])):.3g} N·m"
-
-
-def _offset_text(offset: np.ndarray) -> str:
-    return f"|F| {float(np.linalg.norm(offset[:3])):.3g} N, |T| {float(np.linalg.norm(offset[3:])):.3g} N·m"
-
-
-__all__ = ["DriftSettings", "RestWindow", "RestWindows", "DriftTracker", "Observation", "RestCheck", "RestVerdict",
-           "BiasHealth", "HealthNotice", "Step", "summarise_window", "same_orientation"]
+__all__ = ["DriftSettings", "DriftTracker", "Observation", "Step", "file_bias_sigma", "CHANNELS", "MAX_PRIOR_AGE_S"]

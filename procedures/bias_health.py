@@ -1,7 +1,7 @@
 """Live calibration health for a compensated stream: stillness from the robot, the drift tracker, --auto-tare.
 
 :class:`DriftCompensator` compensates each batch with the calibration as on file, hands the residual to a
-:class:`ftacq.drift.BiasHealth` together with the arm's stillness (:class:`StillDetector`) and orientation, and
+:class:`ftacq.drift_health.BiasHealth` together with the arm's stillness (:class:`StillDetector`) and orientation, and
 returns the residual minus the tracker's correction when ``auto_tare`` is on (unchanged otherwise). The notices
 it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.events.BiasDrift` snapshot (for the dashboard's bias
 drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ftacq.drift import BiasHealth, HealthNotice
+from ftacq.drift_health import BiasHealth, HealthNotice
 from ftacq.so3 import rotation_from_rotvec
 from procedures.events import BiasDrift, Notice
 
@@ -63,7 +63,7 @@ class DriftCompensator:
     """Compensation with the calibration on file, feeding the drift tracker (the monitor's Compensator seam).
 
     Args:
-        health: the :class:`ftacq.drift.BiasHealth` (its calibration is the one compensated with; its
+        health: the :class:`ftacq.drift_health.BiasHealth` (its calibration is the one compensated with; its
             ``auto_tare`` decides whether the correction is subtracted).
         still: the :class:`StillDetector`.
         moving: the compensator for the moving arm when the calibration has inertia

@@ -42,9 +42,8 @@ cycles while the input was enabled: from the enable call to the end of the feed,
 Watchdog (feed thread, every cycle): the newest sample is older than ``max_staleness_s`` (sensor silent or the
 bridge starved; a sample's age runs from its sample time, the sensor's own clock on the host's
 (:class:`ftacq.dynamics.clock.SampleClock`, shared with the dynamic compensation), not from its arrival: a burst of
-late samples is old), a
-sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` / ``jump_torque_nm`` in
-one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
+late samples is old), a sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` /
+``jump_torque_nm`` in one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
 written (the last written value was fresh and checked), the caller's thread disables the input and says why; if
 the disable cannot arrive within 0.1 s the controller's own watchdog pauses the program. Ctrl-C disables first
 (while still feeding fresh values), then stops feeding.
@@ -419,6 +418,9 @@ class Bridge:
             compensated = self.dynamic.compensate(batch, None)
             if compensated is not None:
                 return compensated
+        # static; or dynamic with no cycle state within MAX_STATE_GAP_S of the samples: this cycle's orientation. The
+        # samples and this cycle are then over 50 ms apart: samples that old trip the age watchdog before one is
+        # written; a cycle whose package arrived that late is answered late (counted in late_answers)
         return self.calibration.compensate(batch.wrench, self._flange_rotation(cycle.q).T)
 
     def _feed(self) -> None:

@@ -24,6 +24,9 @@ warnings, and the run goes on to identify and validate what it measured (status 
 The procedure never writes files or draws: it emits :mod:`procedures.events` to its listeners (the run-folder
 writer, the progress bar, the Rerun dashboard), including every batch it reads from the sensor
 (:class:`procedures.tap.SensorTap`).
+
+A little over 500 lines: the step list, the executor that runs it and its result share one run state (what
+was measured, skipped, stopped); the checks of a step list (``check_steps``) could move apart if it grows.
 """
 
 from __future__ import annotations

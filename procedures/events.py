@@ -151,11 +151,14 @@ class RobotState:
 @dataclass(frozen=True)
 class SensorStatus:
     """A snapshot of the stream's health at ``time_s``; ``dropped`` samples were not delivered to the background
-    listeners so far (their queue was full: a slow viewer), never to the record."""
+    listeners so far (their queue was full: a slow viewer), never to the record; ``clock_uncertainty_s`` how well
+    the samples' times on the host clock are known (s, :class:`ftacq.dynamics.clock.DeviceClock`; inf: not known,
+    a sensor without its own clock)."""
 
     time_s: float
     health: SensorHealth
     dropped: int = 0
+    clock_uncertainty_s: float = float("inf")
 
 
 @dataclass(frozen=True)

@@ -13,9 +13,8 @@ Recording: the sensor is read in its own thread, the robot's every RTDE state by
 while this thread issues the moves (each blocking until arrived). Ctrl-C stops the robot and keeps what was
 recorded. Sensor samples are put on the host clock through the device's own sample times (the Net F/T's sample
 counter: a skipped sample is a gap, not a shift of the samples after it) and the minimum-delay line of the whole
-recording (:func:`ftacq.dynamics.clock.device_to_host_clock`), robot samples through the controller's timestamps
-(the state stream's :class:`~ftacq.dynamics.clock.DeviceClock`); the residual lag is measured by the
-identification.
+recording (:func:`ftacq.dynamics.clock.device_to_host_clock`), robot samples likewise through the controller's
+timestamps and their arrival stamps; the residual lag is measured by the identification.
 """
 
 from __future__ import annotations
@@ -193,7 +192,8 @@ def record_excitation(plan: ExcitationPlan, robot, sensor, stream, move_timeout_
 
 def _assemble(batches: list, stream, first_robot: int) -> MotionRecord:
     """The record: sensor samples on the host clock from their device times (arrival stamps for a sensor without
-    a sample clock), robot states as the state stream maps them."""
+    a sample clock), robot states from the controller's timestamps, each stream through the minimum-delay line of
+    the whole recording."""
     if batches:
         arrival = np.concatenate([b.time_s for b in batches])
         device = np.concatenate([b.device_time_s for b in batches])
@@ -201,8 +201,11 @@ def _assemble(batches: list, stream, first_robot: int) -> MotionRecord:
     else:
         arrival, device, wrench = np.empty(0), np.empty(0), np.empty((0, 6))
     window = stream.window(last=max(stream.count - first_robot, 0))
-    qdd, _ = joint_acceleration(window.time_s, window.qd, window.target_qd, window.qdd)
+    # both streams through the minimum-delay line of the whole recording (the live line's height is the newest
+    # seconds', its slope error would tilt the recording's start against the sensor's)
+    robot_times = device_to_host_clock(window.controller_time_s, window.arrival_s) if len(window) else window.time_s
+    qdd, _ = joint_acceleration(robot_times, window.qd, window.target_qd, window.qdd)
     times = device_to_host_clock(device, arrival)
-    return MotionRecord(times, wrench, window.time_s, window.q, window.qd, qdd,
+    return MotionRecord(times, wrench, robot_times, window.q, window.qd, qdd,
                         metadata={"robot_samples": len(window), "sensor_samples": int(arrival.size),
                                   "sensor_clock": "device" if np.isfinite(device).any() else "arrival"})

@@ -13,8 +13,10 @@ lines for the operator as :class:`~procedures.events.Notice`. The application ch
 
 Acquisition never waits for a listener: events go through a :class:`procedures.delivery.BackgroundListener`,
 whose bounded queue drops (and counts) samples when a viewer is slow: frames on screen are lost, never samples.
-The optional CSV recorder gets every batch. The robot's state is read by its own reader at its own rate
-(:class:`drivers.ur.URStateReader`); the monitor only asks it for the latest joint angles and flange pose.
+The optional CSV recorder gets every batch, with each sample's time on the host clock from the sensor's own clock
+(:class:`ftacq.dynamics.clock.SampleClock`, shared with a dynamic compensator) and the mapping's uncertainty. The
+robot's state is read by its own reader at its own rate (:class:`drivers.ur.URStateReader`); the monitor only asks
+it for the latest joint angles and flange pose.
 Ctrl-C ends the run cleanly: threads joined, file finished. Run from the main thread, :meth:`LiveMonitor.run` turns
 the first SIGINT into its stop event, so the loop ends between two reads and every batch the driver handed over is
 both published and recorded (a KeyboardInterrupt can strike between any two bytecodes: between publishing a batch
@@ -407,7 +409,8 @@ class LiveMonitor:
             self._publisher(events.RobotState(now_s, joints, pose))
             self._last_robot_s = now_s
         if now_s - self._last_status_s >= 1.0 / self.status_rate_hz:
-            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples))
+            self._publisher(events.SensorStatus(now_s, self.sensor.health(), self._publisher.dropped_samples,
+                                                self.sample_clock.uncertainty_s))
             self._check_robot(now_s, summary)
             self._last_status_s = now_s
 

@@ -17,6 +17,11 @@ see the same thermal state and time as the identification poses, so their error 
 the drift (which the executor's revisit of the first pose reports separately); putting V last would also add
 a long detour back to the region the tour has left. Identification and validation stay separate by
 ``Plan.set_names``, not by order.
+
+A little over 500 lines: the pose set, its reachability, collision and speed checks and the choice among
+candidate centres are one search that passes one candidate state around; the tour's order already lives in
+:mod:`procedures.tour`, and the time estimates (``trapezoid_time_s``, ``move_time_s``,
+``estimate_duration_s``) are the next candidate to move apart.
 """
 
 from __future__ import annotations

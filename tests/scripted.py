@@ -89,6 +89,7 @@ def physics_batches(pose: np.ndarray, count: int, seed: int = 1, contact_after: 
             status=np.zeros(BATCH_SAMPLES, dtype=np.uint32),
             sequence=start + np.arange(BATCH_SAMPLES, dtype=np.int64),
             saturated=np.zeros(BATCH_SAMPLES, dtype=bool),
+            device_time_s=5.0 + (start + np.arange(BATCH_SAMPLES)) / RATE_HZ,  # the sensor's own sample clock
         ))
     return batches
 

@@ -1,6 +1,9 @@
 """The ATI NETCANOEM driver against the fake board on python-can's in-process ``virtual`` bus.
 
 Every test uses its own channel name (uuid), so xdist workers and concurrent runs never share a bus.
+
+Over 500 lines: one driver's tests against one fake board, sharing its fixtures (bus channel, physics, fake);
+splitting them would only repeat the fixtures.
 """
 
 from __future__ import annotations

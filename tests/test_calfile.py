@@ -5,7 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from ftacq.calfile import FORMAT_VERSION, calibration_to_dict, load_calibration, save_calibration
+from ftacq.calfile import (
+    FORMAT_VERSION,
+    MODEL_CORRELATION_PARAMETERS,
+    calibration_to_dict,
+    load_calibration,
+    save_calibration,
+)
 from ftacq.errors import InputError
 from ftacq.identification import identify
 from tests.fakes.pose_records import example_record
@@ -27,6 +33,19 @@ def test_round_trip_is_exact(tmp_path, identified):
     assert back.uncertainty["mass_kg"] == identified.uncertainty["mass_kg"]
     assert back.metadata["method"] == "srom+refine"
     assert back.metadata["residuals"]["labels"] == list(identified.metadata["residuals"]["labels"])
+    assert back.metadata["model_correlation"] == identified.metadata["model_correlation"]
+
+
+def test_the_identification_writes_the_model_parameters_correlations(identified):
+    """The kept parameters' errors are correlated (the rotation with the centre of mass, the weight with the
+    rotation): the file says how, so their 1σ propagate correctly (ftacq.bias_estimate)."""
+    entry = identified.metadata["model_correlation"]
+    assert entry["parameters"] == list(MODEL_CORRELATION_PARAMETERS)
+    matrix = np.array(entry["matrix"])
+    np.testing.assert_allclose(np.diag(matrix), 1.0)
+    np.testing.assert_allclose(matrix, matrix.T)
+    assert np.all(np.linalg.eigvalsh(matrix) > -1e-9)
+    assert np.abs(matrix - np.eye(9)).max() > 0.3  # strongly correlated somewhere: the diagonal alone is not it
 
 
 def test_document_has_the_required_keys_and_shapes(identified):
@@ -64,6 +83,12 @@ def good_document():
         (lambda d: d.update(center_of_mass_m=["a", 0, 0]), "key 'center_of_mass_m'"),
         (lambda d: d.update(sensor_rotation=[[1, 0, 0], [0, 1, 0], [0, 0, -1]]), "not a rotation matrix"),
         (lambda d: d.update(mass_kg=d["mass_kg"] * 1.01), "disagrees with"),
+        (lambda d: d.update(model_correlation={"parameters": ["gravity_base"], "matrix": [[1]]}),
+         "key 'model_correlation': expected"),
+        (lambda d: d.update(model_correlation={"parameters": list(MODEL_CORRELATION_PARAMETERS),
+                                               "matrix": np.eye(8).tolist()}), "expected a 9×9 array"),
+        (lambda d: d.update(model_correlation={"parameters": list(MODEL_CORRELATION_PARAMETERS),
+                                               "matrix": (np.eye(9) * 2).tolist()}), "not a correlation matrix"),
     ],
 )
 def test_bad_calibration_files_are_refused_with_the_key(tmp_path, change, expected):

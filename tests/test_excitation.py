@@ -78,7 +78,8 @@ def test_recorded_excitation_stays_within_the_limits_and_identifies_the_inertia(
 def test_recorded_sensor_times_come_from_the_device_clock_so_skipped_samples_shift_nothing():
     # a 7 kHz sensor 150 ppm off the host, bursting through a queue, 1 % of its samples and a few runs skipped: the
     # record's sensor times are the samples' true times (the old fit on the packet count shifted them by 20-30 ms)
-    from tests.test_device_clock import BOUND_S, bursting_sensor
+    from tests.clock_arrivals import bursting_sensor
+    from tests.test_device_clock import BOUND_S
 
     device, truth, arrival = bursting_sensor(30.0, 150e-6, seed=4)
     parts = np.array_split(np.arange(device.size), 3000)

@@ -67,6 +67,11 @@ def test_monitor_logs_every_sample_and_compensates_like_the_core(tmp_path):
     record = read_record(tmp_path / "run.csv")
     assert record.dtype.names == RECORD_COLUMNS and record.size == summary.samples
     np.testing.assert_allclose(record["contact_fz"], expected[:, 2], atol=1e-6)
+    # each sample's time from the sensor's own clock (here exactly its receive time, 995 s off), and that clock
+    np.testing.assert_allclose(record["device_time_s"], delivered.device_time_s, atol=1e-9)
+    np.testing.assert_allclose(record["sample_time_s"], delivered.time_s, atol=1e-9)
+    assert np.all(record["clock_uncertainty_s"] < 1e-6)
+    assert summary.clock_uncertainty_s < 1e-6 and summary.clock_rate_error == pytest.approx(0.0, abs=1e-9)
 
 
 

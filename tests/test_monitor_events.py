@@ -172,6 +172,10 @@ def test_live_readout_prints_rate_forces_and_lost_from_the_events():
     readout(events.SensorStatus(10.5, health, dropped=0))
     (line,) = stream.getvalue().splitlines()
     assert re.fullmatch(r"\s*7000 Hz  \|F\|\s+5\.00 N  \|T\|\s+0\.050 N·m \(compensated\)  lost 3", line), line
+    # a sensor with its own clock: how well the samples' times are known
+    readout(events.WrenchSamples(batch.batch, compensated))
+    readout(events.SensorStatus(11.0, health, clock_uncertainty_s=4e-5))
+    assert stream.getvalue().splitlines()[-1].endswith("lost 3  sample times ±0.04 ms")
 
 
 def test_the_final_line_adds_up():

@@ -14,7 +14,7 @@ from drivers.sensor import open_sensor
 from drivers.ur import URStateReader
 from ftacq.app.cli import main
 from ftacq.calfile import save_calibration
-from ftacq.drift import BiasHealth
+from ftacq.drift_health import BiasHealth
 from procedures import events
 from procedures.bias_health import DriftCheck, DriftCompensator
 from procedures.monitor import LiveMonitor

@@ -34,7 +34,15 @@ class SampleCounterClock:
         raw = np.asarray(ft_sequence, dtype=np.int64)
         if raw.size == 0:
             return np.empty(0)
-        previous = int(raw[0]) if self._last_raw is None else self._last_raw
+        first, last = int(raw[0]), int(raw[-1])
+        if self._last_raw is not None and 0 <= first - self._last_raw < HALF_RANGE and 0 <= last - first < HALF_RANGE:
+            # the usual batch: no wrap from the last record nor inside the batch (a step back inside it stays signed)
+            start = self._last_count + first - self._last_raw
+            counts = raw - first
+            counts += start
+            self._last_raw, self._last_count = last, int(counts[-1])
+            return counts / self.internal_rate_hz
+        previous = first if self._last_raw is None else self._last_raw
         steps = np.diff(raw, prepend=previous)
         steps &= UINT32_MASK
         steps[steps >= HALF_RANGE] -= 1 << 32  # signed steps: a wrap is forward, an older record backward

@@ -18,7 +18,8 @@ from procedures import events
 
 
 class LiveReadout:
-    """Prints ``rate, |F| and |T| (mean over the last update's samples; compensated when known), lost``."""
+    """Prints ``rate, |F| and |T| (mean over the last update's samples; compensated when known), lost`` and, for a
+    sensor with its own clock, how well the samples' times are known."""
 
     def __init__(self, stream: TextIO | None = None, is_terminal: bool | None = None) -> None:
         self.stream = stream or sys.stderr
@@ -60,7 +61,9 @@ class LiveReadout:
         kind = "compensated" if self._compensated else "raw"
         line = (f"{self._count / span_s:6.0f} Hz  |F| {np.linalg.norm(mean[:3]):7.2f} N  "
                 f"|T| {np.linalg.norm(mean[3:]):6.3f} N·m ({kind})  lost {status.health.lost}"
-                + (f"  dropped for the viewer {status.dropped}" if status.dropped else ""))
+                + (f"  dropped for the viewer {status.dropped}" if status.dropped else "")
+                + (f"  sample times ±{1e3 * status.clock_uncertainty_s:.2f} ms"
+                   if status.clock_uncertainty_s < float("inf") else ""))
         self.lines.append(line)
         if self.in_place:
             self.stream.write("\r" + line.ljust(self._width))
@@ -91,7 +94,7 @@ def format_summary(summary) -> str:
     uncertainty = getattr(summary, "clock_uncertainty_s", float("inf"))
     if uncertainty < float("inf"):
         text += (f"; sensor clock {1e6 * summary.clock_rate_error:+.1f} ppm from the host's, sample times known to "
-                 f"{1e3 * uncertainty:.2f} ms")
+                 f"{1e3 * uncertainty:.3f} ms")
     if summary.record_path:
         text += f"; recorded {summary.record_path}"
     if summary.interrupted:

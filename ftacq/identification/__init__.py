@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
+from ftacq.calfile import MODEL_CORRELATION_KEY, MODEL_CORRELATION_PARAMETERS
 from ftacq.calibration import Calibration
 from ftacq.errors import IdentificationError
 from ftacq.identification import diagnostics, robust, trend
@@ -242,6 +243,18 @@ def _uncertainty(params: ModelParameters, covariance: np.ndarray, mount: str | N
     if params.bias_rate is not None:
         out["bias_rate"] = np.sqrt(np.maximum(np.diag(covariance)[DRIFT_SLICE], 0.0)).tolist()
     return out
+
+
+def _model_correlation(covariance: np.ndarray) -> dict:
+    """Return the ``model_correlation`` entry of the calibration file (ftacq.calfile): the correlations of the
+    kept parameters' errors, from the parameter covariance (JᵀWJ)⁻¹."""
+    columns = np.concatenate([np.arange(PARAMETER_SLICES[name].start, PARAMETER_SLICES[name].stop)
+                              for name in MODEL_CORRELATION_PARAMETERS])
+    block = covariance[np.ix_(columns, columns)]
+    sigma = np.sqrt(np.maximum(np.diag(block), 1e-300))
+    correlation = np.clip(block / np.outer(sigma, sigma), -1.0, 1.0)
+    np.fill_diagonal(correlation, 1.0)
+    return {"parameters": list(MODEL_CORRELATION_PARAMETERS), "matrix": (0.5 * (correlation + correlation.T)).tolist()}
 
 
 def identify(
@@ -565,6 +578,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
                        "compensation uses them",
         })
     metadata["drift_model"] = drift_model
+    metadata[MODEL_CORRELATION_KEY] = _model_correlation(covariance)
     metadata["outliers"] = list(outliers)
     metadata["warnings"] = list(warnings)
     metadata["diagnostics"] = {

@@ -165,15 +165,17 @@ def real_like_record(truth: CellTruth, count: int, seed: int = 0) -> PoseRecord:
     return PoseRecord(pose=exact.pose, wrench=wrench, labels=exact.labels)
 
 
-def example_record(truth: CellTruth | None = None, seed: int = 0, cone_poses: int = 24) -> PoseRecord:
-    """Return the example record: the 24 special poses (A, reached to ±0.2°) + ``cone_poses`` in a 40° cone (E)."""
+def example_record(truth: CellTruth | None = None, seed: int = 0, cone_poses: int = 24,
+                   samples_per_pose: int = DEFAULT_SAMPLES_PER_POSE) -> PoseRecord:
+    """Return the example record: the 24 special poses (A, reached to ±0.2°) + ``cone_poses`` in a 40° cone (E),
+    each averaged over ``samples_per_pose``."""
     truth = truth or CellTruth()
     rotations = np.concatenate(
         [special_orientations(0.2, seed), cone_orientations(cone_poses, 40.0, seed + 1)]
     )
     labels = tuple(f"A{i + 1:02d}" for i in range(24)) + tuple(f"E{i + 1:02d}" for i in range(cone_poses))
     sets = ("A",) * 24 + ("E",) * cone_poses
-    return simulate_record(truth, rotations, seed=seed, labels=labels, sets=sets)
+    return simulate_record(truth, rotations, samples_per_pose=samples_per_pose, seed=seed, labels=labels, sets=sets)
 
 
 def write_example_csv(path: str | Path, truth: CellTruth | None = None, seed: int = 0) -> PoseRecord:

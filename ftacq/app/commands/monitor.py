@@ -255,7 +255,10 @@ def run(args: argparse.Namespace) -> int:
         header = [f"ftacq {__version__} monitor recording", f"source: {source}", f"sensor: {sensor_url}",
                   f"robot: {robot_host} ({model.name})",
                   f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
-                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange"]
+                  "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange",
+                  "times: time_s = receive time; sample_time_s = the sensor's own clock (device_time_s) on the host "
+                  "monotonic clock through the minimum-delay line, clock_uncertainty_s its uncertainty "
+                  "(docs/dynamics.md, How the clocks are aligned)"]
         readout = LiveReadout()
         stack.callback(readout.close)
         dynamic = None
@@ -309,7 +312,8 @@ def _drift_health(calibration, sensor_info,
                   args: argparse.Namespace) -> tuple[DriftCompensator, list[HealthCheck], str]:
     """Check the calibration belongs to the sensor (refused unless --force) and build the drift tracker's
     compensator and health check; return (compensator, checks, a line saying when the biases were measured)."""
-    from ftacq.drift import MAX_PRIOR_AGE_S, BiasHealth
+    from ftacq.drift import MAX_PRIOR_AGE_S
+    from ftacq.drift_health import BiasHealth
     from ftacq.provenance import age_s, biases_measured_utc, require_same_sensor
     from procedures.bias_health import DriftCheck, DriftCompensator
 
