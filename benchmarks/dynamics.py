@@ -1,6 +1,11 @@
 """Benchmark: compensation while the arm moves (issue 12), one run on the simulated cell, figures side by side.
 
     .venv/bin/python benchmarks/dynamics.py [--jog-s 15] [--monitor-s 15]
+    .venv/bin/python benchmarks/dynamics.py --live-minutes 5 [--burners 2] [--every-s 20] [--sensor-rate-error 150e-6]
+
+With ``--live-minutes``: the run of issue 27 instead (benchmarks/dynamics_live.py): minutes of ``ftacq monitor``
+with dynamic compensation on a cell whose devices keep their own clocks, a 4.2 kg tool, a separate-process jog,
+per-minute figures, optionally beside CPU-burning processes. Without it, as before:
 
 The simulated cell (UR5e controller in real time, Net F/T at 7 kHz, the 1.35 kg demo tool with its inertia, the
 sensor 35 mm from the flange) is calibrated with the real drivers: the static poses (controller at time scale 0),
@@ -78,7 +83,23 @@ def main() -> int:
     parser.add_argument("--monitor-s", type=float, default=15.0, help="length of the live monitor run (s)")
     parser.add_argument("--save-motion", type=Path, metavar="DIR", help="also write the excitation and the jog as "
                         "motion CSVs there (ftacq identify --motion reads them)")
+    parser.add_argument("--live-minutes", type=float, default=0.0, metavar="M",
+                        help="run the live benchmark of issue 27 for M minutes instead (benchmarks/dynamics_live.py)")
+    parser.add_argument("--burners", type=int, default=0, help="with --live-minutes: CPU-burning processes beside it")
+    parser.add_argument("--every-s", type=float, default=20.0, help="with --live-minutes: one jog move every S s")
+    parser.add_argument("--sensor-rate-error", type=float, default=150e-6,
+                        help="with --live-minutes: the sensor's clock rate error (default 150e-6)")
+    parser.add_argument("--sensor-backlog-s", type=float, default=0.02,
+                        help="with --live-minutes: the simulated sensor skips what it could not send within this, s")
+    parser.add_argument("--seed", type=int, default=7, help="with --live-minutes: the jog's seed")
+    parser.add_argument("--keep", type=Path, metavar="DIR", help="with --live-minutes: keep the monitor's record, "
+                        "its stderr and the jog's moves there")
     args = parser.parse_args()
+    if args.live_minutes > 0:
+        import dynamics_live
+
+        return dynamics_live.main(args.live_minutes, args.every_s, args.burners, args.sensor_rate_error,
+                                  args.sensor_backlog_s, args.seed, args.keep)
     truth = CellTruth(motion_noise_gain=0.0)
     model = ur_model("UR5e")
     settings = PlanSettings(joint_speed_rad_s=SPEED, joint_acceleration_rad_s2=ACCELERATION)

@@ -13,7 +13,12 @@ Used by the procedure's tests, ``ftacq calibrate --sim``, ``ftacq monitor --sim`
         cell.controller.commands()                           # every motion command the controller executed
 
 The controller publishes its flange pose into a :class:`~tests.fakes.world.SharedPose` (shared memory); the
-sensor fake, running in this process, reads it there. The CAN board's virtual bus only links buses in one
+sensor fake, running in this process (or in its own with ``sensor_process=True``), reads it there.
+
+Every device keeps its own clock, as on a real cell (:class:`SimClocks`, docs/simulation.md "Simulated clocks"): the
+Net F/T samples on a crystal a few ppm off the host's and sends in bursts with jitter, the controller stamps its
+RTDE packages on its own clock and sends them with jitter. The defaults are modest and on, so every test of the
+procedure, ``--sim`` and the benchmarks see them; ``SimClocks.ideal()`` turns them off. The CAN board's virtual bus only links buses in one
 process, so the CAN driver must run in the process that built the cell.
 """
 
@@ -22,7 +27,7 @@ from __future__ import annotations
 import contextlib
 import os
 import uuid
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -36,6 +41,51 @@ WRONG_TOOL_EXTRA_MASS_KG = 0.2
 """The wrong-tool knob: a part of this mass left in the gripper at the validation poses ..."""
 WRONG_TOOL_COM_SHIFT_M = (0.0, 0.0, 0.03)
 """... whose centre of mass is this far from the tool's (sensor frame), m."""
+
+
+@dataclass(frozen=True)
+class SimClocks:
+    """The simulated devices' clocks and delivery (defaults: modest errors, on).
+
+    Attributes:
+        sensor_rate_error: the Net F/T's sample clock rate against the host's, minus one (+50e-6: 50 ppm fast;
+            a real crystal is within ±100 ppm, ATI states its rates to ±0.5 %).
+        sensor_burst_interval_s: mean time between the Net F/T's bursts of datagrams, s (0: each record when due).
+        sensor_burst_jitter_s: a burst carries the records due up to a random delay in [0, this] before, s.
+        sensor_max_backlog_s: the Net F/T skips records due longer ago than this (its sender descheduled on a
+            loaded host): ``ft_sequence`` jumps, ``rdt_sequence`` does not; None: a 4096-record backlog.
+        controller_rate_error: the controller's clock (RTDE ``timestamp``) rate against the host's, minus one.
+        controller_send_jitter_s: the controller's packages to receive-only clients leave up to this late, s.
+    """
+
+    sensor_rate_error: float = 50e-6
+    sensor_burst_interval_s: float = 0.002
+    sensor_burst_jitter_s: float = 0.001
+    sensor_max_backlog_s: float | None = 0.1
+    controller_rate_error: float = -30e-6
+    controller_send_jitter_s: float = 0.0003
+
+    @classmethod
+    def ideal(cls) -> "SimClocks":
+        """Every device on the host's clock, records sent when due, packages sent at once (the old fakes)."""
+        return cls(0.0, 0.0, 0.0, None, 0.0, 0.0)
+
+    def box_settings(self) -> dict:
+        """Keyword arguments of :class:`tests.fakes.netft.FakeNetFT` for the sensor's clock and delivery."""
+        return {"clock_rate_error": self.sensor_rate_error, "burst_interval_s": self.sensor_burst_interval_s,
+                "burst_jitter_s": self.sensor_burst_jitter_s, "max_backlog_s": self.sensor_max_backlog_s}
+
+    def box_args(self) -> list[str]:
+        """The same as ``python -m tests.fakes.netft`` options."""
+        args = [f"--clock-rate-error={self.sensor_rate_error!r}", f"--burst-interval-s={self.sensor_burst_interval_s!r}",
+                f"--burst-jitter-s={self.sensor_burst_jitter_s!r}"]
+        if self.sensor_max_backlog_s is not None:
+            args.append(f"--max-backlog-s={self.sensor_max_backlog_s!r}")
+        return args
+
+    def controller_args(self) -> list[str]:
+        """``python -m tests.fakes.ur_controller`` options for the controller's clock and send jitter."""
+        return [f"--clock-rate-error={self.controller_rate_error!r}", f"--send-jitter-s={self.controller_send_jitter_s!r}"]
 
 
 class SimulatedCell:
@@ -54,12 +104,17 @@ class SimulatedCell:
         realtime_priority: SCHED_FIFO priority of the controller process's threads and of the Net F/T's sending
             thread (0: normal scheduling). Real devices keep their cycle whatever the computer does; on a loaded
             computer the simulated ones, at normal priority, stall for 100 ms and more (ftacq bridge --sim).
+        clocks: the devices' clocks and delivery (:class:`SimClocks`; default modest errors and bursts).
+        sensor_process: run the simulated Net F/T in its own process (tests/fakes/netft_process.py), so that it
+            keeps its pace whatever this process does; then :meth:`set_contact`, :meth:`swap_tool` and
+            :attr:`physics` are not available (the physics lives in that process).
     """
 
     def __init__(self, truth: CellTruth | None = None, sensor: str = "netft", model: str = "UR5e",
                  mount: str = "floor", time_scale: float = 1.0, rate_hz: float = DEFAULT_SENSOR_RATE_HZ,
                  seed: int = 0, initial_q: np.ndarray | None = None,
-                 encoder_noise_rad: float = ENCODER_NOISE_RAD, realtime_priority: int = 0) -> None:
+                 encoder_noise_rad: float = ENCODER_NOISE_RAD, realtime_priority: int = 0,
+                 clocks: SimClocks | None = None, sensor_process: bool = False) -> None:
         if sensor not in SENSORS:
             raise ValueError(f"sensor {sensor!r}: must be one of {', '.join(SENSORS)}")
         truth = truth or CellTruth()
@@ -73,6 +128,10 @@ class SimulatedCell:
         self.rate_hz = float(rate_hz)
         self.seed = seed
         self.realtime_priority = int(realtime_priority)
+        self.clocks = SimClocks() if clocks is None else clocks
+        if sensor_process and sensor != "netft":
+            raise ValueError("sensor_process: only the simulated Net F/T runs in its own process")
+        self.sensor_process = bool(sensor_process)
         if initial_q is None:
             from procedures.plan import home_configuration_rad
 
@@ -105,13 +164,26 @@ class SimulatedCell:
                                                   realtime_priority=self.realtime_priority)
             self.controller.start()
             self._stack.callback(self.controller.stop)
+            if self.sensor_process:
+                from tests.fakes.netft_process import NetFTProcess
+
+                box_args = self.clocks.box_args()
+                if self.realtime_priority:
+                    box_args += ["--realtime-priority", str(self.realtime_priority)]
+                self.netft = NetFTProcess(self.truth, self.shared_pose.name, self.model_name, self.rate_hz,
+                                          self.seed, box_args)
+                self.netft.start()
+                self._stack.callback(self.netft.close)
+                self.sensor_url = self.netft.url
+                return self
             self.physics = SensorPhysics(self.truth, self.shared_pose, seed=self.seed, robot=ur_model(self.model_name),
                                          rate_hz=self.rate_hz)
             if self.sensor_kind == "netft":
                 from tests.fakes.netft import FakeNetFT
 
                 self.netft = FakeNetFT(self.physics, host="127.0.0.1", rate_hz=self.rate_hz,
-                                       realtime_priority=self.realtime_priority)
+                                       realtime_priority=self.realtime_priority, seed=self.seed,
+                                       **self.clocks.box_settings())
                 self.netft.start()
                 self._stack.callback(self.netft.close)
                 self.sensor_url = self.netft.url
@@ -129,7 +201,8 @@ class SimulatedCell:
 
     def _controller_args(self) -> list[str]:
         """The controller's options beyond those URControllerProcess takes: the encoder jitter (seeded by ``seed``)."""
-        return ["--seed", str(self.seed), "--encoder-noise-rad", repr(self.encoder_noise_rad)]
+        return ["--seed", str(self.seed), "--encoder-noise-rad", repr(self.encoder_noise_rad),
+                *self.clocks.controller_args()]
 
     def _close_shared_pose(self) -> None:
         # The controller subprocess attached to the block; Python < 3.13's resource tracker of that process may
@@ -185,7 +258,7 @@ class SimulatedCell:
         return replace(self.truth, **changes)
 
 
-__all__ = ["SimulatedCell", "SENSORS", "fast_config", "run_calibration", "motion_problems"]
+__all__ = ["SimulatedCell", "SimClocks", "SENSORS", "fast_config", "run_calibration", "motion_problems"]
 
 
 def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: int = 4, **sampling):

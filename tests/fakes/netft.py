@@ -15,8 +15,10 @@ host (port 0 in tests):
 - **HTTP**: ``/netftapi2.xml`` and ``/netftcalapi.xml`` (query ignored) and the CGI pages ``comm.cgi``,
   ``setting.cgi``, ``config.cgi``, ``moncon.cgi`` (``k=v&k=v``), which update what the XML and RDT show.
 
-Records are paced at ``comrdtrate`` (quantised to 7000/n Hz, rounded up) against an absolute deadline and sent in
-small bursts, so Python keeps up at 7 kHz. ``max_rate_hz`` above 7000 lets a benchmark run the fake faster than a
+Records are paced at ``comrdtrate`` (quantised to 7000/n Hz, rounded up) on the box's own sample clock
+(``clock_rate_error`` off the host's; ``ft_sequence`` counts its samples) and sent as due or, with
+``burst_interval_s``, in bursts with jitter; a sender that falls behind by more than ``max_backlog_s`` skips samples
+(tests/fakes/netft_box.py, docs/simulation.md "Simulated clocks"). ``max_rate_hz`` above 7000 lets a benchmark run the fake faster than a
 real box (an unfaithful extension, off by default). The wrench comes from a
 :class:`tests.fakes.world.SensorPhysics`, converted to the configured units and counts:
 ``counts = round(value_in_device_units × counts_per_unit)``, torque possibly in N-mm.
@@ -29,9 +31,11 @@ Everything received is recorded (:attr:`commands`, :meth:`wait_for_command`), ev
 (:meth:`sent_records`). Threads are named, joined in
 :meth:`close`, and their errors re-raised there.
 
-Run alone: ``python -m tests.fakes.netft --host 127.0.0.1 --rdt-port 0 [--pose-shm NAME]`` prints one JSON line with
-the bound ports and URL, then serves until stdin closes (or SIGTERM / SIGINT). A ``stats`` line on stdin prints the
-counters as one JSON line.
+Run alone: ``python -m tests.fakes.netft --host 127.0.0.1 --rdt-port 0 [--pose-shm NAME] [--model UR5e]
+[--truth-json JSON] [--clock-rate-error E] [--burst-interval-s S] [--burst-jitter-s S] [--max-backlog-s S]`` prints
+one JSON line with the bound ports and URL, then serves until stdin closes (or SIGTERM / SIGINT). A ``stats`` line
+on stdin prints the counters as one JSON line. tests/fakes/netft_process.py starts it so for a simulated cell whose
+sensor must keep its pace whatever the process that reads it does (its own interpreter lock).
 """
 
 from __future__ import annotations
@@ -308,6 +312,14 @@ def _watch_stdin() -> bool:
     return stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode) or os.isatty(0) or stat.S_ISREG(mode)
 
 
+def _truth_fields(values: dict) -> dict:
+    """CellTruth keyword arguments from JSON (lists back to the tuples the frozen dataclass holds)."""
+    def as_tuple(value):
+        return tuple(as_tuple(v) for v in value) if isinstance(value, list) else value
+
+    return {key: as_tuple(value) for key, value in values.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one fake Net F/T until stdin closes (or SIGTERM / SIGINT); print its ports as one JSON line."""
     parser = argparse.ArgumentParser(description="A fake ATI Net F/T (RDT UDP, TCP, HTTP) on loopback.")
@@ -326,6 +338,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--serial", default="FT12345")
     parser.add_argument("--pose-shm", help="read the flange pose from this tests.fakes.world.SharedPose")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--model", help="UR model whose motion the physics follows (with --pose-shm: the tool's "
+                        "inertia while the arm moves)")
+    parser.add_argument("--truth-json", help="tests.fakes.world.CellTruth fields as a JSON object (default: its defaults)")
+    parser.add_argument("--clock-rate-error", type=float, default=0.0, metavar="E",
+                        help="the box's sample clock rate against the host's, minus one (e.g. 150e-6)")
+    parser.add_argument("--burst-interval-s", type=float, default=0.0, help="mean time between bursts, s (0: none)")
+    parser.add_argument("--burst-jitter-s", type=float, default=0.0, help="random extra delay of a burst, s")
+    parser.add_argument("--max-backlog-s", type=float, default=None,
+                        help="skip records due longer ago than this, s (default: a 4096-record backlog)")
+    parser.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                        help="SCHED_FIFO priority of the sending thread (0: normal scheduling)")
     parser.add_argument("--sent-log-limit", type=int, default=0,
                         help="records of what was sent to keep in memory (default 0: a long-running fake logs none)")
     args = parser.parse_args(argv)
@@ -342,13 +365,22 @@ def main(argv: list[str] | None = None) -> int:
             resource_tracker.unregister("/" + shared.name.lstrip("/"), "shared_memory")
         except Exception:  # noqa: BLE001 (best effort; only matters for the owner's clean-up)
             pass
-    physics = SensorPhysics(CellTruth(), shared if shared is not None else SettablePose(), seed=args.seed)
+    truth = CellTruth(**_truth_fields(json.loads(args.truth_json))) if args.truth_json else CellTruth()
+    robot = None
+    if args.model:
+        from ftacq.kinematics import ur_model
+
+        robot = ur_model(args.model)
+    physics = SensorPhysics(truth, shared if shared is not None else SettablePose(), seed=args.seed, robot=robot,
+                            rate_hz=args.rate_hz)
     fake = FakeNetFT(physics, host=args.host, rdt_port=args.rdt_port, tcp_port=args.tcp_port,
                      http_port=args.http_port, rate_hz=args.rate_hz, buffer_size=args.buffer_size,
                      force_unit=args.force_unit, torque_unit=args.torque_unit,
                      counts_per_force=args.counts_per_force, counts_per_torque=args.counts_per_torque,
                      serial=args.serial, max_rate_hz=args.max_rate_hz, seed=args.seed,
-                     sent_log_limit=args.sent_log_limit)
+                     sent_log_limit=args.sent_log_limit, clock_rate_error=args.clock_rate_error,
+                     burst_interval_s=args.burst_interval_s, burst_jitter_s=args.burst_jitter_s,
+                     max_backlog_s=args.max_backlog_s, realtime_priority=args.realtime_priority)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

@@ -4,8 +4,16 @@
 tests/fakes/netft_protocol.py holds the wire format. All public methods take ``self._lock``.
 
 Stream (docs/protocols-ati.md, "RDT sequences"): every start command restarts ``rdt_sequence`` at 1 and the
-schedule; ``ft_sequence`` is the power-up sample counter, +round(7000 / rate) per record, never reset by a start.
-Records are produced at ``comrdtrate`` against an absolute deadline and sent in small bursts.
+schedule; ``ft_sequence`` is the power-up sample counter, never reset by a start.
+
+The box's own clock (docs/simulation.md, "Simulated clocks"): the box samples at 7000 Hz on its own crystal, which
+runs ``clock_rate_error`` (e.g. +150e-6) fast against the host's ``time.monotonic()``; a stream at 7000/n Hz sends
+its internal samples k0, k0 + n, k0 + 2n, ... and ``ft_sequence`` is that internal sample number (counted from
+power-up), so ``ft_sequence`` / 7000 is the box's time of the sample. Records leave in bursts: every
+``burst_interval_s`` (× a random factor 0.5-1.5) the box sends what was due up to a random delay in
+[0, ``burst_jitter_s``] before, several records at once, as a real box's network stack does. When the sender falls
+behind by more than ``max_backlog_s`` (a descheduled process on a loaded host) the oldest due records are skipped:
+``rdt_sequence`` still counts the records sent one by one, ``ft_sequence`` jumps over the skipped samples.
 
 Faults as a real link and box show them: :meth:`go_silent` is a link that goes quiet from the box to the host —
 the box streams on (sequences advance, :attr:`records_silenced` counts what the link swallowed) and still hears
@@ -14,7 +22,7 @@ power cycle (nothing sent or heard while off; on power-up both sequences start a
 start); :meth:`restart` resets both sequences mid-stream. Everything put on the wire is logged
 (:meth:`sent_records`) so a test can check that every record sent reached the client exactly once.
 
-Why one class of ~690 lines: the settings (HTTP), the calibration answers (TCP), the stream and the fault knobs
+Why one class of ~790 lines: the settings (HTTP), the calibration answers (TCP), the stream and the fault knobs
 all read and write one state under one lock (a CGI rate change moves the stream's schedule, a TCP bias changes
 the next records, a start resets the sequence the knobs act on); splitting them would only pass that state around.
 """
@@ -66,7 +74,9 @@ from tests.fakes.netft_protocol import (
 POLL_S = 0.05
 """Longest a wait on the box blocks before re-checking, seconds."""
 MAX_BURST_RECORDS = 4096
-"""Most records sent in one go; a longer backlog (the fake was descheduled) is skipped, not flooded."""
+"""Most records sent in one go by default; a longer backlog (the fake was descheduled) is skipped, not flooded."""
+BURST_INTERVAL_SPREAD = (0.5, 1.5)
+"""A burst follows the previous one after ``burst_interval_s`` × a factor drawn uniformly in this range."""
 SAMPLE_CHUNK_S = 0.004
 """Physics samples are drawn in chunks covering this much stream time (the pose is read once per chunk)."""
 DEFAULT_WAIT_S = 5.0
@@ -88,6 +98,12 @@ class NetFTBox:
         max_rating: (6,) max rating per axis in device units (``cfgmr``; sets the READFT scale factors).
         seed: seed of the garbage-datagram generator.
         sent_log_limit: records kept in :meth:`sent_records` (what went on the wire); later ones are not logged.
+        clock_rate_error: the box's sample clock rate against the host's, minus one (+150e-6: the box's crystal
+            runs 150 ppm fast, 7000 × (1 + 150e-6) samples per host second). 0: the host's rate exactly.
+        burst_interval_s: mean time between the box's bursts of datagrams, s (0: each record leaves when due).
+        burst_jitter_s: a burst carries the records due up to a random delay in [0, this] before it, s.
+        max_backlog_s: records due longer ago than this are skipped (``ft_sequence`` jumps, ``rdt_sequence`` does
+            not), s; None: only a backlog of more than MAX_BURST_RECORDS records is (all but one datagram).
     """
 
     def __init__(self, physics, rate_hz: float = INTERNAL_RATE_HZ, buffer_size: int = 1, force_unit: str = "N",
@@ -95,7 +111,8 @@ class NetFTBox:
                  serial: str = "FT12345", prodname: str | None = "Net F/T (simulated)",
                  serve_calibration_page: bool = True, max_rate_hz: float = INTERNAL_RATE_HZ,
                  max_rating: tuple | None = None, firmware: str = "2.2.59", seed: int = 0,
-                 sent_log_limit: int = SENT_LOG_LIMIT) -> None:
+                 sent_log_limit: int = SENT_LOG_LIMIT, clock_rate_error: float = 0.0, burst_interval_s: float = 0.0,
+                 burst_jitter_s: float = 0.0, max_backlog_s: float | None = None) -> None:
         if force_unit not in FORCE_UNIT_CODES:
             raise ValueError(f"force_unit {force_unit!r}: must be one of {sorted(FORCE_UNIT_CODES)}")
         if torque_unit not in TORQUE_UNIT_CODES:
@@ -111,7 +128,19 @@ class NetFTBox:
                 + (60.0 / NEWTON_METRES_PER_TORQUE_UNIT[torque_unit],) * 3
         self.max_rating = tuple(float(v) for v in max_rating)
         self._rng = np.random.default_rng(seed)
+        self._timing_rng = np.random.default_rng([seed, 1])
         self._update_scaling()
+        if not -0.01 < clock_rate_error < 0.01:
+            raise ValueError(f"clock_rate_error {clock_rate_error!r}: a crystal is off by ppm, not percent")
+        if burst_interval_s < 0.0 or burst_jitter_s < 0.0 or (max_backlog_s is not None and max_backlog_s <= 0.0):
+            raise ValueError("burst_interval_s and burst_jitter_s must be >= 0, max_backlog_s > 0 (or None)")
+        self.clock_rate_error = float(clock_rate_error)
+        self.burst_interval_s, self.burst_jitter_s = float(burst_interval_s), float(burst_jitter_s)
+        self.max_backlog_s = max_backlog_s
+        self._clock_t0 = time.monotonic()  # host time of power-up: the box's internal sample 0
+        self._last_index = 0  # internal sample number of the last record produced (ft_sequence's clock)
+        self._next_burst_s = 0.0
+        self._paused_until_s = 0.0
 
         self._lock = threading.Condition()
         self._settings = {"comrdtrate": 0.0, "comrdtbsiz": int(buffer_size), "comrdte": 1, "setuserfilter": 0,
@@ -128,6 +157,7 @@ class NetFTBox:
         self._bias_counts = np.zeros(6, dtype=np.int64)
         self._latched = False
         self._stream_t0 = 0.0
+        self._stream_k0 = 0
         self._stream_done = 0
         self._silent = False
         self._pending_faults: collections.deque = collections.deque()
@@ -201,8 +231,36 @@ class NetFTBox:
         with self._lock:
             self._settings["comrdtrate"] = rate
             self._ft_step = divisor
-            self._stream_t0, self._stream_done = time.monotonic(), 0
+            self._tick_hz = rate * divisor  # the internal rate (7000 Hz; higher only with max_rate_hz)
+            self._restart_schedule(time.monotonic())
         return rate
+
+    def _ticks_per_host_s(self) -> float:
+        """The box's internal samples per host second: the internal rate on the box's own crystal."""
+        return self._tick_hz * (1.0 + self.clock_rate_error)
+
+    def _restart_schedule(self, now: float) -> None:
+        """A stream's schedule starts at the box's next internal sample (a multiple of n at 7000/n Hz) after host time
+        ``now`` (lock held)."""
+        self._stream_t0, self._stream_done = now, 0
+        # every n-th internal sample (7000/n Hz), from the next one after the start
+        self._stream_k0 = math.ceil((now - self._clock_t0) * self._ticks_per_host_s() / self._ft_step) * self._ft_step
+        self._sample_buffer = np.empty((0, 6))
+        self._next_burst_s = now
+
+    def _due_s(self, record: int) -> float:
+        """Host time at which record ``record`` (0 = the stream's first) of the stream is sampled (lock held)."""
+        return self._clock_t0 + (self._stream_k0 + record * self._ft_step) / self._ticks_per_host_s()
+
+    def _due_count(self, until_s: float) -> int:
+        """Records of the stream sampled by host time ``until_s`` (lock held)."""
+        ticks = (until_s - self._clock_t0) * self._ticks_per_host_s() - self._stream_k0
+        return int(math.floor(ticks / self._ft_step)) + 1 if ticks >= 0.0 else 0
+
+    def device_time_s(self, host_s: float) -> float:
+        """The box's clock at host time ``host_s`` (``time.monotonic``): its internal sample number / 7000, s."""
+        with self._lock:
+            return (host_s - self._clock_t0) * self._ticks_per_host_s() / self._tick_hz
 
     def set_buffer_size(self, records: int) -> int:
         """Set ``comrdtbsiz`` (clamped to 1-40); return the value in force."""
@@ -285,16 +343,24 @@ class NetFTBox:
         Return the host time (``time.monotonic``) it came back."""
         with self._lock:
             self._powered = True
+            now = time.monotonic()
             self._rdt_sequence = self._ft_sequence = 0
+            self._clock_t0, self._last_index = now, 0  # the box's clock starts again at sample 0
             self._bias_counts = np.zeros(6, dtype=np.int64)
             self._held.clear()
             self._lock.notify_all()
-            return time.monotonic()
+            return now
 
     def restart(self) -> None:
         """Simulate a power cycle while streaming: rdt_sequence restarts at 1 and ft_sequence at 0."""
         with self._lock:
             self._restart_requested = True
+
+    def deschedule(self, seconds: float) -> None:
+        """The sender sends nothing for ``seconds`` of host time from now, as when the fake's process is not
+        scheduled on a loaded host; the box samples on (``max_backlog_s`` then decides what is skipped)."""
+        with self._lock:
+            self._paused_until_s = time.monotonic() + float(seconds)
 
     def stall_ft_sequence(self, records: int) -> None:
         """The next ``records`` records repeat the previous ``ft_sequence`` (rdt_sequence still advances)."""
@@ -382,6 +448,7 @@ class NetFTBox:
                     "buffer_size": self.buffer_size, "streaming": self._target is not None,
                     "rdt_sequence": self._rdt_sequence, "ft_sequence": self._ft_sequence,
                     "commands": len(self.commands), "stream_t0_s": self._stream_t0,
+                    "clock_rate_error": self.clock_rate_error,
                     "records_silenced": self.records_silenced, "powered": self._powered}
 
     def _record(self, command: ReceivedCommand) -> None:
@@ -416,7 +483,7 @@ class NetFTBox:
                 self._mode = command
                 self._remaining = count if count > 0 else None
                 self._rdt_sequence = 0
-                self._stream_t0, self._stream_done = now, 0
+                self._restart_schedule(now)
                 self._held.clear()
                 self.streams_started += 1
             elif command == RDT_BIAS:
@@ -432,9 +499,12 @@ class NetFTBox:
         with self._lock:
             if self._target is None:
                 return POLL_S
-            rate = self._settings["comrdtrate"]
+            if now < self._paused_until_s:
+                return self._paused_until_s - now
+            if self.burst_interval_s > 0.0:
+                return max(0.0, self._next_burst_s - now)
             records_per_datagram = self._settings["comrdtbsiz"] if self._mode == RDT_START_BUFFERED else 1
-            due_at = self._stream_t0 + (self._stream_done + records_per_datagram) / rate
+            due_at = self._due_s(self._stream_done + records_per_datagram - 1)
         return max(0.0, due_at - now)
 
     def due_datagrams(self, now: float, first: bool = False) -> tuple[list[bytes], tuple | None]:
@@ -445,18 +515,31 @@ class NetFTBox:
                 return [], None
             buffered = self._mode == RDT_START_BUFFERED
             per_datagram = self._settings["comrdtbsiz"] if buffered else 1
-            rate = self._settings["comrdtrate"]
-            due = int((now - self._stream_t0) * rate) - self._stream_done
+            if now < self._paused_until_s:
+                return [], None
+            until = now
+            if self.burst_interval_s > 0.0 and not first:
+                if now < self._next_burst_s:
+                    return [], None
+                until = now - self.burst_jitter_s * self._timing_rng.random()
+                self._next_burst_s = now + self.burst_interval_s * self._timing_rng.uniform(*BURST_INTERVAL_SPREAD)
+            due = self._due_count(until) - self._stream_done
             if first:
                 due = max(due, 1)
             if buffered:
                 due = (due // per_datagram) * per_datagram
             if due <= 0:
                 return [], None
-            if due > MAX_BURST_RECORDS:  # descheduled: skip the backlog instead of flooding
-                self.skipped_backlog += due - per_datagram
-                self._stream_done += due - per_datagram
-                due = per_datagram
+            if self.max_backlog_s is None:
+                limit, keep = MAX_BURST_RECORDS, per_datagram
+            else:
+                keep = limit = max(per_datagram, int(self.max_backlog_s * self._settings["comrdtrate"])
+                                   // per_datagram * per_datagram)
+            if due > limit:  # descheduled: skip the oldest of the backlog instead of flooding
+                self.skipped_backlog += due - keep
+                self._stream_done += due - keep
+                self._sample_buffer = np.empty((0, 6))  # samples drawn for the skipped records
+                due = keep
             if self._remaining is not None:
                 due = min(due, self._remaining)
             records = self._produce(due)
@@ -501,18 +584,22 @@ class NetFTBox:
         record's own time, however late this thread gets to it)."""
         if self._sample_buffer.shape[0] < n:
             chunk = max(n, int(self._settings["comrdtrate"] * SAMPLE_CHUNK_S), 1)
-            start = None if due_s is None else due_s + self._sample_buffer.shape[0] / self._settings["comrdtrate"]
-            self._sample_buffer = np.concatenate([self._sample_buffer, self._physics_sample(chunk, start)])
+            period_s = self._ft_step / self._ticks_per_host_s()
+            start = None if due_s is None else due_s + self._sample_buffer.shape[0] * period_s
+            self._sample_buffer = np.concatenate([self._sample_buffer, self._physics_sample(chunk, start, period_s)])
         out, self._sample_buffer = self._sample_buffer[:n], self._sample_buffer[n:]
         return out
 
-    def _physics_sample(self, n: int, start_s: float | None) -> np.ndarray:
+    def _physics_sample(self, n: int, start_s: float | None, period_s: float) -> np.ndarray:
         if start_s is None:
             return self.physics.sample(n)
         try:
-            return self.physics.sample(n, start_time_s=start_s)
-        except TypeError:  # a physics without sample times (tests' stand-ins)
-            return self.physics.sample(n)
+            return self.physics.sample(n, start_time_s=start_s, period_s=period_s)
+        except TypeError:  # a physics without sample times or spacing (tests' stand-ins)
+            try:
+                return self.physics.sample(n, start_time_s=start_s)
+            except TypeError:
+                return self.physics.sample(n)
 
     def _raw_counts(self, wrench_si: np.ndarray) -> np.ndarray:
         return np.clip(np.rint(wrench_si * self._si_to_counts), INT32_MIN, INT32_MAX).astype(np.int64)
@@ -520,18 +607,21 @@ class NetFTBox:
     def _produce(self, n: int) -> np.ndarray:
         """Return n records (structured array) and advance the sequences (lock held)."""
         records = np.zeros(n, dtype=RECORD_DTYPE)
-        if self._restart_requested:
+        index = self._stream_k0 + (self._stream_done + np.arange(n, dtype=np.int64)) * self._ft_step
+        if self._restart_requested:  # a power cycle mid-stream: the next record is the box's sample 1 × step
             self._restart_requested = False
             self._rdt_sequence, self._ft_sequence = 0, 0
+            self._last_index = int(index[0]) - self._ft_step
         rdt = (self._rdt_sequence + 1 + np.arange(n, dtype=np.int64)) & UINT32_MASK
-        steps = np.full(n, self._ft_step, dtype=np.int64)
+        steps = np.diff(index, prepend=self._last_index)  # internal samples since the previous record
+        self._last_index = int(index[-1])
         if self._stall_remaining:
             stalled = min(self._stall_remaining, n)
             steps[:stalled] = 0
             self._stall_remaining -= stalled
         ft = (self._ft_sequence + np.cumsum(steps)) & UINT32_MASK
         self._rdt_sequence, self._ft_sequence = int(rdt[-1]), int(ft[-1])
-        due_s = self._stream_t0 + self._stream_done / self._settings["comrdtrate"] if self._target is not None else None
+        due_s = self._due_s(self._stream_done) if self._target is not None else None
         counts = self._raw_counts(self._draw(n, due_s)) - self._bias_counts
         self._last_counts = counts[-1] + self._bias_counts
         if self._settings["setmce"] and not self._latched and self._monitor_breached(counts):

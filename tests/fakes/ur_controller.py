@@ -29,6 +29,8 @@ Control port commands (one line each, one JSON line back, ``{"ok": true, ...}`` 
 - ``jog q0 .. q5 SPEED ACCELERATION`` (a moveJ from the teach pendant: the arm moves with the controller's motion
   profile, so a simulated sensor sees the tool's inertia; answers ``accepted`` and the move's ``duration_s``) ·
   ``set time_scale X`` · ``set q q0 .. q5`` (a jump, no motion) · ``set tcp_offset x y z rx ry rz`` · ``quit``
+- ``clock`` (``host_s``: ``time.monotonic()`` now, ``controller_s``: the controller's clock then (RTDE ``timestamp``),
+  ``start_host_s``, ``clock_rate_error``, ``send_jitter_s``)
 - ``set external_ft_axes s1 .. s6`` (signs ±1: the controller reads ``external_force_torque`` with other signs,
   the deliberate error ``ftacq bridge --check`` must catch) · ``set external_ft_watchdog S`` (the input's watchdog
   period, 0.1 s by default, as a program's ``rtde_set_watchdog`` sets it)
@@ -296,8 +298,15 @@ class RTDEConnection:
 class ControllerServer:
     """All listeners, connection threads and the tick thread of one simulated controller."""
 
-    def __init__(self, sim: URSimulator, host: str, pose_shm: str | None = None) -> None:
+    def __init__(self, sim: URSimulator, host: str, pose_shm: str | None = None, send_jitter_s: float = 0.0,
+                 seed: int | None = None) -> None:
         self.sim, self.host = sim, host
+        if send_jitter_s < 0.0:
+            raise ValueError(f"send_jitter_s {send_jitter_s!r}: must be >= 0")
+        self.send_jitter_s = float(send_jitter_s)
+        """Each cycle, the receive-only clients' packages leave after a random delay in [0, this] s (a real
+        controller's network stack); the client that feeds external_force_torque is served first, undelayed."""
+        self._jitter_rng = np.random.default_rng(None if seed is None else [seed, 2])
         self.stop_event = threading.Event()
         self.frozen = False
         self.dropped = False
@@ -424,8 +433,12 @@ class ControllerServer:
                     feeder = self.input_owners.get("external_force_torque")
                     connections = sorted((c for c in self.rtde_connections if c.streaming),
                                          key=lambda c: (c is not feeder, bool(c.inputs)))
+                jittered = False
                 for connection in connections:
                     if now >= connection.next_send_s:
+                        if connection is not feeder and not jittered and self.send_jitter_s > 0.0:
+                            jittered = True  # the rest of this cycle's packages leave a little late
+                            self.stop_event.wait(self.send_jitter_s * self._jitter_rng.random())
                         if connection is feeder:
                             connection.pump()  # the inputs that reached the controller before this cycle
                             with self.sim.lock:
@@ -534,6 +547,10 @@ class ControllerServer:
         sim = self.sim
         if command == "ping":
             return {}
+        if command == "clock":
+            now = time.monotonic()
+            return {"host_s": now, "controller_s": sim.controller_time_s(now), "start_host_s": sim.start_s,
+                    "clock_rate_error": sim.clock_rate_error, "send_jitter_s": self.send_jitter_s}
         if command == "state":
             return {"state": sim.state_view(), "frozen": self.frozen, "dropped": self.dropped}
         if command == "commands":
@@ -678,6 +695,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"1σ jitter of the reported joint angles, rad (default 0: exact; a real UR5e "
                              f"{ENCODER_NOISE_RAD:g})")
     parser.add_argument("--seed", type=int, default=None, help="seed of the encoder jitter")
+    parser.add_argument("--clock-rate-error", type=float, default=0.0, metavar="E",
+                        help="the controller's clock rate against the host's, minus one (e.g. -30e-6): RTDE "
+                             "timestamp runs (1 + E) s per host second (default 0)")
+    parser.add_argument("--send-jitter-s", type=float, default=0.0, metavar="S",
+                        help="receive-only clients' packages leave a random 0..S s after their cycle (default 0)")
     parser.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                         help="run the controller's threads at SCHED_FIFO N, as a real controller's real-time cycle "
                              "(0: normal scheduling; refused without CAP_SYS_NICE, then normal)")
@@ -688,8 +710,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version,
                       initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
-                      serial_number=args.serial_number, encoder_noise_rad=args.encoder_noise_rad, seed=args.seed)
-    server = ControllerServer(sim, args.host, args.pose_shm)
+                      serial_number=args.serial_number, encoder_noise_rad=args.encoder_noise_rad, seed=args.seed,
+                      clock_rate_error=args.clock_rate_error)
+    server = ControllerServer(sim, args.host, args.pose_shm, send_jitter_s=args.send_jitter_s, seed=args.seed)
     try:
         server.bind()
     except OSError as error:

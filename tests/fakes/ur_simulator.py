@@ -135,8 +135,13 @@ class URSimulator:
 
     def __init__(self, model: URModel, *, time_scale: float = 1.0, version: tuple[int, int, int, int] = (5, 11, 1, 108318),
                  initial_q: np.ndarray | None = None, mount: str = "floor", serial_number: str = "20235500123",
-                 encoder_noise_rad: float = 0.0, seed: int | None = None) -> None:
+                 encoder_noise_rad: float = 0.0, seed: int | None = None, clock_rate_error: float = 0.0) -> None:
         self.lock = threading.RLock()
+        if not -0.01 < clock_rate_error < 0.01:
+            raise ValueError(f"clock_rate_error {clock_rate_error!r}: a controller's clock is off by ppm, not percent")
+        self.clock_rate_error = float(clock_rate_error)
+        """The controller's clock rate against the host's, minus one: RTDE ``timestamp`` advances (1 + this) s per
+        host second (a real controller counts its own 500 Hz cycles)."""
         self.model = model
         self.time_scale = float(time_scale)
         self.version = version
@@ -211,7 +216,8 @@ class URSimulator:
 
     # ------------------------------------------------------------------ geometry
     def controller_time_s(self, now: float | None = None) -> float:
-        return (time.monotonic() if now is None else now) - self.start_s
+        """The controller's clock (RTDE ``timestamp``, s since start) at host time ``now`` (``time.monotonic``)."""
+        return ((time.monotonic() if now is None else now) - self.start_s) * (1.0 + self.clock_rate_error)
 
     def flange_pose(self) -> np.ndarray:
         return flange_pose(self.model, self.q)
@@ -726,7 +732,7 @@ class URSimulator:
             tcp_force = self.external_ft.tcp_force(rotation_from_rotvec(flange[3:6]), self.tcp_offset[:3],
                                                    self.payload_kg, self.payload_cog, np.array(gravity))
         fields = {
-            "timestamp": now - self.start_s,
+            "timestamp": self.controller_time_s(now),
             "actual_q": actual_q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": qdd,
             "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(tcp.tolist()),
             "actual_TCP_force": tcp_force,

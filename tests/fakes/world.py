@@ -372,9 +372,10 @@ class SensorPhysics:
         elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
         return self.tool_wrench(q, qd, qdd) + self.bias_at(elapsed) + self.contact_wrench
 
-    def sample(self, n: int, start_time_s: float | None = None) -> np.ndarray:
+    def sample(self, n: int, start_time_s: float | None = None, period_s: float | None = None) -> np.ndarray:
         """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample,
-        at ``start_time_s`` + k / rate_hz when the caller knows when the first is due, else on the timeline of
+        at ``start_time_s`` + k × ``period_s`` (host seconds; default 1 / rate_hz) when the caller knows when the
+        first is due — a sensor on its own clock spaces its samples by its own period —, else on the timeline of
         :meth:`_sample_times`)."""
         reader = getattr(self.pose_source, "read_state", None)
         if reader is not None:
@@ -383,9 +384,14 @@ class SensorPhysics:
             (pose, joint_speed), state = self.pose_source.read(), None
         now = time.monotonic()
         elapsed = now - self.start_time_s
-        times = self._sample_times(n, now) if start_time_s is None else start_time_s + np.arange(n) / self.rate_hz
+        if start_time_s is None:
+            times = self._sample_times(n, now)
+        else:
+            times = start_time_s + np.arange(n) * (1.0 / self.rate_hz if period_s is None else period_s)
         if state is None or self.robot is None or state.at_rest:
             mean = self.noiseless_wrench(pose, elapsed)
+            if start_time_s is not None:  # the drift at each sample's own time
+                mean = mean - self.bias_at(elapsed) + self.bias_at((times - self.start_time_s)[:, None])
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
