@@ -66,9 +66,12 @@ class DriftCompensator:
         health: the :class:`ftacq.drift_health.BiasHealth` (its calibration is the one compensated with; its
             ``auto_tare`` decides whether the correction is subtracted).
         still: the :class:`StillDetector`.
-        moving: the compensator for the moving arm when the calibration has inertia
-            (:class:`procedures.dynamic_compensation.DynamicCompensator`), None for the static model. The tracker
-            learns only from rest windows, where both models agree; the correction applies to either.
+        moving: the live compensator: :class:`procedures.dynamic_compensation.DynamicCompensator` when the
+            calibration has inertia, :class:`procedures.static_compensation.StaticCompensator` (the static model
+            with the pose at the samples' time) otherwise; a batch it leaves uncompensated (None) is neither
+            returned nor fed to the tracker. None: the static model with the robot's newest pose (an arm known to
+            be still; tests). The tracker learns only from rest windows, where both models agree; the correction
+            applies to either, at the orientation of the batch's newest sample when ``moving`` says it.
     """
 
     health: BiasHealth
@@ -89,6 +92,9 @@ class DriftCompensator:
             residual = self.moving.compensate(batch, robot)
             if residual is None:
                 return None
+            at_samples = getattr(self.moving, "flange_R_base", None)  # the static one's, at the samples' time
+            if at_samples is not None and len(at_samples) == len(residual):
+                flange_R_base = at_samples[-1]
         else:
             residual = self.calibration.compensate(batch.wrench, flange_R_base)
         time_s = np.asarray(batch.time_s, dtype=float)

@@ -423,9 +423,9 @@ class LiveMonitor:
         if connected:
             self._notify(events.Notice("robot state stream is back", time_s=now_s), summary)
         else:
-            log.warning("robot state stream lost: compensation uses the last orientation received")
-            self._notify(events.Notice("robot state stream lost: compensation uses the last orientation received",
-                                       level="WARN", time_s=now_s), summary)
+            text = "robot state stream lost: reads with no robot state near their samples are left uncompensated"
+            log.warning(text)
+            self._notify(events.Notice(text, level="WARN", time_s=now_s), summary)
 
 
 __all__ = ["LiveMonitor", "MonitorSummary", "Compensator", "GravityCompensator", "HealthCheck", "RECORD_COLUMNS",

@@ -1,0 +1,107 @@
+"""The flange orientation at any recent host time, from the robot state stream's rows: :class:`FlangeOrientations`.
+
+The live compensators' static path (:mod:`procedures.static_compensation`, and the dynamic compensator's fallback,
+:mod:`procedures.dynamic_compensation`) compensates each sensor sample with the tool's weight at the orientation the
+flange had *when the sample was taken* (the samples' times on the host clock through the sensor's own clock,
+:class:`ftacq.dynamics.clock.SampleClock`), never with the newest one: a monitor that reads 100 ms late while the
+arm turns at 1 rad/s would otherwise rotate the tool's weight by 0.1 rad (4 N of a 4 kg tool).
+
+Per query (one sensor batch): the stream's rows around the samples (host times through the controller's own clock,
+:class:`drivers.ur_stream.URStateStream`), base_R_flange of each by forward kinematics (Pinocchio,
+:class:`ftacq.kinematics.FlangeRotation`, ≈ 3 µs; kept for the next batch, so only the new states are computed),
+interpolated onto the samples along the shortest arc (:func:`ftacq.dynamics.timing.slerp_rows`: numpy batches, no
+Python object per sample). A sample between two states is given the slerp between them, when they are at most
+``max_gap_s`` apart; a sample newer than the newest state (the live edge: its state has not arrived yet) the
+newest state's orientation, when it is at most ``max_gap_s`` newer. Otherwise (the stream is lost, late, or has a
+gap around the sample; the sample is older than the states read) the answer is None: the caller leaves the batch
+uncompensated rather than use a pose from another time.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ftacq.dynamics.timing import slerp_rows
+from ftacq.kinematics import FlangeRotation, URModel
+
+MAX_STATE_GAP_S = 0.05
+"""Longest interval between the two robot states around a sample, and longest time a sample may be newer than the
+newest state, for it to be given an orientation, s (25 controller cycles at 500 Hz: a gap of the state stream longer
+than this is a stall or a lost link, not jitter)."""
+DEFAULT_STATE_RATE_HZ = 500.0
+"""The state stream's rate when it does not say (``frequency_hz``), Hz: only sizes the first read of rows."""
+MAX_ROWS = 1 << 16
+"""Most rows read for one query (131 s at 500 Hz): samples older than that are not compensated."""
+
+
+class FlangeOrientations:
+    """flange_R_base at given host times from a robot state stream (module docstring).
+
+    Args: model (the arm's kinematics), stream (a started :class:`drivers.ur_stream.URStateStream`, or anything
+    with its ``window(last=…)`` returning host ``time_s``, ``controller_time_s`` and ``q``), max_gap_s.
+    One thread (a :class:`~ftacq.kinematics.FlangeRotation` is not thread-safe).
+    """
+
+    def __init__(self, model: URModel, stream, max_gap_s: float = MAX_STATE_GAP_S) -> None:
+        self.stream = stream
+        self.max_gap_s = float(max_gap_s)
+        self._flange_rotation = FlangeRotation(model)
+        self._period_s = 1.0 / float(getattr(stream, "frequency_hz", DEFAULT_STATE_RATE_HZ) or DEFAULT_STATE_RATE_HZ)
+        self._known_time = np.empty(0)
+        """Controller times (s) of the rows whose base_R_flange the last query computed, in order."""
+        self._known_rotation = np.empty((0, 3, 3))
+        self.computed = 0
+        """States whose forward kinematics was computed (each once while consecutive queries overlap)."""
+
+    def flange_R_base_at(self, time_s: np.ndarray) -> np.ndarray | None:
+        """Return flange_R_base (N, 3, 3) at each host time of ``time_s`` (N,), s, sorted; None when a time lies in
+        a gap of the stream longer than ``max_gap_s``, more than that after the newest state, or before the
+        states read (module docstring)."""
+        times = np.asarray(time_s, dtype=float)
+        if times.size == 0:
+            return np.empty((0, 3, 3))
+        window = self.stream.window(last=1)
+        if len(window) == 0 or times[-1] > window.time_s[-1] + self.max_gap_s:
+            return None  # the newest state does not reach these samples
+        rows = int(min((float(window.time_s[-1]) - times[0] + self.max_gap_s) / self._period_s, MAX_ROWS)) + 2
+        while True:
+            window = self.stream.window(last=rows)
+            if len(window) < rows or window.time_s[0] <= times[0] or rows >= MAX_ROWS:
+                break
+            rows = min(4 * rows, MAX_ROWS)  # the stream runs faster than it said: read further back
+        state = window.time_s
+        # the states bracketing the samples: from the last one at or before the oldest sample to the first one at
+        # or after the newest (or the newest state, which the newest samples may have outrun by up to max_gap_s)
+        low = int(np.searchsorted(state, times[0], side="right")) - 1
+        high = int(np.searchsorted(state, times[-1], side="left")) + 1
+        if low < 0:
+            return None  # older than every state read
+        around = state[low:high]
+        after = np.searchsorted(around, times, side="left")  # ≥ 1 for every sample (around[0] ≤ times[0])
+        newer = after >= around.size  # the live edge: the state of these samples' time has not arrived yet
+        interval = np.where(newer, times - around[-1],
+                            around[np.minimum(after, around.size - 1)] - around[np.maximum(after - 1, 0)])
+        if not np.all(interval <= self.max_gap_s):
+            return None  # a gap of the stream around these samples (lost, stalled): no orientation of their time
+        base_R_flange = self._rotations(window.controller_time_s[low:high], window.q[low:high])
+        return np.swapaxes(slerp_rows(times, around, base_R_flange), 1, 2)
+
+    def _rotations(self, controller_time_s: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """base_R_flange (K, 3, 3) of these rows: those the last query computed are reused, the others computed."""
+        out = np.empty((controller_time_s.size, 3, 3))
+        known_time = self._known_time
+        hit = np.zeros(controller_time_s.size, dtype=bool)
+        if known_time.size:
+            where = np.minimum(np.searchsorted(known_time, controller_time_s), known_time.size - 1)
+            hit = known_time[where] == controller_time_s
+            out[hit] = self._known_rotation[where[hit]]
+        rotation = self._flange_rotation
+        for row in np.flatnonzero(~hit).tolist():  # the new states only: a few per batch
+            out[row] = rotation(q[row])
+            self.computed += 1
+        if controller_time_s.size < 2 or np.all(np.diff(controller_time_s) > 0):
+            self._known_time, self._known_rotation = controller_time_s.copy(), out
+        return out
+
+
+__all__ = ["FlangeOrientations", "MAX_STATE_GAP_S"]
