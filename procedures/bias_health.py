@@ -108,6 +108,12 @@ class DriftCompensator:
             residual -= self.health.correction(float(time_s[-1]), flange_R_base)
         return residual
 
+    def sample_flange_pose(self) -> np.ndarray | None:
+        """The flange pose (N, 6) at each sample's time of the last batch, as ``moving`` says it (None when it
+        does not: no ``moving``, or no robot state near the samples)."""
+        pose = getattr(self.moving, "sample_flange_pose", None)
+        return pose() if pose is not None else None
+
     def snapshot(self, time_s: float) -> BiasDrift:
         """Return the tracker's estimate now."""
         tracker = self.health.tracker

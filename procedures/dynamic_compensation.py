@@ -28,7 +28,7 @@ from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
 from ftacq.dynamics.clock import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import URModel
-from procedures.flange_orientation import MAX_STATE_GAP_S, FlangeOrientations
+from procedures.flange_orientation import MAX_STATE_GAP_S, FlangeOrientations, pose_rows
 
 STATE_WINDOW_ROWS = 64
 """Newest robot states looked at per batch (128 ms at 500 Hz), and predictions kept."""
@@ -77,6 +77,9 @@ class DynamicCompensator:
         self.uncompensated_batches = 0
         """Batches with no robot state within MAX_STATE_GAP_S of their samples: compensate() returned None."""
         self.dynamic_batches = 0
+        self._times = np.empty(0)
+        """The last batch's sample times on the host clock, lag taken off, s."""
+        self._static_pose: np.ndarray | None = None
         self.derivative_states = 0
 
     def _kept(self) -> tuple[np.ndarray, np.ndarray]:
@@ -122,7 +125,8 @@ class DynamicCompensator:
         """Return the contact wrench (N, 6) of ``batch``: dynamically, else statically with the pose at the samples'
         time, else None (uncompensated: no robot state near the samples). ``robot`` (the newest state from another
         source) is not used: its pose is from another time."""
-        times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
+        times = self._times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
+        self._static_pose = None
         self._update_predictions()
         state_times, predicted = self._kept()
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
@@ -134,4 +138,13 @@ class DynamicCompensator:
             self.uncompensated_batches += 1
             return None
         self.static_batches += 1
+        self._static_pose = pose_rows(self.orientations.position_m, flange_R_base)
         return self.calibration.compensate(batch.wrench, flange_R_base)
+
+    def sample_flange_pose(self) -> np.ndarray | None:
+        """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample's time of the last batch (the lag
+        taken off), from the state stream (the model itself uses the joint states, not this pose); None when no
+        state is near them. For the record: each sample beside the pose of its time."""
+        if self._static_pose is not None:
+            return self._static_pose
+        return self.orientations.flange_pose_at(self._times) if self._times.size else None

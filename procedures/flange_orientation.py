@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ftacq.dynamics.timing import slerp_rows
+from ftacq.dynamics.timing import interpolate_rows, slerp_rows
 from ftacq.kinematics import FlangeRotation, URModel
+from ftacq.so3 import rotvec_from_rotation
 
 MAX_STATE_GAP_S = 0.05
 """Longest interval between the two robot states around a sample, and longest time a sample may be newer than the
@@ -50,6 +51,10 @@ class FlangeOrientations:
         self._known_time = np.empty(0)
         """Controller times (s) of the rows whose base_R_flange the last query computed, in order."""
         self._known_rotation = np.empty((0, 3, 3))
+        self._known_position = np.empty((0, 3))
+        self.position_m = np.empty((0, 3))
+        """The flange positions (N, 3), m, base frame, at the times of the last :meth:`flange_R_base_at` answered
+        (linear between the states)."""
         self.computed = 0
         """States whose forward kinematics was computed (each once while consecutive queries overlap)."""
 
@@ -83,25 +88,43 @@ class FlangeOrientations:
                             around[np.minimum(after, around.size - 1)] - around[np.maximum(after - 1, 0)])
         if not np.all(interval <= self.max_gap_s):
             return None  # a gap of the stream around these samples (lost, stalled): no orientation of their time
-        base_R_flange = self._rotations(window.controller_time_s[low:high], window.q[low:high])
+        base_R_flange, position = self._placements(window.controller_time_s[low:high], window.q[low:high])
+        self.position_m = interpolate_rows(times, around, position)
         return np.swapaxes(slerp_rows(times, around, base_R_flange), 1, 2)
 
-    def _rotations(self, controller_time_s: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """base_R_flange (K, 3, 3) of these rows: those the last query computed are reused, the others computed."""
-        out = np.empty((controller_time_s.size, 3, 3))
+    def flange_pose_at(self, time_s: np.ndarray) -> np.ndarray | None:
+        """Return the flange pose (N, 6) at each host time of ``time_s`` (s, sorted) as a UR pose (x, y, z in m,
+        the rotation vector of base_R_flange in rad; base frame), or None as :meth:`flange_R_base_at`: for a
+        record pairing each sample with the pose of its time."""
+        flange_R_base = self.flange_R_base_at(time_s)
+        if flange_R_base is None:
+            return None
+        return pose_rows(self.position_m, flange_R_base)
+
+    def _placements(self, controller_time_s: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(base_R_flange (K, 3, 3), flange position (K, 3) m, base frame) of these rows: those the last query
+        computed are reused, the others computed."""
+        rotations, positions = np.empty((controller_time_s.size, 3, 3)), np.empty((controller_time_s.size, 3))
         known_time = self._known_time
         hit = np.zeros(controller_time_s.size, dtype=bool)
         if known_time.size:
             where = np.minimum(np.searchsorted(known_time, controller_time_s), known_time.size - 1)
             hit = known_time[where] == controller_time_s
-            out[hit] = self._known_rotation[where[hit]]
-        rotation = self._flange_rotation
+            rotations[hit], positions[hit] = self._known_rotation[where[hit]], self._known_position[where[hit]]
+        placement = self._flange_rotation.placement
         for row in np.flatnonzero(~hit).tolist():  # the new states only: a few per batch
-            out[row] = rotation(q[row])
+            rotations[row], positions[row] = placement(q[row])
             self.computed += 1
         if controller_time_s.size < 2 or np.all(np.diff(controller_time_s) > 0):
-            self._known_time, self._known_rotation = controller_time_s.copy(), out
-        return out
+            self._known_time = controller_time_s.copy()
+            self._known_rotation, self._known_position = rotations, positions
+        return rotations, positions
 
 
-__all__ = ["FlangeOrientations", "MAX_STATE_GAP_S"]
+def pose_rows(position_m: np.ndarray, flange_R_base: np.ndarray) -> np.ndarray:
+    """UR poses (N, 6) (x, y, z m; rotation vector of base_R_flange, rad) from positions (N, 3) and flange_R_base
+    (N, 3, 3)."""
+    return np.hstack([position_m, rotvec_from_rotation(np.swapaxes(flange_R_base, 1, 2))])
+
+
+__all__ = ["FlangeOrientations", "MAX_STATE_GAP_S", "pose_rows"]

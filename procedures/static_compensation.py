@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.calibration import Calibration
 from ftacq.dynamics.clock import SampleClock
 from ftacq.kinematics import URModel
-from procedures.flange_orientation import FlangeOrientations
+from procedures.flange_orientation import FlangeOrientations, pose_rows
 
 
 class StaticCompensator:
@@ -64,6 +64,13 @@ class StaticCompensator:
             return None
         self.compensated_batches += 1
         return self.calibration.compensate(batch.wrench, self.flange_R_base)
+
+    def sample_flange_pose(self) -> np.ndarray | None:
+        """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample of the last batch, as it was
+        compensated with; None when it was left uncompensated. For the record: each sample beside its pose."""
+        if self.flange_R_base is None:
+            return None
+        return pose_rows(self.orientations.position_m, self.flange_R_base)
 
 
 __all__ = ["StaticCompensator"]

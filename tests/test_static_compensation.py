@@ -132,6 +132,13 @@ def test_a_monitor_that_falls_behind_compensates_with_the_pose_at_the_samples_ti
     bracketed = compensated & ((sample_time < last_before_silence) | (sample_time > silent[1]))
     assert bracketed.sum() > 80 * BATCH
     np.testing.assert_allclose(got[bracketed], np.broadcast_to(contact, got[bracketed].shape), atol=1e-3)
+    # the record pairs each sample with the pose of its time (so `ftacq compensate` of the record gives the same)
+    pose = np.column_stack([record[name] for name in ("x", "y", "z", "rx", "ry", "rz")])
+    true_pose = np.array([flange_pose(MODEL, q) for q in joint_angles(record["device_time_s"][bracketed])])
+    np.testing.assert_allclose(pose[bracketed], true_pose, atol=1e-4)  # interpolation between 2 ms states: ~q̈ dt²/8
+    raw = np.column_stack([record[name] for name in ("fx", "fy", "fz", "tx", "ty", "tz")])
+    again = calibration.compensate(raw[bracketed], np.array([flange_R_base_from_pose(p) for p in pose[bracketed]]))
+    np.testing.assert_allclose(again, got[bracketed], atol=1e-4)
     # ... where the newest pose (the state 0.1 s later, as the monitor read it) would have been off by newtons
     newest = calibration.compensate(np.vstack([b.wrench for b in batches]),
                                     np.array([flange_R_base_from_pose(flange_pose(MODEL, q))
