@@ -171,3 +171,27 @@ def test_flange_orientations_are_the_slerp_between_the_states_and_say_when_none_
     np.testing.assert_allclose(held[0], flange(window.q[-1]).T, atol=1e-12)
     assert orientations.flange_R_base_at(np.array([newest + 2 * MAX_STATE_GAP_S])) is None
     assert orientations.flange_R_base_at(np.array([window.time_s[0] - 2 * MAX_STATE_GAP_S])) is None
+
+
+def test_the_dashboard_leaves_a_batch_the_live_compensation_left_raw_uncompensated(tmp_path):
+    from ftacq.app.dashboard import layout, sinks
+    from procedures import events
+    from tests.rrd_reader import read_scalars
+    from tests.scripted import FixedRobotState, Q_HOME_RAD, dashboard_listener, new_recording, physics_batches
+
+    robot = FixedRobotState(Q_HOME_RAD)
+    first, second = physics_batches(robot.pose, 2)
+    path = tmp_path / "monitor.rrd"
+    recording = new_recording(path)
+    listener = dashboard_listener(recording)
+    listener.set_calibration(CellTruth().calibration())
+    # no robot state of its time: raw only, although the event carries the newest pose (another time's)
+    listener(events.WrenchSamples(first, None, flange_pose=robot.pose, joint_positions_rad=robot.q_rad,
+                                  uncompensated=True))
+    listener(events.WrenchSamples(second, None, flange_pose=robot.pose, joint_positions_rad=robot.q_rad))
+    listener.flush()
+    sinks.close_recording(recording)
+    raw_time, _ = read_scalars(path, layout.RAW_FORCE)
+    compensated_time, _ = read_scalars(path, layout.COMPENSATED_FORCE)
+    assert raw_time.size == 2 * len(first)
+    np.testing.assert_allclose(compensated_time, second.time_s, atol=1e-9)  # only the batch with no such flag
