@@ -7,9 +7,11 @@ it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.e
 drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
 acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window.
 
-Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over the last ``window_s`` of the
-robot states read with the batches (the monitor reads the latest actual_q with each sensor batch); saturated
-samples are never used.
+Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over ``window_s`` before the batch's
+samples and while they were taken, from the RTDE state stream at the samples' time (``moving.still_over``: a
+monitor reading 0.3 s late would otherwise put samples of the arm still moving into a rest window); without a
+live compensator, over the last ``window_s`` of the robot states read with the batches. Saturated samples are
+never used.
 """
 
 from __future__ import annotations
@@ -98,7 +100,11 @@ class DriftCompensator:
         else:
             residual = self.calibration.compensate(batch.wrench, flange_R_base)
         time_s = np.asarray(batch.time_s, dtype=float)
-        still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
+        still_over = getattr(self.moving, "still_over", None)
+        if still_over is not None:  # still while the samples were taken (the states of their time)
+            still = still_over(self.still.window_s, self.still.tolerance_rad)
+        else:  # the newest joint angles read with the batches (an arm known to be still; tests)
+            still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
         good = ~np.asarray(batch.saturated, dtype=bool)
         if still and not good.all():
             self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window

@@ -141,6 +141,15 @@ class DynamicCompensator:
         self._static_pose = pose_rows(self.orientations.position_m, flange_R_base)
         return self.calibration.compensate(batch.wrench, flange_R_base)
 
+    def still_over(self, window_s: float, tolerance_rad: float) -> bool:
+        """True when every joint stayed within ``tolerance_rad`` from ``window_s`` before the last batch's first
+        sample to its last one (their times, from the state stream): the arm was still while the samples were
+        taken, however late they were read (the drift tracker's rest windows)."""
+        if self._times.size == 0:
+            return False
+        return self.orientations.still_between(float(self._times[0]) - window_s, float(self._times[-1]),
+                                               tolerance_rad)
+
     def sample_flange_pose(self) -> np.ndarray | None:
         """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample's time of the last batch (the lag
         taken off), from the state stream (the model itself uses the joint states, not this pose); None when no

@@ -65,15 +65,9 @@ class FlangeOrientations:
         times = np.asarray(time_s, dtype=float)
         if times.size == 0:
             return np.empty((0, 3, 3))
-        window = self.stream.window(last=1)
-        if len(window) == 0 or times[-1] > window.time_s[-1] + self.max_gap_s:
-            return None  # the newest state does not reach these samples
-        rows = int(min((float(window.time_s[-1]) - times[0] + self.max_gap_s) / self._period_s, MAX_ROWS)) + 2
-        while True:
-            window = self.stream.window(last=rows)
-            if len(window) < rows or window.time_s[0] <= times[0] or rows >= MAX_ROWS:
-                break
-            rows = min(4 * rows, MAX_ROWS)  # the stream runs faster than it said: read further back
+        window = self._rows(times[0], times[-1])
+        if window is None:
+            return None
         state = window.time_s
         # the states bracketing the samples: from the last one at or before the oldest sample to the first one at
         # or after the newest (or the newest state, which the newest samples may have outrun by up to max_gap_s)
@@ -91,6 +85,34 @@ class FlangeOrientations:
         base_R_flange, position = self._placements(window.controller_time_s[low:high], window.q[low:high])
         self.position_m = interpolate_rows(times, around, position)
         return np.swapaxes(slerp_rows(times, around, base_R_flange), 1, 2)
+
+    def _rows(self, oldest_s: float, newest_s: float):
+        """The stream's newest rows back to the last one at or before ``oldest_s`` (host s; all it keeps if none
+        is), or None when the newest state is more than ``max_gap_s`` older than ``newest_s``."""
+        window = self.stream.window(last=1)
+        if len(window) == 0 or newest_s > window.time_s[-1] + self.max_gap_s:
+            return None  # the newest state does not reach these samples
+        rows = int(min((float(window.time_s[-1]) - oldest_s + self.max_gap_s) / self._period_s, MAX_ROWS)) + 2
+        while True:
+            window = self.stream.window(last=rows)
+            if len(window) < rows or window.time_s[0] <= oldest_s or rows >= MAX_ROWS:
+                return window
+            rows = min(4 * rows, MAX_ROWS)  # the stream runs faster than it said: read further back
+
+    def still_between(self, start_s: float, end_s: float, tolerance_rad: float) -> bool:
+        """True when the robot states cover host times [start_s, end_s] (s; no gap longer than ``max_gap_s``, the
+        newest at most that before ``end_s``) and every joint stayed within ``tolerance_rad`` over them: the arm
+        was still while those samples were taken (not when they were read)."""
+        window = self._rows(start_s, end_s)
+        if window is None or len(window) == 0 or window.time_s[0] > start_s:
+            return False
+        state = window.time_s
+        low = int(np.searchsorted(state, start_s, side="right")) - 1
+        high = int(np.searchsorted(state, end_s, side="left")) + 1
+        if np.any(np.diff(state[low:high]) > self.max_gap_s):
+            return False
+        q = window.q[low:high]
+        return bool(np.all(q.max(axis=0) - q.min(axis=0) <= tolerance_rad))
 
     def flange_pose_at(self, time_s: np.ndarray) -> np.ndarray | None:
         """Return the flange pose (N, 6) at each host time of ``time_s`` (s, sorted) as a UR pose (x, y, z in m,

@@ -52,18 +52,29 @@ class StaticCompensator:
         """Batches with no robot state within MAX_STATE_GAP_S of a sample: compensate() returned None."""
         self.flange_R_base: np.ndarray | None = None
         """The orientations (N, 3, 3) the last batch was compensated with (None when it was not)."""
+        self._times = np.empty(0)
+        """The last batch's sample times on the host clock, lag taken off, s."""
 
     def compensate(self, batch, robot=None) -> np.ndarray | None:
         """Return the contact wrench (N, 6) of ``batch`` (N, N·m, sensor frame), or None (uncompensated: no robot
         state near its samples). ``robot`` (the newest state from another source) is not used: its pose is from
         another time."""
-        times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
+        times = self._times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
         self.flange_R_base = self.orientations.flange_R_base_at(times)
         if self.flange_R_base is None:
             self.uncompensated_batches += 1
             return None
         self.compensated_batches += 1
         return self.calibration.compensate(batch.wrench, self.flange_R_base)
+
+    def still_over(self, window_s: float, tolerance_rad: float) -> bool:
+        """True when every joint stayed within ``tolerance_rad`` from ``window_s`` before the last batch's first
+        sample to its last one (their times, from the state stream): the arm was still while the samples were
+        taken, however late they were read (the drift tracker's rest windows)."""
+        if self._times.size == 0:
+            return False
+        return self.orientations.still_between(float(self._times[0]) - window_s, float(self._times[-1]),
+                                               tolerance_rad)
 
     def sample_flange_pose(self) -> np.ndarray | None:
         """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample of the last batch, as it was

@@ -11,6 +11,8 @@ between 2 ms states, well below the sensor's noise).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -195,3 +197,36 @@ def test_the_dashboard_leaves_a_batch_the_live_compensation_left_raw_uncompensat
     compensated_time, _ = read_scalars(path, layout.COMPENSATED_FORCE)
     assert raw_time.size == 2 * len(first)
     np.testing.assert_allclose(compensated_time, second.time_s, atol=1e-9)  # only the batch with no such flag
+
+
+def test_stillness_is_judged_at_the_samples_time_not_when_they_are_read():
+    from procedures.bias_health import STILL_TOLERANCE_RAD, STILL_WINDOW_S, StillDetector
+
+    calibration = CellTruth().calibration()
+    states = CycleStates(capacity=1024)
+    stop_s = 0.3  # the arm moves until then, and stays still after
+
+    for k in range(500):  # states up to 1.0 s: the monitor reads late
+        t = k * 0.002
+        states.append(replace(controller_cycle(min(t, stop_s)), timestamp_s=t, received_s=HOST_OFFSET_S + t + 2e-4))
+    static = StaticCompensator(calibration, MODEL, states)
+    newest_q = states.window(last=1).q[-1]
+    detector = StillDetector()
+    for t in np.arange(0.0, 1.0, 0.01):  # what the newest joint angles say: still for long
+        detector.update(t, newest_q)
+
+    def batch_at(start_s: float):
+        device = start_s + np.arange(BATCH) / RATE_HZ
+        return WrenchBatch(time_s=HOST_OFFSET_S + device + 2e-4, wrench=np.zeros((BATCH, 6)),
+                           counts=np.zeros((BATCH, 6), dtype=np.int64), status=np.zeros(BATCH, dtype=np.uint32),
+                           sequence=np.arange(BATCH, dtype=np.int64), saturated=np.zeros(BATCH, dtype=bool),
+                           device_time_s=device)
+
+    assert detector.update(1.0, newest_q)  # the newest state: still
+    static.compensate(batch_at(0.4))  # samples taken 0.1 s after the stop: not yet still for STILL_WINDOW_S
+    assert not static.still_over(STILL_WINDOW_S, STILL_TOLERANCE_RAD)
+    static.compensate(batch_at(0.25))  # taken while the arm moved
+    assert not static.still_over(STILL_WINDOW_S, STILL_TOLERANCE_RAD)
+    static.compensate(batch_at(0.6))  # taken 0.3 s after the stop
+    assert static.still_over(STILL_WINDOW_S, STILL_TOLERANCE_RAD)
+
