@@ -1,4 +1,4 @@
-"""The live monitor: sensor batches → compensation with the robot's latest state → events for the listeners.
+"""The live monitor: sensor batches → compensation with the robot's state at their time → events for the listeners.
 
 Three threads, each with one job::
 
@@ -27,7 +27,11 @@ the run cleanly.
 Two seams, for what is added to the monitor without touching its loop:
 
 - a :class:`Compensator` turns raw samples into the contact wrench given the robot's state
-  (:class:`GravityCompensator`: the static gravity compensation of a calibration);
+  (:class:`procedures.static_compensation.StaticCompensator` and
+  :class:`procedures.dynamic_compensation.DynamicCompensator`: with the robot's state at the samples' time, from
+  the RTDE state stream; :class:`GravityCompensator`: with the newest pose, for an arm that stays still). A
+  compensator may also say the pose at each sample's time (``sample_flange_pose()``: the record's pose columns);
+  a batch it leaves uncompensated (None, with a robot) is published flagged ``uncompensated``;
 - :class:`HealthCheck` objects see every read (compensated) in the acquisition thread and return notices
   (warnings are also kept in :attr:`MonitorSummary.warnings`).
 """
@@ -89,7 +93,9 @@ class Compensator(Protocol):
 @dataclass(frozen=True)
 class GravityCompensator:
     """Static gravity compensation with a :class:`ftacq.calibration.Calibration` and the latest flange orientation
-    (:meth:`ftacq.calibration.Calibration.compensate`: raw − bias − tool weight in the sensor frame)."""
+    (:meth:`ftacq.calibration.Calibration.compensate`: raw − bias − tool weight in the sensor frame). Right only for
+    an arm that stays still (tests, benchmarks of the stream): ``ftacq monitor`` uses
+    :class:`procedures.static_compensation.StaticCompensator`, the orientation at each sample's time."""
 
     calibration: Calibration
 
