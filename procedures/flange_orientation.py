@@ -10,7 +10,7 @@ Per query (one sensor batch): the stream's rows around the samples (host times t
 :class:`drivers.ur_stream.URStateStream`), base_R_flange of each by forward kinematics (Pinocchio,
 :class:`ftacq.kinematics.FlangeRotation`, ≈ 3 µs; kept for the next batch, so only the new states are computed),
 interpolated onto the samples along the shortest arc (:func:`ftacq.dynamics.timing.slerp_rows`: numpy batches, no
-Python object per sample). A sample between two states is given the slerp between them, when they are at most
+Python object per sample; entry-wise where the states are so close that the two agree to 10⁻⁵: :data:`SLERP_ABOVE_RAD`). A sample between two states is given the slerp between them, when they are at most
 ``max_gap_s`` apart; a sample newer than the newest state (the live edge: its state has not arrived yet) the
 newest state's orientation, when it is at most ``max_gap_s`` newer. Otherwise (the stream is lost, late, or has a
 gap around the sample; the sample is older than the states read) the answer is None: the caller leaves the batch
@@ -29,8 +29,18 @@ MAX_STATE_GAP_S = 0.05
 """Longest interval between the two robot states around a sample, and longest time a sample may be newer than the
 newest state, for it to be given an orientation, s (25 controller cycles at 500 Hz: a gap of the state stream longer
 than this is a stall or a lost link, not jitter)."""
+SLERP_ABOVE_RAD = 0.01
+"""When every interval between the states around a batch turns the flange by less than this (rad), the orientation
+is interpolated entry-wise (:func:`ftacq.dynamics.timing.interpolate_rows`) instead of along the arc
+(:func:`ftacq.dynamics.timing.slerp_rows`): the entry-wise mean of two rotations θ apart is the arc's midpoint
+scaled by cos(θ/2), so the weight it predicts is at most θ²/8 short (1.3·10⁻⁵ at 0.01 rad: 0.5 mN of a 40 N tool,
+far below any sensor's noise), for a fraction of the slerp's cost per batch (benchmarks/static_compensation.py).
+0.01 rad between 2 ms states is a flange turning at 5 rad/s; a wider interval (a gap of the stream, a faster
+wrist) takes the slerp."""
 DEFAULT_STATE_RATE_HZ = 500.0
 """The state stream's rate when it does not say (``frequency_hz``), Hz: only sizes the first read of rows."""
+READ_MARGIN_ROWS = 4
+"""Rows read beyond what the last query needed (the next batch may reach a little further back)."""
 MAX_ROWS = 1 << 16
 """Most rows read for one query (131 s at 500 Hz): samples older than that are not compensated."""
 
@@ -52,9 +62,10 @@ class FlangeOrientations:
         """Controller times (s) of the rows whose base_R_flange the last query computed, in order."""
         self._known_rotation = np.empty((0, 3, 3))
         self._known_position = np.empty((0, 3))
-        self.position_m = np.empty((0, 3))
-        """The flange positions (N, 3), m, base frame, at the times of the last :meth:`flange_R_base_at` answered
-        (linear between the states)."""
+        self._positions: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.empty(0), np.empty(0), np.empty((0, 3)))
+        """(sample times, state times, state positions) of the last answer: :attr:`position_m` when asked."""
+        self._last_rows: dict[str, int] = {}
+        """Per kind of query, the rows its last one needed back to its oldest time (plus a margin)."""
         self.computed = 0
         """States whose forward kinematics was computed (each once while consecutive queries overlap)."""
 
@@ -83,27 +94,36 @@ class FlangeOrientations:
         if not np.all(interval <= self.max_gap_s):
             return None  # a gap of the stream around these samples (lost, stalled): no orientation of their time
         base_R_flange, position = self._placements(window.controller_time_s[low:high], window.q[low:high])
-        self.position_m = interpolate_rows(times, around, position)
+        self._positions = (times, around, position)
+        flat = base_R_flange.reshape(-1, 9)
+        widest_rad = float(np.linalg.norm(np.diff(flat, axis=0), axis=1).max()) / np.sqrt(2.0) if len(flat) > 1 else 0.0
+        if widest_rad < SLERP_ABOVE_RAD:  # ‖R_{i+1} − R_i‖_F = 2√2 sin(θ/2) ≈ √2 θ
+            return np.swapaxes(interpolate_rows(times, around, flat).reshape(-1, 3, 3), 1, 2)
         return np.swapaxes(slerp_rows(times, around, base_R_flange), 1, 2)
 
-    def _rows(self, oldest_s: float, newest_s: float):
+    def _rows(self, oldest_s: float, newest_s: float, query: str = "orientation"):
         """The stream's newest rows back to the last one at or before ``oldest_s`` (host s; all it keeps if none
-        is), or None when the newest state is more than ``max_gap_s`` older than ``newest_s``."""
-        window = self.stream.window(last=1)
-        if len(window) == 0 or newest_s > window.time_s[-1] + self.max_gap_s:
-            return None  # the newest state does not reach these samples
-        rows = int(min((float(window.time_s[-1]) - oldest_s + self.max_gap_s) / self._period_s, MAX_ROWS)) + 2
+        is), or None when the newest state is more than ``max_gap_s`` older than ``newest_s``. ``query`` names the
+        caller, whose last read sizes this one."""
+        rows = self._last_rows.get(query, READ_MARGIN_ROWS)  # as many as its last query needed: usually one read
         while True:
             window = self.stream.window(last=rows)
+            if len(window) == 0 or newest_s > window.time_s[-1] + self.max_gap_s:
+                return None  # the newest state does not reach these samples
             if len(window) < rows or window.time_s[0] <= oldest_s or rows >= MAX_ROWS:
+                if window.time_s[0] <= oldest_s:  # the rows from the last one at or before oldest_s, and a margin
+                    first = int(np.searchsorted(window.time_s, oldest_s, side="right")) - 1
+                    self._last_rows[query] = len(window) - first + READ_MARGIN_ROWS
                 return window
-            rows = min(4 * rows, MAX_ROWS)  # the stream runs faster than it said: read further back
+            # read further back: as far as the stream's rate says, at least twice as far
+            span_rows = (float(window.time_s[-1]) - oldest_s) / self._period_s + 2
+            rows = int(min(max(2 * rows, span_rows), MAX_ROWS))
 
     def still_between(self, start_s: float, end_s: float, tolerance_rad: float) -> bool:
         """True when the robot states cover host times [start_s, end_s] (s; no gap longer than ``max_gap_s``, the
         newest at most that before ``end_s``) and every joint stayed within ``tolerance_rad`` over them: the arm
         was still while those samples were taken (not when they were read)."""
-        window = self._rows(start_s, end_s)
+        window = self._rows(start_s, end_s, "still")
         if window is None or len(window) == 0 or window.time_s[0] > start_s:
             return False
         state = window.time_s
@@ -113,6 +133,13 @@ class FlangeOrientations:
             return False
         q = window.q[low:high]
         return bool(np.all(q.max(axis=0) - q.min(axis=0) <= tolerance_rad))
+
+    @property
+    def position_m(self) -> np.ndarray:
+        """The flange positions (N, 3), m, base frame, at the times of the last :meth:`flange_R_base_at` answered
+        (linear between the states; computed when asked: only a record needs them)."""
+        times, around, position = self._positions
+        return interpolate_rows(times, around, position) if times.size else np.empty((0, 3))
 
     def flange_pose_at(self, time_s: np.ndarray) -> np.ndarray | None:
         """Return the flange pose (N, 6) at each host time of ``time_s`` (s, sorted) as a UR pose (x, y, z in m,

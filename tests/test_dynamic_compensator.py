@@ -116,7 +116,8 @@ def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_sam
     slerp = Slerp(window.time_s, Rotation.from_matrix(np.array([flange(q) for q in window.q])))
     at_samples = slerp(at).as_matrix()
     expected = calibration.compensate(wrench, at_samples.transpose(0, 2, 1))
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    # (entry-wise between states closer than SLERP_ABOVE_RAD: at most θ²/8 of the weight, < 2 mN here)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=2e-3)
     newest = calibration.compensate(wrench, flange(window.q[-1]).T)
     assert np.abs(newest - expected).max() > 1.0  # the newest pose would have been wrong by more than a newton
     # the state stream is late (no state within MAX_STATE_GAP_S of the samples): uncompensated, said by None
