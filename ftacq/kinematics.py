@@ -227,6 +227,14 @@ class FlangeRotation:
         pin.updateFramePlacement(self.model, self.data, self._frame)
         return self.data.oMf[self._frame].rotation.copy()  # a view into data otherwise
 
+    def placement(self, q_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(base_R_flange (3, 3), the flange's position (3,) in m, base frame) of joint angles (6,) in rad."""
+        pin = self._pin
+        pin.forwardKinematics(self.model, self.data, np.asarray(q_rad, dtype=float))
+        pin.updateFramePlacement(self.model, self.data, self._frame)
+        frame = self.data.oMf[self._frame]
+        return frame.rotation.copy(), frame.translation.copy()
+
 
 def pinocchio_model_from_urdf(path: str):
     """Load a ``pin.Model`` from a URDF file at ``path`` (e.g. the ``ur_description`` package's generated URDF).

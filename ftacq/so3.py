@@ -29,27 +29,26 @@ def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
 
 
 def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
-    """Return rotation vectors (…, 3), angle in [0, π], of rotation matrices (…, 3, 3)."""
+    """Return rotation vectors (…, 3), angle in [0, π], of rotation matrices (…, 3, 3): vectorised (axis·sin θ from
+    the skew part, scaled by θ / sin θ); only the angles within 1e-4 rad of π (where sin θ vanishes) take their axis
+    from the symmetric part, one matrix at a time."""
     rotation = np.asarray(rotation, dtype=float)
-    single = rotation.ndim == 2
     r = rotation.reshape(-1, 3, 3)
-    out = np.empty((r.shape[0], 3))
-    for i, m in enumerate(r):
-        cos_theta = np.clip((np.trace(m) - 1.0) / 2.0, -1.0, 1.0)
-        theta = np.arccos(cos_theta)
-        axis_sin = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]) / 2.0
-        if theta < 1e-6:
-            out[i] = axis_sin
-        elif theta < np.pi - 1e-4:
-            out[i] = axis_sin * theta / np.sin(theta)
-        else:  # near π: axis from the symmetric part, sign from the skew part
-            outer = ((m + m.T) / 2.0 - cos_theta * np.eye(3)) / (1.0 - cos_theta)  # axis axisᵀ
-            j = int(np.argmax(np.diag(outer)))
-            axis = outer[:, j] / np.sqrt(max(outer[j, j], 1e-300))
-            if axis @ axis_sin < 0:
-                axis = -axis
-            out[i] = axis * theta
-    return out[0] if single else out.reshape(rotation.shape[:-2] + (3,))
+    cos_theta = np.clip((np.trace(r, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arccos(cos_theta)
+    axis_sin = np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1) / 2.0
+    sin_theta = np.sin(theta)
+    scale = np.divide(theta, sin_theta, out=np.ones_like(theta), where=theta >= 1e-6)
+    out = axis_sin * scale[:, None]
+    for i in np.flatnonzero(theta >= np.pi - 1e-4):  # near π: axis from the symmetric part, sign from the skew part
+        m = r[i]
+        outer = ((m + m.T) / 2.0 - cos_theta[i] * np.eye(3)) / (1.0 - cos_theta[i])  # axis axisᵀ
+        j = int(np.argmax(np.diag(outer)))
+        axis = outer[:, j] / np.sqrt(max(outer[j, j], 1e-300))
+        if axis @ axis_sin[i] < 0:
+            axis = -axis
+        out[i] = axis * theta[i]
+    return out.reshape(rotation.shape[:-2] + (3,))
 
 
 def angle_between_deg(rotation_a: np.ndarray, rotation_b: np.ndarray) -> np.ndarray:

@@ -7,9 +7,11 @@ it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.e
 drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
 acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window.
 
-Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over the last ``window_s`` of the
-robot states read with the batches (the monitor reads the latest actual_q with each sensor batch); saturated
-samples are never used.
+Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over ``window_s`` before the batch's
+samples and while they were taken, from the RTDE state stream at the samples' time (``moving.still_over``: a
+monitor reading 0.3 s late would otherwise put samples of the arm still moving into a rest window); without a
+live compensator, over the last ``window_s`` of the robot states read with the batches. Saturated samples are
+never used.
 """
 
 from __future__ import annotations
@@ -66,9 +68,12 @@ class DriftCompensator:
         health: the :class:`ftacq.drift_health.BiasHealth` (its calibration is the one compensated with; its
             ``auto_tare`` decides whether the correction is subtracted).
         still: the :class:`StillDetector`.
-        moving: the compensator for the moving arm when the calibration has inertia
-            (:class:`procedures.dynamic_compensation.DynamicCompensator`), None for the static model. The tracker
-            learns only from rest windows, where both models agree; the correction applies to either.
+        moving: the live compensator: :class:`procedures.dynamic_compensation.DynamicCompensator` when the
+            calibration has inertia, :class:`procedures.static_compensation.StaticCompensator` (the static model
+            with the pose at the samples' time) otherwise; a batch it leaves uncompensated (None) is neither
+            returned nor fed to the tracker. None: the static model with the robot's newest pose (an arm known to
+            be still; tests). The tracker learns only from rest windows, where both models agree; the correction
+            applies to either, at the orientation of the batch's newest sample when ``moving`` says it.
     """
 
     health: BiasHealth
@@ -89,10 +94,17 @@ class DriftCompensator:
             residual = self.moving.compensate(batch, robot)
             if residual is None:
                 return None
+            at_samples = getattr(self.moving, "flange_R_base", None)  # the static one's, at the samples' time
+            if at_samples is not None and len(at_samples) == len(residual):
+                flange_R_base = at_samples[-1]
         else:
             residual = self.calibration.compensate(batch.wrench, flange_R_base)
         time_s = np.asarray(batch.time_s, dtype=float)
-        still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
+        still_over = getattr(self.moving, "still_over", None)
+        if still_over is not None:  # still while the samples were taken (the states of their time)
+            still = still_over(self.still.window_s, self.still.tolerance_rad)
+        else:  # the newest joint angles read with the batches (an arm known to be still; tests)
+            still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
         good = ~np.asarray(batch.saturated, dtype=bool)
         if still and not good.all():
             self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window
@@ -101,6 +113,12 @@ class DriftCompensator:
         if self.health.auto_tare:  # the tracked offset while trusted, nothing once it is not (BiasHealth.correction)
             residual -= self.health.correction(float(time_s[-1]), flange_R_base)
         return residual
+
+    def sample_flange_pose(self) -> np.ndarray | None:
+        """The flange pose (N, 6) at each sample's time of the last batch, as ``moving`` says it (None when it
+        does not: no ``moving``, or no robot state near the samples)."""
+        pose = getattr(self.moving, "sample_flange_pose", None)
+        return pose() if pose is not None else None
 
     def snapshot(self, time_s: float) -> BiasDrift:
         """Return the tracker's estimate now."""

@@ -10,8 +10,9 @@ interpolated onto the samples. The acceleration is target_qdd while the arm trac
 a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new states only.
 
 A batch the kept predictions do not cover (the reader fell behind by more than the ring, or the state stream is
-late) is compensated statically with the flange orientation *at the samples' time*, interpolated from the state
-stream's rows (counted in :attr:`DynamicCompensator.static_batches`); when no robot state lies within
+late) is compensated statically with the flange orientation *at the samples' time*, interpolated (slerp) from the state
+stream's rows by :class:`procedures.flange_orientation.FlangeOrientations`, as :mod:`procedures.static_compensation`
+does for a calibration without inertia (counted in :attr:`DynamicCompensator.static_batches`); when no robot state lies within
 :data:`MAX_STATE_GAP_S` of the samples (the stream is lost or far behind) the batch is left uncompensated:
 :meth:`DynamicCompensator.compensate` returns None (the monitor then publishes and records it without a contact
 wrench) and counts it in :attr:`DynamicCompensator.uncompensated_batches`. Never a pose from another time.
@@ -26,17 +27,14 @@ from ftacq.dynamics.acceleration import DERIVATIVE_HALF_WIDTH, joint_acceleratio
 from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
 from ftacq.dynamics.clock import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
-from ftacq.kinematics import FlangeRotation, URModel
+from ftacq.kinematics import URModel
+from procedures.flange_orientation import MAX_STATE_GAP_S, FlangeOrientations, pose_rows
 
 STATE_WINDOW_ROWS = 64
 """Newest robot states looked at per batch (128 ms at 500 Hz), and predictions kept."""
 TAIL_ROWS = 16
 """Newest robot states read per batch when few are new (the bridge: one per controller cycle; the monitor: about
 five per 10 ms batch)."""
-MAX_STATE_GAP_S = 0.05
-"""A batch is compensated dynamically when its samples lie between the oldest kept prediction and this much after
-the newest; statically (with the pose at the samples' time) when a robot state lies within this of every sample;
-else it is left uncompensated, s."""
 
 
 class DynamicCompensator:
@@ -66,7 +64,8 @@ class DynamicCompensator:
             calibration.metadata.get("dynamics"), dict) else None
         self.lag_s = float(lag_s if lag_s is not None else (measured or 0.0) / 1e3)
         self.clock = clock if clock is not None else SampleClock()
-        self._flange_rotation = FlangeRotation(robot)
+        self.orientations = FlangeOrientations(robot, stream)
+        """The static fallback's flange orientation at the samples' time (slerp between the states around them)."""
         # the newest STATE_WINDOW_ROWS predictions, written twice (at k and k + rows) so that they are always one
         # contiguous slice, oldest first
         self._ring_times = np.empty(2 * STATE_WINDOW_ROWS)
@@ -78,6 +77,9 @@ class DynamicCompensator:
         self.uncompensated_batches = 0
         """Batches with no robot state within MAX_STATE_GAP_S of their samples: compensate() returned None."""
         self.dynamic_batches = 0
+        self._times = np.empty(0)
+        """The last batch's sample times on the host clock, lag taken off, s."""
+        self._static_pose: np.ndarray | None = None
         self.derivative_states = 0
 
     def _kept(self) -> tuple[np.ndarray, np.ndarray]:
@@ -123,43 +125,35 @@ class DynamicCompensator:
         """Return the contact wrench (N, 6) of ``batch``: dynamically, else statically with the pose at the samples'
         time, else None (uncompensated: no robot state near the samples). ``robot`` (the newest state from another
         source) is not used: its pose is from another time."""
-        times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
+        times = self._times = self.clock.host_times(batch.time_s, batch.device_time_s) - self.lag_s
+        self._static_pose = None
         self._update_predictions()
         state_times, predicted = self._kept()
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
             contact = interpolate_rows(times, state_times, predicted)
             return np.subtract(batch.wrench, contact, out=contact)
-        flange_R_base = self._orientation_at(times, state_times)
+        flange_R_base = self.orientations.flange_R_base_at(times)
         if flange_R_base is None:
             self.uncompensated_batches += 1
             return None
         self.static_batches += 1
+        self._static_pose = pose_rows(self.orientations.position_m, flange_R_base)
         return self.calibration.compensate(batch.wrench, flange_R_base)
 
-    def _orientation_at(self, times: np.ndarray, state_times: np.ndarray) -> np.ndarray | None:
-        """flange_R_base (N, 3, 3) at each sample time, interpolated from the robot states around the batch (their
-        base_R_flange by forward kinematics); None when a sample has no state within MAX_STATE_GAP_S."""
-        if state_times.size == 0 or times[-1] > state_times[-1] + MAX_STATE_GAP_S:
-            return None  # the predictions hold every state received: none reaches these samples
-        period = float(state_times[-1] - state_times[0]) / (state_times.size - 1) if state_times.size >= 2 else 0.002
-        reach = float(state_times[-1] - times[0]) + MAX_STATE_GAP_S
-        rows = int(min(reach / max(period, 1e-4), 1e6)) + 2
-        window = self.stream.window(last=rows)
-        state = window.time_s
-        if state.size == 0:
-            return None
-        low = int(np.searchsorted(state, times[0] - MAX_STATE_GAP_S, side="left"))
-        high = int(np.searchsorted(state, times[-1] + MAX_STATE_GAP_S, side="right"))
-        if high <= low:
-            return None
-        around = state[low:high]
-        # every sample needs a state within MAX_STATE_GAP_S (a gap in the stream inside the batch counts too)
-        after = np.minimum(np.searchsorted(around, times), around.size - 1)
-        before = np.maximum(after - 1, 0)
-        distance = np.minimum(np.abs(times - around[before]), np.abs(around[after] - times))
-        if not np.all(distance <= MAX_STATE_GAP_S):
-            return None
-        base_R_flange = np.array([self._flange_rotation(q) for q in window.q[low:high]]).reshape(-1, 9)
-        rotations = interpolate_rows(times, around, base_R_flange).reshape(-1, 3, 3)
-        return rotations.transpose(0, 2, 1)
+    def still_over(self, window_s: float, tolerance_rad: float) -> bool:
+        """True when every joint stayed within ``tolerance_rad`` from ``window_s`` before the last batch's first
+        sample to its last one (their times, from the state stream): the arm was still while the samples were
+        taken, however late they were read (the drift tracker's rest windows)."""
+        if self._times.size == 0:
+            return False
+        return self.orientations.still_between(float(self._times[0]) - window_s, float(self._times[-1]),
+                                               tolerance_rad)
+
+    def sample_flange_pose(self) -> np.ndarray | None:
+        """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample's time of the last batch (the lag
+        taken off), from the state stream (the model itself uses the joint states, not this pose); None when no
+        state is near them. For the record: each sample beside the pose of its time."""
+        if self._static_pose is not None:
+            return self._static_pose
+        return self.orientations.flange_pose_at(self._times) if self._times.size else None

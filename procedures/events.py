@@ -115,13 +115,18 @@ class WrenchSamples:
 
     ``compensated`` (N, 6) is the contact wrench after compensation (sensor frame), or None when it is not known
     (no calibration, no robot state). ``flange_pose`` (6,) and ``joint_positions_rad`` (6,) are the robot's latest
-    state when the samples were read (the one compensation used), or None without a robot.
+    state when the samples were read, or None without a robot. ``sample_flange_pose`` (N, 6), when known, is the
+    flange pose at each sample's own time (what the live compensation used: procedures/flange_orientation.py).
+    ``uncompensated`` says a compensator had these samples and no robot state of their time: they stay raw (a
+    viewer must not compensate them with ``flange_pose``, a pose from another time).
     """
 
     batch: WrenchBatch
     compensated: np.ndarray | None = None
     flange_pose: np.ndarray | None = None
     joint_positions_rad: np.ndarray | None = None
+    sample_flange_pose: np.ndarray | None = None
+    uncompensated: bool = False
 
     def __len__(self) -> int:
         return len(self.batch)
@@ -135,8 +140,11 @@ class WrenchSamples:
         if any(with_compensation) and not all(with_compensation):
             raise ValueError("cannot join samples with and without a compensated wrench")
         compensated = np.concatenate([part.compensated for part in parts]) if with_compensation[0] else None
+        poses = [part.sample_flange_pose for part in parts if part.sample_flange_pose is not None]
         return WrenchSamples(batch=WrenchBatch.concatenate([part.batch for part in parts]), compensated=compensated,
-                             flange_pose=parts[-1].flange_pose, joint_positions_rad=parts[-1].joint_positions_rad)
+                             flange_pose=parts[-1].flange_pose, joint_positions_rad=parts[-1].joint_positions_rad,
+                             sample_flange_pose=np.concatenate(poses) if len(poses) == len(parts) else None,
+                             uncompensated=any(part.uncompensated for part in parts))
 
 
 @dataclass(frozen=True)

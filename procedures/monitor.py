@@ -1,4 +1,4 @@
-"""The live monitor: sensor batches → compensation with the robot's latest state → events for the listeners.
+"""The live monitor: sensor batches → compensation with the robot's state at their time → events for the listeners.
 
 Three threads, each with one job::
 
@@ -27,7 +27,11 @@ the run cleanly.
 Two seams, for what is added to the monitor without touching its loop:
 
 - a :class:`Compensator` turns raw samples into the contact wrench given the robot's state
-  (:class:`GravityCompensator`: the static gravity compensation of a calibration);
+  (:class:`procedures.static_compensation.StaticCompensator` and
+  :class:`procedures.dynamic_compensation.DynamicCompensator`: with the robot's state at the samples' time, from
+  the RTDE state stream; :class:`GravityCompensator`: with the newest pose, for an arm that stays still). A
+  compensator may also say the pose at each sample's time (``sample_flange_pose()``: the record's pose columns);
+  a batch it leaves uncompensated (None, with a robot) is published flagged ``uncompensated``;
 - :class:`HealthCheck` objects see every read (compensated) in the acquisition thread and return notices
   (warnings are also kept in :attr:`MonitorSummary.warnings`).
 """
@@ -89,7 +93,9 @@ class Compensator(Protocol):
 @dataclass(frozen=True)
 class GravityCompensator:
     """Static gravity compensation with a :class:`ftacq.calibration.Calibration` and the latest flange orientation
-    (:meth:`ftacq.calibration.Calibration.compensate`: raw − bias − tool weight in the sensor frame)."""
+    (:meth:`ftacq.calibration.Calibration.compensate`: raw − bias − tool weight in the sensor frame). Right only for
+    an arm that stays still (tests, benchmarks of the stream): ``ftacq monitor`` uses
+    :class:`procedures.static_compensation.StaticCompensator`, the orientation at each sample's time."""
 
     calibration: Calibration
 
@@ -172,7 +178,8 @@ RECORD_COLUMNS = (
     "sequence", "status", "sample_saturated", "sample_time_s", "device_time_s", "clock_uncertainty_s",
 )
 """Columns of the ``--record`` CSV, one row per sample: host receive time (s, monotonic clock); the flange pose
-read with the batch (m, rad; base frame, rotation vector; empty without a robot); the raw sensor-frame wrench
+at the sample's time when the compensator knows it (``sample_flange_pose``: the pose the static compensation used),
+else the one read with the batch (m, rad; base frame, rotation vector; empty without a robot); the raw sensor-frame wrench
 (N, N·m); the compensated contact wrench (empty without a calibration, and for a batch left uncompensated: no
 robot state near its samples); the device's sequence number, status word and saturation flag; the sample's time
 on the host clock from the device's own clock (s, monotonic clock: :class:`ftacq.dynamics.clock.SampleClock`; the
@@ -243,7 +250,9 @@ class _Recorder:
     def _format(samples: events.WrenchSamples, sample_time_s: np.ndarray, uncertainty_s: float) -> str:
         batch = samples.batch
         n = len(batch)
-        pose = np.full((n, 6), np.nan) if samples.flange_pose is None else np.broadcast_to(samples.flange_pose, (n, 6))
+        pose = samples.sample_flange_pose  # the pose of each sample's time, when the compensator knows it
+        if pose is None:
+            pose = np.full((n, 6), np.nan) if samples.flange_pose is None else np.broadcast_to(samples.flange_pose, (n, 6))
         contact = np.full((n, 6), np.nan) if samples.compensated is None else samples.compensated
         uncertainty = np.full(n, uncertainty_s if np.isfinite(uncertainty_s) else np.nan)
         numbers = np.column_stack([batch.time_s, pose, batch.wrench, contact, batch.sequence, batch.status,
@@ -374,9 +383,14 @@ class LiveMonitor:
     def _process(self, batch: WrenchBatch) -> events.WrenchSamples:
         robot = self._robot_state(float(batch.time_s[-1]))
         compensated = None if self.compensator is None else self.compensator.compensate(batch, robot)
+        pose_at_samples = getattr(self.compensator, "sample_flange_pose", None)
         return events.WrenchSamples(batch=batch, compensated=compensated,
                                     flange_pose=None if robot is None else robot.flange_pose,
-                                    joint_positions_rad=None if robot is None else robot.joint_positions_rad)
+                                    joint_positions_rad=None if robot is None else robot.joint_positions_rad,
+                                    sample_flange_pose=pose_at_samples() if (
+                                        pose_at_samples is not None and self.record_path is not None) else None,
+                                    uncompensated=self.compensator is not None and robot is not None
+                                    and compensated is None)
 
     @staticmethod
     def _count(summary: MonitorSummary, samples: events.WrenchSamples) -> None:
@@ -423,9 +437,9 @@ class LiveMonitor:
         if connected:
             self._notify(events.Notice("robot state stream is back", time_s=now_s), summary)
         else:
-            log.warning("robot state stream lost: compensation uses the last orientation received")
-            self._notify(events.Notice("robot state stream lost: compensation uses the last orientation received",
-                                       level="WARN", time_s=now_s), summary)
+            text = "robot state stream lost: reads with no robot state near their samples are left uncompensated"
+            log.warning(text)
+            self._notify(events.Notice(text, level="WARN", time_s=now_s), summary)
 
 
 __all__ = ["LiveMonitor", "MonitorSummary", "Compensator", "GravityCompensator", "HealthCheck", "RECORD_COLUMNS",

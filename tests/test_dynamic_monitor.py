@@ -32,7 +32,7 @@ def test_monitor_chooses_the_model_by_the_calibration(tmp_path, capsys, with_ine
     if with_inertia:
         assert "dynamic compensation (tool inertia from the calibration" in err
     else:
-        assert "static compensation: this calibration has no inertia" in err
+        assert "static compensation (the pose at each sample's time): this calibration has no inertia" in err
 
 
 def test_sensor_clock_removes_arrival_jitter_and_restarts_after_a_power_cycle():

@@ -62,6 +62,13 @@ def test_record_writes_si_csv_and_prints_health(fake, physics, tmp_path, capsys)
     np.testing.assert_array_less(np.abs(table[:, 1:7].mean(axis=0) - physics.noiseless_wrench(POSE)),
                                  NOISE_SIGMAS * sigma / np.sqrt(len(table)))  # torque in N·m, not N-mm
     assert np.all(table[:, 7] == 0)
+    # each sample's time on the box's own clock (its ft_sequence: one sample period apart), and that time on the
+    # host clock (the minimum-delay line): in order, never later than the sample was received
+    assert rows[0][-2:] == ["device_time_s", "sample_time_s"]
+    device, sample = table[:, -2], table[:, -1]
+    np.testing.assert_allclose(np.median(np.diff(device)), 1.0 / RATE_HZ, rtol=1e-6)
+    assert np.all(np.diff(device) > 0) and np.all(np.diff(sample) > 0)
+    assert np.all(sample <= table[:, 0] + 1e-6)
     out = capsys.readouterr().out
     assert f"{len(table)} samples" in out and "health: received" in out and "lost 0" in out
 
@@ -158,9 +165,12 @@ def test_the_same_commands_work_for_a_can_sensor(physics, tmp_path, capsys) -> N
         assert "FT23456" in out and "torque N-mm" in out
         path = tmp_path / "can.csv"
         assert main(["sensor", "record", url, "--seconds", "0.3", "-o", str(path)]) == 0
-        table = np.loadtxt(path, delimiter=",", skiprows=1)
+        table = np.genfromtxt(path, delimiter=",", skip_header=1)  # empty cells: NaN
         sigma = np.array(physics.truth.force_noise_n + physics.truth.torque_noise_nm)
         np.testing.assert_array_less(np.abs(table[:, 1:7].mean(axis=0) - physics.noiseless_wrench(POSE)),
                                      NOISE_SIGMAS * sigma / np.sqrt(len(table)) + 0.02)  # + gage quantisation
+        # a polled CAN sensor has no sample clock: device_time_s empty, sample_time_s the receive time
+        assert np.all(np.isnan(table[:, -2]))
+        np.testing.assert_allclose(table[:, -1], table[:, 0], atol=1e-6)
     finally:
         board.close()

@@ -28,8 +28,12 @@ if TYPE_CHECKING:
     from procedures.bias_health import DriftCompensator
     from procedures.dynamic_compensation import DynamicCompensator
     from procedures.monitor import HealthCheck
+    from procedures.static_compensation import StaticCompensator
 
 DEFAULT_SIM_MODEL = "UR5e"
+FIRST_STATE_TIMEOUT_S = 1.0
+"""Longest wait for the RTDE state stream's first package before the sensor starts, s (samples before it are left
+uncompensated: no pose of their time)."""
 SIM_SENSOR_RATE_HZ = 7000.0
 SIM_JOG_RATE_HZ = 30.0
 """How often the simulated technician looks at the clock (pushes, tool swap, the next jog)."""
@@ -238,6 +242,10 @@ def run(args: argparse.Namespace) -> int:
         if args.sim and (not args.sim_still or args.sim_swap_tool is not None):
             stack.callback(SimulatedTechnician(cell, jog=not args.sim_still,
                                                swap_after_s=args.sim_swap_tool).start().close)
+        live = None
+        sample_clock = SampleClock()  # one sensor clock for the record and the compensation
+        if calibration is not None:  # its state stream before the sensor's: the first samples have states around them
+            live = _choose_compensator(calibration, model, robot_host, stack, sample_clock)
         dashboard.dashboard.start_clock()  # the time axis starts with the sensor's stream
         sensor.start()
         compensator: DriftCompensator | None = None
@@ -261,12 +269,8 @@ def run(args: argparse.Namespace) -> int:
                   "(docs/dynamics.md, How the clocks are aligned)"]
         readout = LiveReadout()
         stack.callback(readout.close)
-        dynamic = None
-        sample_clock = SampleClock()  # one sensor clock for the record and the dynamic compensation
-        if calibration is not None:
-            dynamic = _choose_compensator(calibration, model, robot_host, stack, sample_clock)
-            if dynamic is not None and compensator is not None:  # (the drift compensator: built above with it)
-                compensator.moving = dynamic  # the drift tracker's compensation while the arm moves
+        if compensator is not None:  # (the drift compensator: built above with the calibration)
+            compensator.moving = live  # the drift tracker's compensation, with the robot's state at the samples' time
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=compensator, checks=checks,
                               listeners=[dashboard, readout], record_path=args.record, record_header=header,
@@ -279,28 +283,46 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(summary))
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
-    if dynamic is not None and (dynamic.static_batches or dynamic.uncompensated_batches):
-        total = dynamic.static_batches + dynamic.uncompensated_batches + dynamic.dynamic_batches
-        print(f"dynamic compensation: {dynamic.static_batches} of {total} reads fell outside the kept robot states "
-              f"and were compensated statically (pose at the samples' time); {dynamic.uncompensated_batches} had no "
-              "robot state near them and were left uncompensated (empty contact columns in the record)")
+    if live is not None and (live.uncompensated_batches or getattr(live, "static_batches", 0)):
+        print(_compensation_summary(live))
     return 0
 
 
+def _compensation_summary(live: DynamicCompensator | StaticCompensator) -> str:
+    """A line on the reads that were not compensated as the calibration allows (dynamic fallbacks, none at all)."""
+    from procedures.static_compensation import StaticCompensator
+
+    uncompensated = (f"{live.uncompensated_batches} had no robot state near their samples and were left "
+                     "uncompensated (empty contact columns in the record)")
+    if isinstance(live, StaticCompensator):
+        total = live.compensated_batches + live.uncompensated_batches
+        return f"static compensation: of {total} reads, {uncompensated}"
+    total = live.static_batches + live.uncompensated_batches + live.dynamic_batches
+    return (f"dynamic compensation: {live.static_batches} of {total} reads fell outside the kept robot states and "
+            f"were compensated statically (pose at the samples' time); {uncompensated}")
+
+
 def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack,
-                        sample_clock: SampleClock) -> DynamicCompensator | None:
-    """The dynamic compensator when the calibration has inertia (with its own RTDE state stream), else None (the
-    static one is kept), saying which on stderr."""
-    if not calibration.has_dynamics:
-        print("ftacq monitor: static compensation: this calibration has no inertia, so the wrench is exact only while "
-              "the arm is still (run ftacq calibrate --dynamic to identify the tool's inertia)", file=sys.stderr)
-        return None
+                        sample_clock: SampleClock) -> DynamicCompensator | StaticCompensator:
+    """The live compensator on its own RTDE state stream (every state, on the host clock through the controller's
+    own clock), saying which on stderr: the dynamic one when the calibration has inertia, else the static one; both
+    compensate each sample with the robot's state at its time (the sensor's clock: ``sample_clock``, shared with the
+    record) and leave a batch uncompensated when no state is near it."""
     from drivers.ur_stream import URStateStream
-    from procedures.dynamic_compensation import DynamicCompensator
 
     stream = URStateStream(robot_host)
     stack.callback(stream.close)
     stream.start()
+    stream.wait_for_samples(1, FIRST_STATE_TIMEOUT_S)  # a controller still silent then: its samples come later
+    if not calibration.has_dynamics:
+        from procedures.static_compensation import StaticCompensator
+
+        print("ftacq monitor: static compensation (the pose at each sample's time): this calibration has no inertia, "
+              "so the wrench is exact only while the arm is still (run ftacq calibrate --dynamic to identify the "
+              "tool's inertia)", file=sys.stderr)
+        return StaticCompensator(calibration, model, stream, clock=sample_clock)
+    from procedures.dynamic_compensation import DynamicCompensator
+
     compensator = DynamicCompensator(calibration, model, stream, clock=sample_clock)
     print(f"ftacq monitor: dynamic compensation (tool inertia from the calibration; sensor lag "
           f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "

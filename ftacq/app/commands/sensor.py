@@ -3,7 +3,8 @@
 - ``ftacq sensor info URL [--seconds S]``: serial, firmware, units, counts per unit, configured and measured rate,
   status and the mean wrench over a short window.
 - ``ftacq sensor record URL --seconds S -o FILE.csv``: one CSV row per sample (``t,fx,fy,fz,tx,ty,tz,status``
-  then ``saturated,seq`` and raw ``count_*`` columns) in s, N and N·m; written atomically; Ctrl-C keeps what was
+  then ``saturated,seq``, raw ``count_*`` columns, the sensor's own ``device_time_s`` and its ``sample_time_s`` on
+  the host clock: :data:`CSV_COLUMNS`) in s, N and N·m; written atomically; Ctrl-C keeps what was
   recorded; prints a summary with the stream's health counters and its gaps (how many, the longest, samples
   lost). Exits 1 when the sensor lost more than ``--max-lost-fraction`` (default 0.1 %) of the samples it
   produced during the recording (the CSV still keeps every sample received).
@@ -15,7 +16,6 @@ Sensors come from :func:`drivers.sensor.open_sensor` (``netft://…`` or ``can:/
 from __future__ import annotations
 
 import argparse
-import io
 import sys
 import time
 from pathlib import Path
@@ -30,8 +30,12 @@ BIAS_CHECK_WINDOW_S = 0.2
 READ_TIMEOUT_S = 1.0
 """Longest single wait for samples while recording (the driver reconnects meanwhile), seconds."""
 CSV_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "status", "saturated", "seq",
-               "count_fx", "count_fy", "count_fz", "count_tx", "count_ty", "count_tz")
-CSV_FORMATS = ["%.6f"] + ["%.9g"] * 6 + ["%d"] * 9
+               "count_fx", "count_fy", "count_fz", "count_tx", "count_ty", "count_tz", "device_time_s", "sample_time_s")
+"""The sensor record's columns (docs/formats.md, "Sensor record"): ``t`` the receive time (s since the first
+sample's), ``device_time_s`` the sample's time on the sensor's own clock (s; empty for a sensor without one),
+``sample_time_s`` that time on the host clock (s since the first sample's receive time, as ``t``: the minimum-delay
+line, :class:`ftacq.dynamics.clock.SampleClock`; the receive time without a device clock)."""
+CSV_FORMATS = ["%.6f"] + ["%.9g"] * 6 + ["%d"] * 9 + ["%.9f", "%.7f"]
 MAX_LOST_FRACTION = 0.001
 """Default ``record --max-lost-fraction``: the recording fails (exit 1) when more than this fraction of the samples
 the sensor produced (received + lost) were lost. 0.1 % is 7 samples a second at 7 kHz: more than a healthy link
@@ -157,6 +161,7 @@ def run_record(args: argparse.Namespace) -> int:
     """Record ``--seconds`` of samples to a CSV; keep what was recorded on Ctrl-C."""
     import numpy as np
 
+    from ftacq.dynamics.clock import SampleClock
     from ftacq.errors import DeviceTimeoutError
     from ftacq.fileio import atomic_write
 
@@ -171,6 +176,7 @@ def run_record(args: argparse.Namespace) -> int:
     interrupted = False
     fault: DeviceError | None = None
     first_time_s = None
+    clock = SampleClock()
     started = time.monotonic()
     try:
         with atomic_write(args.output) as handle:
@@ -184,11 +190,14 @@ def run_record(args: argparse.Namespace) -> int:
                         continue
                     if first_time_s is None:
                         first_time_s = float(batch.time_s[0])
+                    sample_time_s = clock.host_times(batch.time_s, batch.device_time_s) - first_time_s
                     table = np.column_stack([batch.time_s - first_time_s, batch.wrench, batch.status.astype(np.int64),
-                                             batch.saturated.astype(np.int64), batch.sequence, batch.counts])
-                    text = io.StringIO()
-                    np.savetxt(text, table, fmt=CSV_FORMATS, delimiter=",")
-                    handle.write(text.getvalue())  # one write: Ctrl-C cannot leave half a row
+                                             batch.saturated.astype(np.int64), batch.sequence, batch.counts,
+                                             batch.device_time_s, sample_time_s])
+                    cells = np.char.mod(CSV_FORMATS, table)
+                    cells[cells == "nan"] = ""  # no device clock
+                    # one write: Ctrl-C cannot leave half a row
+                    handle.write("\n".join(",".join(row) for row in cells) + "\n")
                     samples += len(batch)
             except KeyboardInterrupt:
                 interrupted = True

@@ -99,7 +99,8 @@ class DashboardListener:
     def _samples(self, event: events.WrenchSamples) -> None:
         batch = event.batch
         compensated = event.compensated
-        if compensated is None and self._calibration is not None and event.flange_pose is not None:
+        if (compensated is None and not event.uncompensated and self._calibration is not None
+                and event.flange_pose is not None):  # (not a batch the live compensation left raw: no pose of its time)
             compensated = self._calibration.compensate(
                 batch.wrench, rotation_from_rotvec(np.asarray(event.flange_pose)[3:6]).T)
         self.dashboard.log_wrench_batch(batch.time_s, batch.wrench, compensated)
