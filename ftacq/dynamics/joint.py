@@ -1,0 +1,374 @@
+"""Every calibration parameter from one recorded motion: sensor rotation, force and torque biases, mass, centre of
+mass, base tilt and inertia, with their 1σ and the conditioning (``ftacq calibrate --quick``, docs/quick.md).
+
+Model (:mod:`ftacq.dynamics.model`, docs/dynamics.md), written in the frame O at the sensor origin with the
+flange's orientation, so that the robot's motion is computed once and the sensor rotation acts afterwards:
+
+    wrench_S = blkdiag(R, R) · (D(q, q̇, q̈) π_O + G(g_O) π_O) + bias            (1)
+    D = −Y(v_O, a_O)                  (Pinocchio's body regressor, gravity left out; Y is linear in a)
+    G(g) π = [m g ; h × g]            (gravity as an upward acceleration: −Y(0, −g) π)
+    g_O = base_R_Oᵀ · g₀ · down(tilt)  (g₀ standard gravity; ‖gravity_base‖ = m g₀ as in the static model)
+
+R = ``sensor_R_flange`` (the calibration's ``sensor_rotation``), π_O = [m, h = m c, I] about the sensor origin in
+O. At rest (1) is the paper's static model (eqs 10-11: F = R m g_O, T = c_S × F). (1) is linear in
+x = (π_O, bias) (16 numbers) for a given θ = (rotation increment, tilt increment) (5 numbers), so the fit is a
+variable projection (Golub & Pereyra 1973): Gauss-Newton over θ (a few iterations), x solved by weighted linear least
+squares inside. The start comes from a quasi-static fit (the inertial wrench is < 10 % of the weight at the
+CELL.toml speeds): F_S ≈ M g_O + b_F by linear least squares, R from the polar factor of M (as LROM/Wahba do at
+rest), then the torques for h.
+
+Weights (what limits the accuracy when motion and holds mix): the sensor's noise grows with the speed of the
+arm (vibration, a real effect the simulated sensor shows too) and a timing error turns the inertial wrench into
+residual, so rows are grouped by joint speed (still, then quantiles of the moving rows) and each group and channel
+is weighted by the inverse of its own residual scatter, re-estimated once after the first fit. The still rows (the
+holds) then carry the biases and the mass as they should; the moving rows carry the rest.
+
+The lag between the streams is measured as in :func:`ftacq.dynamics.identify.estimate_lag`, from the start
+estimate. 1σ: the full Jacobian (θ by central differences, x exact) at the optimum, (JᵀJ)⁻¹ scaled by χ²/dof,
+propagated to every reported parameter by central differences. The condition number is that of J with unit-norm
+columns. Noise-free simulated motion recovers every parameter to ≤ 1e-6 relative (tests/test_quick_identify.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ftacq import STANDARD_GRAVITY_M_S2, __version__
+from ftacq.calibration import Calibration
+from ftacq.dynamics.identify import MIN_ROWS, MotionRecord, aligned_rows, estimate_lag
+from ftacq.dynamics.model import SensorDynamics
+from ftacq.errors import InputError
+from ftacq.identification.tilt import tilt_deg, tilt_jacobian_deg
+from ftacq.kinematics import URModel
+from ftacq.so3 import rotation_from_rotvec
+
+SPEED_BINS = 4
+"""Moving rows are split into this many joint-speed quantiles, each weighted by its own residual scatter."""
+STILL_SPEED_RAD_S = 0.01
+"""Rows whose fastest joint is below this speed count as still (the holds)."""
+NONLINEAR = 5
+"""θ: rotation increment (3, sensor frame, rad) and tilt increment (2, rad, about two axes ⟂ the start's down)."""
+LINEAR = 16
+"""x: π_O (10: m, h, I_O in Pinocchio's order xx, xy, yy, xz, yz, zz) and the biases (6)."""
+MAX_ITERATIONS = 20
+THETA_TOLERANCE_RAD = 1e-11
+"""Gauss-Newton stops when no angle of θ moves more than this."""
+_STEP = 1e-6
+"""Central-difference step of θ (rad) and of the propagated outputs (relative)."""
+_FLOOR = 1e-12
+
+
+@dataclass(frozen=True)
+class JointResult:
+    """The joint identification's outcome (SI units).
+
+    Attributes:
+        calibration: rotation, biases, gravity_base, centre of mass, inertia, sensor offset; ``uncertainty`` with
+            the full run's keys plus ``inertia_kg_m2``; ``metadata['quick']`` the figures below.
+        covariance: (21, 21) of (θ, x) at the optimum; sigma: 1σ of each reported parameter by file key.
+        condition_number: of the weighted Jacobian with unit-norm columns. lag_s: sensor behind robot, s.
+        rows: robot rows fitted. residual_rms: (6,) weighted-fit residual RMS [N, N·m] (all rows).
+        still_noise, moving_noise: (6,) residual scatter of the still and the fastest moving rows.
+    """
+
+    calibration: Calibration
+    covariance: np.ndarray
+    sigma: dict[str, Any]
+    condition_number: float
+    lag_s: float
+    rows: int
+    residual_rms: np.ndarray
+    still_noise: np.ndarray
+    moving_noise: np.ndarray
+    iterations: int
+    parameters: Callable[[np.ndarray], Calibration] = field(repr=False, compare=False, default=None)  # type: ignore[assignment]
+    """Calibration at a (21,) vector of (θ, x) (the covariance's coordinates); for the verdict's propagation."""
+    optimum: np.ndarray = field(default_factory=lambda: np.zeros(NONLINEAR + LINEAR))
+
+    def summary(self) -> dict[str, Any]:
+        return {"lag_ms": 1e3 * self.lag_s, "rows": self.rows, "condition_number": self.condition_number,
+                "residual_rms": self.residual_rms.tolist(), "still_noise": self.still_noise.tolist(),
+                "moving_noise": self.moving_noise.tolist(), "iterations": self.iterations}
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """(…, 3) → (…, 3, 3) with skew(a) b = a × b."""
+    x, y, z = np.moveaxis(v, -1, 0)
+    zero = np.zeros_like(x)
+    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+
+
+def _tangent_basis(down: np.ndarray) -> np.ndarray:
+    """Two unit vectors (2, 3) perpendicular to ``down`` and to each other."""
+    helper = np.eye(3)[int(np.argmin(np.abs(down)))]
+    e1 = np.cross(down, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.vstack([e1, np.cross(down, e1)])
+
+
+def _vech_to_matrix(v: np.ndarray) -> np.ndarray:
+    xx, xy, yy, xz, yz, zz = v
+    return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+
+class JointModel:
+    """Equation (1) over a motion's rows: the robot's part computed once, θ and x applied per call.
+
+    Args:
+        robot: the arm. sensor_offset_m: sensor origin in the flange frame. q, qd, qdd: (N, 6) joint states.
+        rotation0: start ``sensor_R_flange``; down0: start unit gravity direction in the base frame.
+    """
+
+    def __init__(self, robot: URModel, sensor_offset_m: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                 rotation0: np.ndarray, down0: np.ndarray) -> None:
+        dynamics = SensorDynamics(robot, np.eye(3), sensor_offset_m)
+        self.base_R_o = dynamics.motion(q, np.zeros_like(q), np.zeros_like(q)).base_R_sensor  # (N, 3, 3)
+        self.motion_part = dynamics.regressor(q, qd, qdd, np.zeros(3))  # D (N, 6, 10), frame O
+        self.offset = np.asarray(sensor_offset_m, dtype=float)
+        self.rotation0 = np.asarray(rotation0, dtype=float)
+        self.down0 = np.asarray(down0, dtype=float) / np.linalg.norm(down0)
+        self.tangent = _tangent_basis(self.down0)
+
+    def rotation(self, theta: np.ndarray) -> np.ndarray:
+        """sensor_R_flange = exp([δr]×) R₀ (the increment in the sensor frame, as the full run's covariance)."""
+        return rotation_from_rotvec(theta[:3]) @ self.rotation0
+
+    def down(self, theta: np.ndarray) -> np.ndarray:
+        return rotation_from_rotvec(theta[3:5] @ self.tangent) @ self.down0
+
+    def regressor(self, theta: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """A (N, 6, 16): wrench_S = A x, x = (π_O, bias)."""
+        gravity_o = np.einsum("nji,j->ni", self.base_R_o[rows], STANDARD_GRAVITY_M_S2 * self.down(theta))
+        a_o = self.motion_part[rows].copy()
+        a_o[:, :3, 0] += gravity_o
+        a_o[:, 3:, 1:4] -= _skew(gravity_o)
+        r = self.rotation(theta)
+        out = np.zeros((a_o.shape[0], 6, LINEAR))
+        out[:, :3, :10] = np.einsum("ij,njk->nik", r, a_o[:, :3])
+        out[:, 3:, :10] = np.einsum("ij,njk->nik", r, a_o[:, 3:])
+        out[:, :, 10:] = np.eye(6)
+        return out
+
+    def calibration(self, vector: np.ndarray, uncertainty: dict | None = None,
+                    metadata: dict | None = None) -> Calibration:
+        """The calibration of (θ, x) (21,): inertia about the centre of mass, sensor frame."""
+        theta, x = vector[:NONLINEAR], vector[NONLINEAR:]
+        r = self.rotation(theta)
+        mass = float(x[0])
+        com_o = x[1:4] / mass
+        inertia_o = _vech_to_matrix(x[4:10]) - mass * (com_o @ com_o * np.eye(3) - np.outer(com_o, com_o))
+        return Calibration(sensor_rotation=r, force_bias=x[10:13], torque_bias=x[13:16],
+                           gravity_base=mass * STANDARD_GRAVITY_M_S2 * self.down(theta), center_of_mass=r @ com_o,
+                           uncertainty=uncertainty or {}, metadata=metadata or {}, sensor_offset=self.offset,
+                           inertia=r @ (0.5 * (inertia_o + inertia_o.T)) @ r.T)
+
+
+def _solve_linear(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least squares of y ≈ A x (rows (N, 6), weights (N, 6)) by scaled normal equations."""
+    aw = (a * w[:, :, None]).reshape(-1, LINEAR)
+    yw = (y * w).reshape(-1)
+    scale = np.linalg.norm(aw, axis=0)
+    scale[scale == 0] = 1.0
+    aw /= scale
+    return np.linalg.solve(aw.T @ aw, aw.T @ yw) / scale
+
+
+def _start(model: JointModel, y: np.ndarray) -> np.ndarray:
+    """Quasi-static start (module docstring): rotation by the polar factor, tilt at the nominal mount, x by LS."""
+    gravity_o = np.einsum("nji,j->ni", model.base_R_o, STANDARD_GRAVITY_M_S2 * model.down0)
+    design = np.hstack([gravity_o, np.ones((len(y), 1))])
+    solution, *_ = np.linalg.lstsq(design, y[:, :3], rcond=None)
+    m_matrix = solution[:3].T  # F ≈ M g_O + b, M = m R
+    u, s, vt = np.linalg.svd(m_matrix)
+    rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    model.rotation0 = rotation
+    return np.zeros(NONLINEAR)
+
+
+def _row_weights(residual: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weights (N, 6): 1 / the residual scatter of the row's speed group and channel; and the still and the
+    fastest group's scatter (6,) each."""
+    groups = np.zeros(len(speed), dtype=int)
+    moving = speed >= STILL_SPEED_RAD_S
+    if moving.any():
+        edges = np.quantile(speed[moving], np.linspace(0, 1, SPEED_BINS + 1)[1:-1])
+        groups[moving] = 1 + np.searchsorted(edges, speed[moving], side="right")
+    scatter = np.zeros((SPEED_BINS + 1, 6))
+    overall = np.sqrt(np.mean(residual ** 2, axis=0))
+    for g in range(SPEED_BINS + 1):
+        members = groups == g
+        scatter[g] = np.sqrt(np.mean(residual[members] ** 2, axis=0)) if members.sum() > 10 else overall
+    scatter = np.maximum(scatter, _FLOOR * max(float(overall.max()), 1.0))
+    return 1.0 / scatter[groups], scatter[0], scatter[-1]
+
+
+def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.ndarray, nominal_down: np.ndarray, *,
+                   rows: np.ndarray | None = None, lag_s: float | None = None,
+                   rotation_start: np.ndarray | None = None, metadata: dict | None = None) -> JointResult:
+    """Identify every parameter of ``record`` (module docstring).
+
+    ``nominal_down``: the mount's unit gravity direction in the base frame (the start of the tilt).
+    ``rows``: a boolean mask over the robot samples to fit (default all; the stage leaves the validation holds
+    out). ``lag_s`` None measures it. ``rotation_start`` skips the quasi-static start of the rotation.
+    Raises InputError when the record is too short or does not excite every parameter.
+    """
+    if len(record.robot_time_s) < MIN_ROWS:
+        raise InputError(f"motion record: only {len(record.robot_time_s)} robot samples (need {MIN_ROWS})")
+    mask = np.ones(len(record.robot_time_s), dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
+    model = JointModel(robot, sensor_offset_m, record.q, record.qd, record.qdd,
+                       np.eye(3) if rotation_start is None else rotation_start, nominal_down)
+    keep, wrench = aligned_rows(record, 0.0 if lag_s is None else lag_s)
+    keep_mask = mask[keep]
+    keep, wrench = keep[keep_mask], wrench[keep_mask]
+    if keep.size < MIN_ROWS:
+        raise InputError(f"motion record: only {keep.size} robot samples have sensor samples around them")
+    if rotation_start is None:
+        _start(_Rows(model, keep), wrench)
+    speed = np.max(np.abs(record.qd), axis=1)
+    theta = np.zeros(NONLINEAR)
+    weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
+    if lag_s is None:
+        a = model.regressor(theta, keep)
+        x = _solve_linear(a, wrench, weights)
+        lag_s = estimate_lag(record, model.regressor(theta), x[10:])
+        keep, wrench = aligned_rows(record, lag_s)
+        keep_mask = mask[keep]
+        keep, wrench = keep[keep_mask], wrench[keep_mask]
+        weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
+    sub = _Rows(model, keep)
+
+    def projected(t: np.ndarray, w: np.ndarray) -> np.ndarray:
+        a = sub.regressor(t)
+        return ((wrench - a @ _solve_linear(a, wrench, w)) * w).reshape(-1)
+
+    iterations = 0
+    for _ in range(2):  # fit, re-weight by speed group, fit again
+        theta, used = _gauss_newton(projected, theta, weights)
+        iterations += used
+        a = sub.regressor(theta)
+        x = _solve_linear(a, wrench, weights)
+        weights, still_noise, moving_noise = _row_weights(wrench - a @ x, speed[keep])
+    theta, used = _gauss_newton(projected, theta, weights)
+    iterations += used
+    a = sub.regressor(theta)
+    x = _solve_linear(a, wrench, weights)
+    residual = wrench - a @ x
+    optimum = np.concatenate([theta, x])
+
+    # 1σ: the full Jacobian (θ by central differences at fixed x, x exact), (JᵀJ)⁻¹ χ²/dof
+    columns = []
+    for i in range(NONLINEAR):
+        step = np.zeros(NONLINEAR)
+        step[i] = _STEP
+        columns.append(((sub.regressor(theta + step) - sub.regressor(theta - step)) @ x * weights).reshape(-1)
+                       / (2 * _STEP))
+    jacobian = np.hstack([np.stack(columns, axis=1), (a * weights[:, :, None]).reshape(-1, LINEAR)])
+    norms = np.linalg.norm(jacobian, axis=0)
+    norms[norms == 0] = 1.0
+    scaled = jacobian / norms
+    singular = np.linalg.svd(scaled, compute_uv=False)
+    condition = float(singular[0] / max(singular[-1], 1e-300))
+    dof = max(jacobian.shape[0] - jacobian.shape[1], 1)
+    chi2 = float(np.sum((residual * weights) ** 2)) / dof
+    covariance = np.linalg.pinv(scaled.T @ scaled) / np.outer(norms, norms) * chi2
+    sigma = _propagate(model, optimum, covariance)
+    summary = {"method": "quick (joint fit of the motion)", "lag_ms": 1e3 * float(lag_s), "rows": int(keep.size),
+               "condition_number": condition, "chi2_per_dof": chi2,
+               "residual_rms": np.sqrt(np.mean(residual ** 2, axis=0)).tolist(),
+               "still_noise": still_noise.tolist(), "moving_noise": moving_noise.tolist()}
+    meta = {"software": f"ftacq {__version__}", "method": "quick", **(metadata or {}), "quick": summary}
+    calibration = model.calibration(optimum, uncertainty=sigma, metadata=meta)
+    return JointResult(calibration=calibration, covariance=covariance, sigma=sigma, condition_number=condition,
+                       lag_s=float(lag_s), rows=int(keep.size), residual_rms=np.sqrt(np.mean(residual ** 2, axis=0)),
+                       still_noise=still_noise, moving_noise=moving_noise, iterations=iterations,
+                       parameters=model.calibration, optimum=optimum)
+
+
+def _gauss_newton(residual, theta: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, int]:
+    """Gauss-Newton on the projected residual (forward differences; the variable projection's θ is nearly linear
+    near the optimum): stops when a step is below :data:`THETA_TOLERANCE_RAD` or after :data:`MAX_ITERATIONS`."""
+    r = residual(theta, weights)
+    for iteration in range(1, MAX_ITERATIONS + 1):
+        jacobian = np.empty((r.size, theta.size))
+        for i in range(theta.size):
+            step = np.zeros(theta.size)
+            step[i] = _STEP
+            jacobian[:, i] = (residual(theta + step, weights) - r) / _STEP
+        delta, *_ = np.linalg.lstsq(jacobian, -r, rcond=None)
+        trial = theta + delta
+        r_trial = residual(trial, weights)
+        while r_trial @ r_trial > r @ r and np.max(np.abs(delta)) > THETA_TOLERANCE_RAD:  # halve a step that overshoots
+            delta *= 0.5
+            trial = theta + delta
+            r_trial = residual(trial, weights)
+        theta, r = trial, r_trial
+        if np.max(np.abs(delta)) < THETA_TOLERANCE_RAD:
+            return theta, iteration
+    return theta, MAX_ITERATIONS
+
+
+class _Rows:
+    """A :class:`JointModel` restricted to some rows (the fitted ones)."""
+
+    def __init__(self, model: JointModel, rows: np.ndarray) -> None:
+        self.model, self.rows = model, rows
+        self.base_R_o = model.base_R_o[rows]
+        self.down0 = model.down0
+
+    @property
+    def rotation0(self) -> np.ndarray:
+        return self.model.rotation0
+
+    @rotation0.setter
+    def rotation0(self, value: np.ndarray) -> None:
+        self.model.rotation0 = value
+
+    def regressor(self, theta: np.ndarray) -> np.ndarray:
+        return self.model.regressor(theta, self.rows)
+
+
+def reported_vector(calibration: Calibration, reference_rotation: np.ndarray) -> np.ndarray:
+    """Every reported parameter as one vector (for the 1σ propagation): rotation increment against
+    ``reference_rotation`` (sensor frame, rad), biases, gravity_base, mass, centre of mass, tilt (deg), inertia."""
+    from ftacq.so3 import rotvec_from_rotation
+
+    return np.concatenate([rotvec_from_rotation(calibration.sensor_rotation @ reference_rotation.T),
+                           calibration.force_bias, calibration.torque_bias, calibration.gravity_base,
+                           [calibration.mass_kg], calibration.center_of_mass, tilt_deg(calibration.gravity_base),
+                           np.ravel(calibration.inertia)])
+
+
+REPORTED = (("sensor_rotation_rad", 0, 3), ("force_bias", 3, 6), ("torque_bias", 6, 9), ("gravity_base", 9, 12),
+            ("mass_kg", 12, 13), ("center_of_mass_m", 13, 16), ("base_tilt_deg", 16, 18), ("inertia_kg_m2", 18, 27))
+"""Slices of :func:`reported_vector`, keyed as the calibration file's ``uncertainty``."""
+
+
+def _propagate(model: JointModel, optimum: np.ndarray, covariance: np.ndarray) -> dict[str, Any]:
+    """1σ of every reported parameter: central differences of :func:`reported_vector` against (θ, x)."""
+    reference = model.calibration(optimum).sensor_rotation
+    columns = []
+    for i in range(optimum.size):
+        step = _STEP * max(abs(optimum[i]), 1e-3)
+        plus, minus = optimum.copy(), optimum.copy()
+        plus[i] += step
+        minus[i] -= step
+        columns.append((reported_vector(model.calibration(plus), reference)
+                        - reported_vector(model.calibration(minus), reference)) / (2 * step))
+    jac = np.stack(columns, axis=1)
+    variance = np.einsum("ij,jk,ik->i", jac, covariance, jac)
+    sigma = np.sqrt(np.maximum(variance, 0.0))
+    out: dict[str, Any] = {}
+    for name, lo, hi in REPORTED:
+        value = sigma[lo:hi]
+        out[name] = float(value[0]) if name == "mass_kg" else (
+            value.reshape(3, 3).tolist() if name == "inertia_kg_m2" else value.tolist())
+    g_cov = (jac[9:12] @ covariance @ jac[9:12].T)
+    tilt_jac = tilt_jacobian_deg(model.calibration(optimum).gravity_base)
+    out["base_tilt_deg"] = np.sqrt(np.maximum(np.diag(tilt_jac @ g_cov @ tilt_jac.T), 0.0)).tolist()
+    return out
+
+
+__all__ = ["JointModel", "JointResult", "identify_joint", "reported_vector", "REPORTED"]
