@@ -40,6 +40,8 @@ HOLD_CHOICES_S = (0.0, 0.4, 0.8)
 """Hold lengths at the fitted waypoints a design chooses between, s."""
 EXTRA_WAYPOINTS = (0, 1, 2)
 """Waypoints beyond one per gravity direction a candidate may add."""
+TOUR_CHOICES = 2
+"""A candidate's next waypoint is one of this many quickest to reach (random): short tours, still diverse."""
 VALIDATION_HOLDS = 3
 """Still validation poses at the end (the verdict's held-out poses)."""
 VALIDATION_HOLD_S = 1.0
@@ -73,7 +75,8 @@ class QuickPlan:
     def to_json(self) -> str:
         return json.dumps({"start_q_rad": self.start_q_rad.tolist(), "waypoints_rad": self.waypoints_rad.tolist(),
                            "hold_s": self.hold_s.tolist(), "purposes": list(self.purposes),
-                           "labels": list(self.labels), "speed_rad_s": self.speed_rad_s,
+                           "labels": list(self.labels),
+                           "set_names": ["V" if p == VALIDATE else "Q" for p in self.purposes], "speed_rad_s": self.speed_rad_s,
                            "acceleration_rad_s2": self.acceleration_rad_s2,
                            "estimated_duration_s": self.estimated_duration_s,
                            "information_logdet": self.information_logdet, "candidates": self.candidates,
@@ -183,6 +186,28 @@ def _gravity_classes(settings, targets: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
+def _greedy_tour(rng: np.random.Generator, start: np.ndarray, special: list[int], classes: np.ndarray,
+                 targets: np.ndarray, extra: int, speed: float, acceleration: float) -> list[int]:
+    """One candidate order: from the robot's configuration, repeatedly one of the :data:`TOUR_CHOICES` quickest
+    poses of a gravity direction not yet visited (at random among them), then ``extra`` more special poses the
+    same way."""
+    order: list[int] = []
+    q, missing = start, set(range(6))
+    while missing or extra > 0:
+        options = [i for i, c in zip(special, classes) if i not in order and (c in missing or not missing)]
+        if not options:
+            break
+        cost = np.array([move_duration_s(q, targets[i], speed, acceleration) for i in options])
+        nearest = np.argsort(cost)[:TOUR_CHOICES]
+        pick = options[int(rng.choice(nearest))]
+        if not missing:
+            extra -= 1
+        missing.discard(int(classes[special.index(pick)]))
+        order.append(pick)
+        q = targets[pick]
+    return order
+
+
 def _tour(start: np.ndarray, targets: list[int], joint_targets: np.ndarray) -> list[int]:
     """Nearest-neighbour order (largest joint move) from ``start``."""
     order, q, left = [], start, list(targets)
@@ -227,11 +252,8 @@ def design_quick(settings, start_q_rad: np.ndarray, pose_plan=None, budget_s: fl
     best: tuple[float, list[int], float] | None = None
     scored = 0
     for _ in range(candidates):
-        chosen = [special[int(rng.choice(np.flatnonzero(classes == c)))] for c in range(6)]
-        extra = int(rng.choice(EXTRA_WAYPOINTS))
-        others = [i for i in special if i not in chosen]
-        chosen += [int(i) for i in rng.choice(others, size=min(extra, len(others)), replace=False)]
-        order = _tour(start, chosen, targets)
+        order = _greedy_tour(rng, start, special, classes, targets, int(rng.choice(EXTRA_WAYPOINTS)), speed,
+                             acceleration)
         last = targets[order[-1]]
         checks = _tour(last, validation, targets)[:VALIDATION_HOLDS] if validation else []
         hold = float(rng.choice(HOLD_CHOICES_S))

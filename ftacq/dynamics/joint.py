@@ -233,7 +233,7 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     if lag_s is None:
         a = model.regressor(theta, keep)
         x = _solve_linear(a, wrench, weights)
-        lag_s = estimate_lag(record, model.regressor(theta), x[10:])
+        lag_s = estimate_lag(record, model.regressor(theta)[:, :, :10], x[10:])
         keep, wrench = aligned_rows(record, lag_s)
         keep_mask = mask[keep]
         keep, wrench = keep[keep_mask], wrench[keep_mask]
