@@ -25,7 +25,7 @@ def settings_for(mount: str = "floor"):
 @pytest.fixture(scope="module")
 def plan():
     settings = settings_for()
-    return settings, design_quick(settings, home_configuration_rad("floor"), candidates=4)
+    return settings, design_quick(settings, home_configuration_rad("floor"))
 
 
 def record_of(settings, plan, truth: CellTruth, noise: bool = False, seed: int = 0):

@@ -11,11 +11,11 @@ flange's orientation, so that the robot's motion is computed once and the sensor
 
 R = ``sensor_R_flange`` (the calibration's ``sensor_rotation``), π_O = [m, h = m c, I] about the sensor origin in
 O. At rest (1) is the paper's static model (eqs 10-11: F = R m g_O, T = c_S × F). (1) is linear in
-x = (π_O, bias) (16 numbers) for a given θ = (rotation increment, tilt increment) (5 numbers), so the fit is a
-variable projection (Golub & Pereyra 1973): Gauss-Newton over θ (a few iterations), x solved by weighted linear least
-squares inside. The start comes from a quasi-static fit (the inertial wrench is < 10 % of the weight at the
-CELL.toml speeds): F_S ≈ M g_O + b_F by linear least squares, R from the polar factor of M (as LROM/Wahba do at
-rest), then the torques for h.
+x = (π_O, bias) (16 numbers) for a given θ = (rotation increment, tilt increment) (5 numbers); the fit is
+Gauss-Newton over all 21 with the analytic Jacobian (:meth:`JointModel.design`), x started by weighted linear
+least squares at the start θ; it converges in a few iterations. The start comes from a quasi-static fit (the
+inertial wrench is < 10 % of the weight at the CELL.toml speeds): F_S ≈ M g_O + b_F by linear least squares, R
+the polar factor of M (as LROM/Wahba do at rest), the tilt at the nominal mount.
 
 Weights (what limits the accuracy when motion and holds mix): the sensor's noise grows with the speed of the
 arm (vibration, a real effect the simulated sensor shows too) and a timing error turns the inertial wrench into
@@ -23,9 +23,9 @@ residual, so rows are grouped by joint speed (still, then quantiles of the movin
 is weighted by the inverse of its own residual scatter, re-estimated once after the first fit. The still rows (the
 holds) then carry the biases and the mass as they should; the moving rows carry the rest.
 
-The lag between the streams is measured as in :func:`ftacq.dynamics.identify.estimate_lag`, from the start
-estimate. 1σ: the full Jacobian (θ by central differences, x exact) at the optimum, (JᵀJ)⁻¹ scaled by χ²/dof,
-propagated to every reported parameter by central differences. The condition number is that of J with unit-norm
+The lag between the streams is measured as in :func:`ftacq.dynamics.identify.estimate_lag` (the shift the model
+fits best), from the start estimate, by a coarse grid and a golden-section search. 1σ: the full Jacobian at the
+optimum, (JᵀJ)⁻¹ scaled by χ²/dof, propagated to every reported parameter by central differences. The condition number is that of J with unit-norm
 columns. Noise-free simulated motion recovers every parameter to ≤ 1e-6 relative (tests/test_quick_identify.py).
 """
 
@@ -38,7 +38,7 @@ import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calibration import Calibration
-from ftacq.dynamics.identify import MIN_ROWS, MotionRecord, aligned_rows, estimate_lag
+from ftacq.dynamics.identify import LAG_SEARCH_S, MIN_ROWS, MotionRecord, aligned_rows
 from ftacq.dynamics.model import SensorDynamics
 from ftacq.errors import InputError
 from ftacq.identification.tilt import tilt_deg, tilt_jacobian_deg
@@ -53,9 +53,13 @@ NONLINEAR = 5
 """θ: rotation increment (3, sensor frame, rad) and tilt increment (2, rad, about two axes ⟂ the start's down)."""
 LINEAR = 16
 """x: π_O (10: m, h, I_O in Pinocchio's order xx, xy, yy, xz, yz, zz) and the biases (6)."""
+LAG_GRID_S = 0.005
+LAG_DECIMATION = 2
+"""The lag's cost uses every this-many fitted row (the lag is one number; half the rows know it as well)."""
+LAG_TOLERANCE_S = 5e-5
 MAX_ITERATIONS = 20
 THETA_TOLERANCE_RAD = 1e-11
-"""Gauss-Newton stops when no angle of θ moves more than this."""
+"""Gauss-Newton stops when no angle moves more than this (and no linear parameter by this fraction)."""
 _STEP = 1e-6
 """Central-difference step of θ (rad) and of the propagated outputs (relative)."""
 _FLOOR = 1e-12
@@ -141,16 +145,48 @@ class JointModel:
 
     def regressor(self, theta: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """A (N, 6, 16): wrench_S = A x, x = (π_O, bias)."""
-        gravity_o = np.einsum("nji,j->ni", self.base_R_o[rows], STANDARD_GRAVITY_M_S2 * self.down(theta))
+        gravity_o = self.base_R_o[rows].transpose(0, 2, 1) @ (STANDARD_GRAVITY_M_S2 * self.down(theta))
         a_o = self.motion_part[rows].copy()
         a_o[:, :3, 0] += gravity_o
         a_o[:, 3:, 1:4] -= _skew(gravity_o)
         r = self.rotation(theta)
-        out = np.zeros((a_o.shape[0], 6, LINEAR))
-        out[:, :3, :10] = np.einsum("ij,njk->nik", r, a_o[:, :3])
-        out[:, 3:, :10] = np.einsum("ij,njk->nik", r, a_o[:, 3:])
+        out = np.empty((a_o.shape[0], 6, LINEAR))
+        np.matmul(r, a_o[:, :3], out=out[:, :3, :10])
+        np.matmul(r, a_o[:, 3:], out=out[:, 3:, :10])
         out[:, :, 10:] = np.eye(6)
         return out
+
+    def recentre(self, theta: np.ndarray) -> None:
+        """Move the start to θ: afterwards θ = 0 is that point (rotation and down as increments of it)."""
+        self.rotation0, self.down0 = self.rotation(theta), self.down(theta)
+        self.tangent = _tangent_basis(self.down0)
+
+    def moved(self, theta: np.ndarray) -> "JointModel":
+        """A shallow copy re-centred at θ (the robot's part shared)."""
+        other = object.__new__(JointModel)
+        other.__dict__.update(self.__dict__)
+        other.recentre(theta)
+        return other
+
+    def design(self, x: np.ndarray, rows: np.ndarray | slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """(A (N, 6, 16), J (N, 6, 21)) at θ = 0: the regressor and the Jacobian of A x in (θ, x).
+
+        Rotation increment (left, sensor frame): ∂(exp([δ]×) R u)/∂δ = −[R u]× for the force and the torque u.
+        Tilt increment t_i about the tangent e_i: ġ_O = base_R_Oᵀ g₀ (e_i × down), and A x moves by
+        R [m ġ_O; h × ġ_O]."""
+        a = self.regressor(np.zeros(NONLINEAR), rows)
+        wrench = a[:, :, :10] @ x[:10]  # R y_O (N, 6)
+        jacobian = np.empty((a.shape[0], 6, NONLINEAR + LINEAR))
+        jacobian[:, :3, :3] = -_skew(wrench[:, :3])
+        jacobian[:, 3:, :3] = -_skew(wrench[:, 3:])
+        r = self.rotation0
+        for i in range(2):
+            turn = np.cross(self.tangent[i], self.down0) * STANDARD_GRAVITY_M_S2
+            g_dot = self.base_R_o[rows].transpose(0, 2, 1) @ turn  # (N, 3)
+            jacobian[:, :3, 3 + i] = (x[0] * g_dot) @ r.T
+            jacobian[:, 3:, 3 + i] = np.cross(x[1:4], g_dot) @ r.T
+        jacobian[:, :, NONLINEAR:] = a
+        return a, jacobian
 
     def calibration(self, vector: np.ndarray, uncertainty: dict | None = None,
                     metadata: dict | None = None) -> Calibration:
@@ -231,49 +267,34 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     theta = np.zeros(NONLINEAR)
     weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
     if lag_s is None:
-        a = model.regressor(theta, keep)
-        x = _solve_linear(a, wrench, weights)
-        lag_s = estimate_lag(record, model.regressor(theta)[:, :, :10], x[10:])
+        lag_s = _estimate_lag(record, model.regressor(theta), mask)
         keep, wrench = aligned_rows(record, lag_s)
         keep_mask = mask[keep]
         keep, wrench = keep[keep_mask], wrench[keep_mask]
         weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
     sub = _Rows(model, keep)
-
-    def projected(t: np.ndarray, w: np.ndarray) -> np.ndarray:
-        a = sub.regressor(t)
-        return ((wrench - a @ _solve_linear(a, wrench, w)) * w).reshape(-1)
-
+    x = _solve_linear(sub.regressor(theta), wrench, weights)
     iterations = 0
     for _ in range(2):  # fit, re-weight by speed group, fit again
-        theta, used = _gauss_newton(projected, theta, weights)
+        x, used = _gauss_newton(model, keep, wrench, weights, x)
         iterations += used
-        a = sub.regressor(theta)
-        x = _solve_linear(a, wrench, weights)
-        weights, still_noise, moving_noise = _row_weights(wrench - a @ x, speed[keep])
-    theta, used = _gauss_newton(projected, theta, weights)
+        weights, still_noise, moving_noise = _row_weights(wrench - sub.regressor(theta) @ x, speed[keep])
+    x, used = _gauss_newton(model, keep, wrench, weights, x)
     iterations += used
-    a = sub.regressor(theta)
-    x = _solve_linear(a, wrench, weights)
-    residual = wrench - a @ x
-    optimum = np.concatenate([theta, x])
+    optimum = np.concatenate([theta, x])  # θ = 0: the model is centred on the optimum
 
-    # 1σ: the full Jacobian (θ by central differences at fixed x, x exact), (JᵀJ)⁻¹ χ²/dof
-    columns = []
-    for i in range(NONLINEAR):
-        step = np.zeros(NONLINEAR)
-        step[i] = _STEP
-        columns.append(((sub.regressor(theta + step) - sub.regressor(theta - step)) @ x * weights).reshape(-1)
-                       / (2 * _STEP))
-    jacobian = np.hstack([np.stack(columns, axis=1), (a * weights[:, :, None]).reshape(-1, LINEAR)])
+    # 1σ: (JᵀJ)⁻¹ χ²/dof of the weighted Jacobian at the optimum (its columns scaled to unit norm)
+    a, jacobian = model.design(x, keep)
+    residual = wrench - a @ x
+    jacobian = (jacobian * weights[:, :, None]).reshape(-1, NONLINEAR + LINEAR)
     norms = np.linalg.norm(jacobian, axis=0)
     norms[norms == 0] = 1.0
-    scaled = jacobian / norms
-    singular = np.linalg.svd(scaled, compute_uv=False)
-    condition = float(singular[0] / max(singular[-1], 1e-300))
+    information = (jacobian.T @ jacobian) / np.outer(norms, norms)
+    eigen = np.linalg.eigvalsh(information)
+    condition = float(np.sqrt(eigen[-1] / max(eigen[0], 1e-300)))
     dof = max(jacobian.shape[0] - jacobian.shape[1], 1)
     chi2 = float(np.sum((residual * weights) ** 2)) / dof
-    covariance = np.linalg.pinv(scaled.T @ scaled) / np.outer(norms, norms) * chi2
+    covariance = np.linalg.pinv(information) / np.outer(norms, norms) * chi2
     sigma = _propagate(model, optimum, covariance)
     summary = {"method": "quick (joint fit of the motion)", "lag_ms": 1e3 * float(lag_s), "rows": int(keep.size),
                "condition_number": condition, "chi2_per_dof": chi2,
@@ -287,27 +308,75 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
                        parameters=model.calibration, optimum=optimum)
 
 
-def _gauss_newton(residual, theta: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, int]:
-    """Gauss-Newton on the projected residual (forward differences; the variable projection's θ is nearly linear
-    near the optimum): stops when a step is below :data:`THETA_TOLERANCE_RAD` or after :data:`MAX_ITERATIONS`."""
-    r = residual(theta, weights)
+def _estimate_lag(record: MotionRecord, regressor: np.ndarray, mask: np.ndarray) -> float:
+    """The sensor stream's lag behind the robot's, s: the shift of the sensor samples that the model (1) at the start
+    θ fits best (as :func:`ftacq.dynamics.identify.estimate_lag`, whose exhaustive 0.5 ms grid is ten times
+    slower): a 5 ms grid over ±:data:`ftacq.dynamics.identify.LAG_SEARCH_S`, then golden-section search in the
+    best grid cell's neighbours to 0.05 ms."""
+    def cost(shift: float) -> float:
+        keep, wrench = aligned_rows(record, shift)
+        keep_mask = mask[keep]
+        keep, wrench = keep[keep_mask][::LAG_DECIMATION], wrench[keep_mask][::LAG_DECIMATION]
+        if keep.size < MIN_ROWS:
+            return np.inf
+        a = regressor[keep]
+        w = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
+        residual = (wrench - a @ _solve_linear(a, wrench, w)) * w
+        return float(np.mean(residual ** 2))
+
+    grid = np.arange(-LAG_SEARCH_S, LAG_SEARCH_S + 1e-9, LAG_GRID_S)
+    costs = np.array([cost(s) for s in grid])
+    best = int(np.argmin(costs))
+    if not np.isfinite(costs[best]):
+        raise InputError("motion record: the sensor and robot samples do not overlap in time")
+    lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    c, d = hi - golden * (hi - lo), lo + golden * (hi - lo)
+    fc, fd = cost(c), cost(d)
+    while hi - lo > LAG_TOLERANCE_S:
+        if fc < fd:
+            hi, d, fd = d, c, fc
+            c = hi - golden * (hi - lo)
+            fc = cost(c)
+        else:
+            lo, c, fc = c, d, fd
+            d = lo + golden * (hi - lo)
+            fd = cost(d)
+    return float(0.5 * (lo + hi))
+
+
+def _gauss_newton(model: JointModel, rows: np.ndarray, wrench: np.ndarray, weights: np.ndarray,
+                  x: np.ndarray) -> tuple[np.ndarray, int]:
+    """Gauss-Newton over all 21 parameters with the analytic Jacobian (:meth:`JointModel.design`), the model
+    re-centred on each step (θ stays 0); a step that raises the cost is halved. Stops when no angle moves more
+    than :data:`THETA_TOLERANCE_RAD` and no linear parameter by more than that fraction, or after
+    :data:`MAX_ITERATIONS`. Returns (x, iterations)."""
+    def cost(a: np.ndarray, values: np.ndarray) -> float:
+        return float(np.sum(((wrench - a @ values) * weights) ** 2))
+
+    a, jacobian = model.design(x, rows)
+    current = cost(a, x)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        jacobian = np.empty((r.size, theta.size))
-        for i in range(theta.size):
-            step = np.zeros(theta.size)
-            step[i] = _STEP
-            jacobian[:, i] = (residual(theta + step, weights) - r) / _STEP
-        delta, *_ = np.linalg.lstsq(jacobian, -r, rcond=None)
-        trial = theta + delta
-        r_trial = residual(trial, weights)
-        while r_trial @ r_trial > r @ r and np.max(np.abs(delta)) > THETA_TOLERANCE_RAD:  # halve a step that overshoots
+        jw = (jacobian * weights[:, :, None]).reshape(-1, NONLINEAR + LINEAR)
+        rw = ((wrench - a @ x) * weights).reshape(-1)
+        scale = np.maximum(np.linalg.norm(jw, axis=0), _FLOOR)
+        scaled = jw / scale
+        delta = np.linalg.solve(scaled.T @ scaled, scaled.T @ rw) / scale
+        for _ in range(30):
+            trial_model = model.moved(delta[:NONLINEAR])
+            trial_a = trial_model.regressor(np.zeros(NONLINEAR), rows)
+            trial = cost(trial_a, x + delta[NONLINEAR:])
+            if trial <= current or np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD:
+                break
             delta *= 0.5
-            trial = theta + delta
-            r_trial = residual(trial, weights)
-        theta, r = trial, r_trial
-        if np.max(np.abs(delta)) < THETA_TOLERANCE_RAD:
-            return theta, iteration
-    return theta, MAX_ITERATIONS
+        model.recentre(delta[:NONLINEAR])
+        x = x + delta[NONLINEAR:]
+        a, jacobian = model.design(x, rows)
+        current = cost(a, x)
+        if (np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD
+                and np.all(np.abs(delta[NONLINEAR:]) <= THETA_TOLERANCE_RAD * (np.abs(x) + 1e-9))):
+            return x, iteration
+    return x, MAX_ITERATIONS
 
 
 class _Rows:
