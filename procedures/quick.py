@@ -8,7 +8,9 @@ spin; optionally a few more), in nearest-neighbour order from the robot's config
 each (a candidate hold length), then :data:`VALIDATION_HOLDS` poses of the plan's validation set (V) held still
 and never fitted. Between waypoints the arm moves by moveJ at the CELL.toml joint speed and acceleration (the
 wrist turns fast: that is what shows the inertia). Each candidate is sampled at :data:`DESIGN_RATE_HZ` and scored
-by log det of the Fisher information JᵀWJ of all 21 parameters of :mod:`ftacq.dynamics.joint` at a nominal tool
+by log det of the Fisher information JᵀWJ of all 21 parameters of :mod:`ftacq.dynamics.joint` and the streams'
+lag (22 columns: the lag is fitted too, and a trajectory that cannot tell it from the rotation is a bad one) at a
+nominal tool
 (the CELL.toml cylinder, 1 kg), W the noise model (at rest the sensor's noise; while moving it grows by
 :data:`MOTION_NOISE_PER_RAD_S` per rad/s of joint speed, as the fit's speed groups measure). D-optimality is
 invariant to the parameters' units, so no scaling has to be chosen. The best candidate within
@@ -150,8 +152,9 @@ def nominal_tool(settings) -> tuple[float, np.ndarray, np.ndarray]:
     return mass, np.array([0.0, 0.0, 0.5 * length]), np.diag([lateral, lateral, 0.5 * mass * r * r])
 
 
-def information_logdet(settings, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
-    """log det of the Fisher information of all 21 parameters (:mod:`ftacq.dynamics.joint`) over these states."""
+def information_logdet(settings, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
+    """log det of the Fisher information of all 21 parameters and the streams' lag (:mod:`ftacq.dynamics.joint`)
+    over these states at times ``t`` (s)."""
     from ftacq.dynamics.joint import LINEAR, NONLINEAR, JointModel
     from ftacq.dynamics.model import inertial_parameters
     from ftacq.mounts import mount_of
@@ -161,13 +164,10 @@ def information_logdet(settings, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray)
     x = np.concatenate([inertial_parameters(mass, com, inertia), np.zeros(6)])
     sigma = NOMINAL_NOISE[None, :] * (1.0 + MOTION_NOISE_PER_RAD_S * np.max(np.abs(qd), axis=1))[:, None]
     weights = 1.0 / sigma
-    a = model.regressor(np.zeros(NONLINEAR))
-    columns = []
-    for i in range(NONLINEAR):
-        step = np.zeros(NONLINEAR)
-        step[i] = 1e-6
-        columns.append(((model.regressor(step) - a) @ x * weights).reshape(-1) / 1e-6)
-    jacobian = np.hstack([np.stack(columns, axis=1), (a * weights[:, :, None]).reshape(-1, LINEAR)])
+    a, jacobian = model.design(x)
+    lag = -np.gradient(a @ x, t, axis=0)
+    jacobian = np.concatenate([jacobian, lag[:, :, None]], axis=2) * weights[:, :, None]
+    jacobian = jacobian.reshape(-1, NONLINEAR + LINEAR + 1)
     sign, logdet = np.linalg.slogdet(jacobian.T @ jacobian)
     return float(logdet) if sign > 0 else -np.inf
 
@@ -263,9 +263,9 @@ def design_quick(settings, start_q_rad: np.ndarray, pose_plan=None, budget_s: fl
                        for a, b in zip(np.vstack([start, waypoints])[:-1], waypoints)) + float(holds.sum())
         if duration > budget_s or check_quick(settings, start, waypoints):
             continue
-        _, q, qd, qdd, index = sample_trajectory(start, waypoints[:len(order)], holds[:len(order)], speed,
+        t, q, qd, qdd, _ = sample_trajectory(start, waypoints[:len(order)], holds[:len(order)], speed,
                                                  acceleration, DESIGN_RATE_HZ)
-        score = information_logdet(settings, q, qd, qdd)
+        score = information_logdet(settings, t, q, qd, qdd)
         scored += 1
         if best is None or score > best[0]:
             best = (score, order + checks, duration)

@@ -23,8 +23,13 @@ residual, so rows are grouped by joint speed (still, then quantiles of the movin
 is weighted by the inverse of its own residual scatter, re-estimated once after the first fit. The still rows (the
 holds) then carry the biases and the mass as they should; the moving rows carry the rest.
 
-The lag between the streams is measured as in :func:`ftacq.dynamics.identify.estimate_lag` (the shift the model
-fits best), from the start estimate, by a coarse grid and a golden-section search. 1σ: the full Jacobian at the
+The lag between the streams: a start as :func:`ftacq.dynamics.identify.estimate_lag` (the shift the model fits
+best, a coarse grid and a golden-section search), then a 22nd parameter of the fit: the sensor row at t + lag reads
+the state at t + lag − lag_true, so its Jacobian column is −Ṗ (the prediction's time derivative); each fit's step
+re-aligns the data. Measuring the lag from the motion was what limited the accuracy: a lag error of 1 ms turns
+gravity in the sensor frame by ω·1 ms while the wrist moves, 0.25 mrad of rotation and a few mdeg of tilt on the
+simulated cell, and the fit's cost barely sees it; with the lag fitted jointly, its uncertainty enters the
+rotation's and the tilt's 1σ. 1σ: the full Jacobian at the
 optimum, (JᵀJ)⁻¹ scaled by χ²/dof, propagated to every reported parameter by central differences. The condition number is that of J with unit-norm
 columns. Noise-free simulated motion recovers every parameter to ≤ 1e-6 relative (tests/test_quick_identify.py).
 """
@@ -56,7 +61,12 @@ LINEAR = 16
 LAG_GRID_S = 0.005
 LAG_DECIMATION = 2
 """The lag's cost uses every this-many fitted row (the lag is one number; half the rows know it as well)."""
-LAG_TOLERANCE_S = 5e-5
+LAG_TOLERANCE_S = 2e-6
+"""The lag is refined (a Gauss-Newton step of the 22-parameter fit, then the data re-aligned) until its step is
+below this, s, or after :data:`MAX_LAG_STAGES` fits."""
+LAG_GOLDEN_TOLERANCE_S = 2.5e-4
+"""The start's golden-section search of the lag stops at this bracket, s."""
+MAX_LAG_STAGES = 6
 MAX_ITERATIONS = 20
 THETA_TOLERANCE_RAD = 1e-11
 """Gauss-Newton stops when no angle moves more than this (and no linear parameter by this fraction)."""
@@ -256,37 +266,54 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     mask = np.ones(len(record.robot_time_s), dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
     model = JointModel(robot, sensor_offset_m, record.q, record.qd, record.qdd,
                        np.eye(3) if rotation_start is None else rotation_start, nominal_down)
-    keep, wrench = aligned_rows(record, 0.0 if lag_s is None else lag_s)
-    keep_mask = mask[keep]
-    keep, wrench = keep[keep_mask], wrench[keep_mask]
+    def align(lag: float) -> tuple[np.ndarray, np.ndarray]:
+        keep, wrench = aligned_rows(record, lag)
+        inside = mask[keep]
+        return keep[inside], wrench[inside]
+
+    keep, wrench = align(0.0 if lag_s is None else lag_s)
     if keep.size < MIN_ROWS:
         raise InputError(f"motion record: only {keep.size} robot samples have sensor samples around them")
     if rotation_start is None:
         _start(_Rows(model, keep), wrench)
     speed = np.max(np.abs(record.qd), axis=1)
     theta = np.zeros(NONLINEAR)
-    weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
+    fit_lag = lag_s is None
     if lag_s is None:
         lag_s = _estimate_lag(record, model.regressor(theta), mask)
-        keep, wrench = aligned_rows(record, lag_s)
-        keep_mask = mask[keep]
-        keep, wrench = keep[keep_mask], wrench[keep_mask]
-        weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
-    sub = _Rows(model, keep)
-    x = _solve_linear(sub.regressor(theta), wrench, weights)
-    iterations = 0
-    for _ in range(2):  # fit, re-weight by speed group, fit again
+        keep, wrench = align(lag_s)
+    weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
+    x = _solve_linear(model.regressor(theta, keep), wrench, weights)
+    iterations, lag_step = 0, np.inf
+    for stage in range(MAX_LAG_STAGES):
+        # a fit at this lag; its step for the lag (the column −Ṗ, module docstring); re-align; re-weight once
         x, used = _gauss_newton(model, keep, wrench, weights, x)
         iterations += used
-        weights, still_noise, moving_noise = _row_weights(wrench - sub.regressor(theta) @ x, speed[keep])
+        residual = wrench - model.regressor(theta, keep) @ x
+        if stage == 0 or stage == 1:
+            weights, still_noise, moving_noise = _row_weights(residual, speed[keep])
+        if not fit_lag:
+            if stage >= 1:
+                break
+            continue
+        lag_step = _lag_step(model, record, keep, wrench, weights, x)
+        if abs(lag_step) < LAG_TOLERANCE_S and stage >= 1:
+            break
+        lag_s += lag_step
+        keep, wrench = align(lag_s)
+        weights = _row_weights(wrench - model.regressor(theta, keep) @ x, speed[keep])[0]
     x, used = _gauss_newton(model, keep, wrench, weights, x)
     iterations += used
     optimum = np.concatenate([theta, x])  # θ = 0: the model is centred on the optimum
 
-    # 1σ: (JᵀJ)⁻¹ χ²/dof of the weighted Jacobian at the optimum (its columns scaled to unit norm)
+    # 1σ: (JᵀJ)⁻¹ χ²/dof of the weighted Jacobian at the optimum (its columns scaled to unit norm), the lag
+    # included when it was fitted (it is correlated with the rotation and the tilt: a late sensor turns gravity)
     a, jacobian = model.design(x, keep)
     residual = wrench - a @ x
-    jacobian = (jacobian * weights[:, :, None]).reshape(-1, NONLINEAR + LINEAR)
+    if fit_lag:
+        jacobian = np.concatenate([jacobian, _lag_column(model, record, keep, x)[:, :, None]], axis=2)
+    columns = jacobian.shape[2]
+    jacobian = (jacobian * weights[:, :, None]).reshape(-1, columns)
     norms = np.linalg.norm(jacobian, axis=0)
     norms[norms == 0] = 1.0
     information = (jacobian.T @ jacobian) / np.outer(norms, norms)
@@ -294,9 +321,12 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     condition = float(np.sqrt(eigen[-1] / max(eigen[0], 1e-300)))
     dof = max(jacobian.shape[0] - jacobian.shape[1], 1)
     chi2 = float(np.sum((residual * weights) ** 2)) / dof
-    covariance = np.linalg.pinv(information) / np.outer(norms, norms) * chi2
+    full_covariance = np.linalg.pinv(information) / np.outer(norms, norms) * chi2
+    covariance = full_covariance[:NONLINEAR + LINEAR, :NONLINEAR + LINEAR]
+    lag_sigma = float(np.sqrt(max(full_covariance[-1, -1], 0.0))) if fit_lag else 0.0
     sigma = _propagate(model, optimum, covariance)
-    summary = {"method": "quick (joint fit of the motion)", "lag_ms": 1e3 * float(lag_s), "rows": int(keep.size),
+    summary = {"method": "quick (joint fit of the motion)", "lag_ms": 1e3 * float(lag_s),
+               "lag_sigma_ms": 1e3 * lag_sigma, "rows": int(keep.size),
                "condition_number": condition, "chi2_per_dof": chi2,
                "residual_rms": np.sqrt(np.mean(residual ** 2, axis=0)).tolist(),
                "still_noise": still_noise.tolist(), "moving_noise": moving_noise.tolist()}
@@ -312,7 +342,7 @@ def _estimate_lag(record: MotionRecord, regressor: np.ndarray, mask: np.ndarray)
     """The sensor stream's lag behind the robot's, s: the shift of the sensor samples that the model (1) at the start
     θ fits best (as :func:`ftacq.dynamics.identify.estimate_lag`, whose exhaustive 0.5 ms grid is ten times
     slower): a 5 ms grid over ±:data:`ftacq.dynamics.identify.LAG_SEARCH_S`, then golden-section search in the
-    best grid cell's neighbours to 0.05 ms."""
+    best grid cell's neighbours to 0.25 ms (the joint fit refines it)."""
     def cost(shift: float) -> float:
         keep, wrench = aligned_rows(record, shift)
         keep_mask = mask[keep]
@@ -333,7 +363,7 @@ def _estimate_lag(record: MotionRecord, regressor: np.ndarray, mask: np.ndarray)
     golden = (np.sqrt(5.0) - 1.0) / 2.0
     c, d = hi - golden * (hi - lo), lo + golden * (hi - lo)
     fc, fd = cost(c), cost(d)
-    while hi - lo > LAG_TOLERANCE_S:
+    while hi - lo > LAG_GOLDEN_TOLERANCE_S:
         if fc < fd:
             hi, d, fd = d, c, fc
             c = hi - golden * (hi - lo)
@@ -343,6 +373,26 @@ def _estimate_lag(record: MotionRecord, regressor: np.ndarray, mask: np.ndarray)
             d = lo + golden * (hi - lo)
             fd = cost(d)
     return float(0.5 * (lo + hi))
+
+
+def _lag_column(model: JointModel, record: MotionRecord, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """∂(model)/∂lag (N, 6) = −Ṗ: the sensor row at t + lag reads the state at t + lag − lag_true, so a larger true
+    lag shows the prediction P = A x later (Ṗ by central differences along the robot's time)."""
+    prediction = model.regressor(np.zeros(NONLINEAR), rows) @ x
+    return -np.gradient(prediction, record.robot_time_s[rows], axis=0)
+
+
+def _lag_step(model: JointModel, record: MotionRecord, rows: np.ndarray, wrench: np.ndarray, weights: np.ndarray,
+              x: np.ndarray) -> float:
+    """The Gauss-Newton step of the lag, s, from the joint linearisation of all 22 parameters at (θ = 0, x)."""
+    a, jacobian = model.design(x, rows)
+    jacobian = np.concatenate([jacobian, _lag_column(model, record, rows, x)[:, :, None]], axis=2)
+    jw = (jacobian * weights[:, :, None]).reshape(-1, jacobian.shape[2])
+    rw = ((wrench - a @ x) * weights).reshape(-1)
+    scale = np.maximum(np.linalg.norm(jw, axis=0), _FLOOR)
+    scaled = jw / scale
+    delta = np.linalg.solve(scaled.T @ scaled, scaled.T @ rw) / scale
+    return float(np.clip(delta[-1], -LAG_GRID_S, LAG_GRID_S))
 
 
 def _gauss_newton(model: JointModel, rows: np.ndarray, wrench: np.ndarray, weights: np.ndarray,

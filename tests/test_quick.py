@@ -1,0 +1,92 @@
+"""The quick calibration's trajectory and verdict (procedures/quick.py, ftacq/app/commands/quick_stage.py).
+
+The designed trajectory, sampled densely, stays within the CELL.toml speed and acceleration and clear of the
+collision model at every sample; the verdict on the still validation poses passes the right tool and fails a
+wrong one (a 0.2 kg part left in the gripper during the validation holds, unknown to the fit)."""
+
+import numpy as np
+import pytest
+
+from ftacq.app.commands.quick_stage import quick_verdict, refuse_resume
+from ftacq.dynamics import MotionRecord
+from ftacq.dynamics.joint import identify_joint
+from ftacq.errors import InputError
+from ftacq.mounts import mount_of
+from procedures.plan import collision_checker, home_configuration_rad
+from procedures.quick import FIT, VALIDATE, QuickPlan, QuickRecording, design_quick, sample_trajectory
+from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
+from tests.test_quick_identify import settings_for
+
+RATE_HZ = 500.0
+
+
+@pytest.fixture(scope="module")
+def designed():
+    settings = settings_for()
+    return settings, design_quick(settings, home_configuration_rad("floor"))
+
+
+def test_trajectory_stays_within_limits_and_clear_along_its_whole_path(designed):
+    settings, plan = designed
+    _, q, qd, qdd, _ = sample_trajectory(plan.start_q_rad, plan.waypoints_rad, plan.hold_s, plan.speed_rad_s,
+                                         plan.acceleration_rad_s2, 200.0)
+    assert np.max(np.abs(qd)) <= settings.joint_speed_rad_s + 1e-9
+    assert np.max(np.abs(qdd)) <= settings.joint_acceleration_rad_s2 + 1e-9
+    checker = collision_checker(settings)
+    problems = [p for qi in q for p in checker.problems_at(qi)]
+    assert problems == []
+    assert plan.estimated_duration_s <= 60.0
+    assert plan.purposes.count(VALIDATE) == 3 and plan.purposes.count(FIT) >= 6
+
+
+def test_plan_round_trips_through_json(designed):
+    _, plan = designed
+    again = QuickPlan.from_json(plan.to_json())
+    np.testing.assert_array_equal(again.waypoints_rad, plan.waypoints_rad)
+    assert again.purposes == plan.purposes and again.labels == plan.labels
+
+
+def recording_for(settings, plan, truth: CellTruth, extra_kg: float, seed: int = 2) -> QuickRecording:
+    """A noisy recording of the plan; a part of ``extra_kg`` in the gripper during the validation holds only."""
+    t, q, qd, qdd, index = sample_trajectory(plan.start_q_rad, plan.waypoints_rad, plan.hold_s, plan.speed_rad_s,
+                                             plan.acceleration_rad_s2, RATE_HZ)
+    physics = SensorPhysics(truth, SettablePose(), robot=settings.ur, seed=seed)
+    wrench = physics.noiseless_wrench_moving(q, qd, qdd)
+    holds = np.full((len(plan.purposes), 2), -1)
+    for k, purpose in enumerate(plan.purposes):
+        rows = np.flatnonzero(index == k)
+        if rows.size:
+            holds[k] = (rows[0], rows[-1] + 1)
+        if purpose == VALIDATE and rows.size and extra_kg:
+            physics.set_tool(truth.mass_kg + extra_kg, truth.center_of_mass_m)
+            wrench[rows] = physics.noiseless_wrench_moving(q[rows], qd[rows], qdd[rows])
+            physics.set_tool(truth.mass_kg, truth.center_of_mass_m)
+    speed = np.max(np.abs(qd), axis=1)[:, None]
+    sigma = np.array(truth.force_noise_n + truth.torque_noise_nm) * (1 + truth.motion_noise_gain * speed)
+    wrench = wrench + np.random.default_rng(seed).standard_normal(wrench.shape) * sigma
+    return QuickRecording(MotionRecord(t.copy(), wrench, t, q, qd, qdd), holds, len(plan.purposes))
+
+
+@pytest.mark.parametrize("extra_kg, expected", [(0.0, "PASS"), (0.2, "FAIL")])
+def test_verdict_catches_a_wrong_tool(designed, extra_kg, expected):
+    settings, plan = designed
+    truth = CellTruth()
+    recording = recording_for(settings, plan, truth, extra_kg)
+    rows = np.ones(len(recording.record.robot_time_s), dtype=bool)
+    for (a, b), purpose in zip(recording.hold_rows, plan.purposes):
+        if purpose == VALIDATE:
+            rows[a:b] = False
+    result = identify_joint(recording.record, settings.ur, np.array(truth.sensor_offset_m),
+                            np.array(mount_of("floor").down_base), rows=rows, lag_s=0.0)
+    verdict = quick_verdict(result, recording, plan, settings.ur, completed=True)
+    assert verdict.status == expected, verdict.findings
+    assert abs(result.calibration.mass_kg - truth.mass_kg) <= 3 * result.sigma["mass_kg"]
+
+
+def test_a_quick_run_folder_is_restarted_not_resumed(tmp_path):
+    class Folder:
+        path = tmp_path
+        document = {"mode": "quick", "sim": {"sensor": "netft"}}
+
+    with pytest.raises(InputError, match="calibrate --sim --quick"):
+        refuse_resume(Folder())
