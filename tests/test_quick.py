@@ -90,3 +90,29 @@ def test_a_quick_run_folder_is_restarted_not_resumed(tmp_path):
 
     with pytest.raises(InputError, match="calibrate --sim --quick"):
         refuse_resume(Folder())
+
+
+def run_cli(tmp_path, *args: str):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "ftacq.app.cli", "calibrate", *args, "--out", str(tmp_path / "runs")],
+                          cwd=root, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=120)
+
+
+def test_dry_run_prints_the_checked_quick_plan_and_moves_nothing(tmp_path):
+    done = run_cli(tmp_path, "--sim", "--quick", "--dry-run")
+    assert done.returncode == 0, done.stderr
+    assert "Quick calibration plan" in done.stdout and "Fisher information" in done.stdout
+    assert "dry run: the robot did not move" in done.stdout
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+
+
+def test_quick_with_dynamic_is_a_one_line_input_error(tmp_path):
+    done = run_cli(tmp_path, "--sim", "--quick", "--dynamic", "--dry-run")
+    assert done.returncode == 2
+    assert "--quick runs alone" in done.stderr and "Traceback" not in done.stderr

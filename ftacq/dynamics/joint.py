@@ -23,10 +23,10 @@ residual, so rows are grouped by joint speed (still, then quantiles of the movin
 is weighted by the inverse of its own residual scatter, re-estimated once after the first fit. The still rows (the
 holds) then carry the biases and the mass as they should; the moving rows carry the rest.
 
-The lag between the streams: a start as :func:`ftacq.dynamics.identify.estimate_lag` (the shift the model fits
-best, a coarse grid and a golden-section search), then a 22nd parameter of the fit: the sensor row at t + lag reads
-the state at t + lag − lag_true, so its Jacobian column is −Ṗ (the prediction's time derivative); each fit's step
-re-aligns the data. Measuring the lag from the motion was what limited the accuracy: a lag error of 1 ms turns
+The lag between the streams is a 22nd parameter of the fit: the sensor row aligned at t + lag₀ reads the state at
+t + lag₀ − lag_true, modelled as P − Ṗ δ (Ṗ the prediction's time derivative). The samples are re-aligned only
+when δ exceeds :data:`REALIGN_S`: a box average moves in steps of the sensor's period, and a search over
+re-aligned shifts (as :func:`ftacq.dynamics.identify.estimate_lag`) is biased by how many samples each box holds. Measuring the lag from the motion was what limited the accuracy: a lag error of 1 ms turns
 gravity in the sensor frame by ω·1 ms while the wrist moves, 0.25 mrad of rotation and a few mdeg of tilt on the
 simulated cell, and the fit's cost barely sees it; with the lag fitted jointly, its uncertainty enters the
 rotation's and the tilt's 1σ. 1σ: the full Jacobian at the
@@ -43,7 +43,7 @@ import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calibration import Calibration
-from ftacq.dynamics.identify import LAG_SEARCH_S, MIN_ROWS, MotionRecord, aligned_rows
+from ftacq.dynamics.identify import MIN_ROWS, MotionRecord, aligned_rows
 from ftacq.dynamics.model import SensorDynamics
 from ftacq.errors import InputError
 from ftacq.identification.tilt import tilt_deg, tilt_jacobian_deg
@@ -58,15 +58,12 @@ NONLINEAR = 5
 """θ: rotation increment (3, sensor frame, rad) and tilt increment (2, rad, about two axes ⟂ the start's down)."""
 LINEAR = 16
 """x: π_O (10: m, h, I_O in Pinocchio's order xx, xy, yy, xz, yz, zz) and the biases (6)."""
-LAG_GRID_S = 0.005
-LAG_DECIMATION = 2
-"""The lag's cost uses every this-many fitted row (the lag is one number; half the rows know it as well)."""
-LAG_TOLERANCE_S = 2e-6
-"""The lag is refined (a Gauss-Newton step of the 22-parameter fit, then the data re-aligned) until its step is
-below this, s, or after :data:`MAX_LAG_STAGES` fits."""
-LAG_GOLDEN_TOLERANCE_S = 2.5e-4
-"""The start's golden-section search of the lag stops at this bracket, s."""
-MAX_LAG_STAGES = 6
+REALIGN_S = 0.002
+"""A fitted lag shift beyond this re-aligns the sensor samples (the shift is modelled to first order), s ..."""
+REALIGNMENTS = 3
+"""... at most this many times."""
+LAG_TOLERANCE_S = 1e-9
+"""Gauss-Newton's lag step below which it has converged, s."""
 MAX_ITERATIONS = 20
 THETA_TOLERANCE_RAD = 1e-11
 """Gauss-Newton stops when no angle moves more than this (and no linear parameter by this fraction)."""
@@ -279,39 +276,30 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     speed = np.max(np.abs(record.qd), axis=1)
     theta = np.zeros(NONLINEAR)
     fit_lag = lag_s is None
-    if lag_s is None:
-        lag_s = _estimate_lag(record, model.regressor(theta), mask)
-        keep, wrench = align(lag_s)
+    lag_start = 0.0 if lag_s is None else float(lag_s)
     weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
     x = _solve_linear(model.regressor(theta, keep), wrench, weights)
-    iterations, lag_step = 0, np.inf
-    for stage in range(MAX_LAG_STAGES):
-        # a fit at this lag; its step for the lag (the column −Ṗ, module docstring); re-align; re-weight once
-        x, used = _gauss_newton(model, keep, wrench, weights, x)
+    times = record.robot_time_s[keep] if fit_lag else None
+    shift, iterations = 0.0, 0
+    for stage in range(REALIGNMENTS + 2):
+        # a fit; the lag's shift beyond REALIGN_S re-aligns the samples; re-weight by speed group once
+        x, shift, used = _gauss_newton(model, keep, wrench, weights, x, times, shift)
         iterations += used
-        residual = wrench - model.regressor(theta, keep) @ x
-        if stage == 0 or stage == 1:
-            weights, still_noise, moving_noise = _row_weights(residual, speed[keep])
-        if not fit_lag:
-            if stage >= 1:
-                break
-            continue
-        lag_step = _lag_step(model, record, keep, wrench, weights, x)
-        if abs(lag_step) < LAG_TOLERANCE_S and stage >= 1:
-            break
-        lag_s += lag_step
-        keep, wrench = align(lag_s)
-        weights = _row_weights(wrench - model.regressor(theta, keep) @ x, speed[keep])[0]
-    x, used = _gauss_newton(model, keep, wrench, weights, x)
+        if fit_lag and abs(shift) > REALIGN_S and stage < REALIGNMENTS:
+            lag_start, shift = lag_start + shift, 0.0
+            keep, wrench = align(lag_start)
+            times = record.robot_time_s[keep]
+        weights, still_noise, moving_noise = _row_weights(wrench - _predict(model, keep, x, times, shift),
+                                                          speed[keep])
+    x, shift, used = _gauss_newton(model, keep, wrench, weights, x, times, shift)
     iterations += used
+    lag_s = lag_start + shift
     optimum = np.concatenate([theta, x])  # θ = 0: the model is centred on the optimum
 
     # 1σ: (JᵀJ)⁻¹ χ²/dof of the weighted Jacobian at the optimum (its columns scaled to unit norm), the lag
     # included when it was fitted (it is correlated with the rotation and the tilt: a late sensor turns gravity)
-    a, jacobian = model.design(x, keep)
-    residual = wrench - a @ x
-    if fit_lag:
-        jacobian = np.concatenate([jacobian, _lag_column(model, record, keep, x)[:, :, None]], axis=2)
+    jacobian = _jacobian(model, keep, x, times)
+    residual = wrench - _predict(model, keep, x, times, shift)
     columns = jacobian.shape[2]
     jacobian = (jacobian * weights[:, :, None]).reshape(-1, columns)
     norms = np.linalg.norm(jacobian, axis=0)
@@ -338,95 +326,62 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
                        parameters=model.calibration, optimum=optimum)
 
 
-def _estimate_lag(record: MotionRecord, regressor: np.ndarray, mask: np.ndarray) -> float:
-    """The sensor stream's lag behind the robot's, s: the shift of the sensor samples that the model (1) at the start
-    θ fits best (as :func:`ftacq.dynamics.identify.estimate_lag`, whose exhaustive 0.5 ms grid is ten times
-    slower): a 5 ms grid over ±:data:`ftacq.dynamics.identify.LAG_SEARCH_S`, then golden-section search in the
-    best grid cell's neighbours to 0.25 ms (the joint fit refines it)."""
-    def cost(shift: float) -> float:
-        keep, wrench = aligned_rows(record, shift)
-        keep_mask = mask[keep]
-        keep, wrench = keep[keep_mask][::LAG_DECIMATION], wrench[keep_mask][::LAG_DECIMATION]
-        if keep.size < MIN_ROWS:
-            return np.inf
-        a = regressor[keep]
-        w = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
-        residual = (wrench - a @ _solve_linear(a, wrench, w)) * w
-        return float(np.mean(residual ** 2))
-
-    grid = np.arange(-LAG_SEARCH_S, LAG_SEARCH_S + 1e-9, LAG_GRID_S)
-    costs = np.array([cost(s) for s in grid])
-    best = int(np.argmin(costs))
-    if not np.isfinite(costs[best]):
-        raise InputError("motion record: the sensor and robot samples do not overlap in time")
-    lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
-    golden = (np.sqrt(5.0) - 1.0) / 2.0
-    c, d = hi - golden * (hi - lo), lo + golden * (hi - lo)
-    fc, fd = cost(c), cost(d)
-    while hi - lo > LAG_GOLDEN_TOLERANCE_S:
-        if fc < fd:
-            hi, d, fd = d, c, fc
-            c = hi - golden * (hi - lo)
-            fc = cost(c)
-        else:
-            lo, c, fc = c, d, fd
-            d = lo + golden * (hi - lo)
-            fd = cost(d)
-    return float(0.5 * (lo + hi))
-
-
-def _lag_column(model: JointModel, record: MotionRecord, rows: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """∂(model)/∂lag (N, 6) = −Ṗ: the sensor row at t + lag reads the state at t + lag − lag_true, so a larger true
-    lag shows the prediction P = A x later (Ṗ by central differences along the robot's time)."""
+def _predict(model: JointModel, rows: np.ndarray, x: np.ndarray, times: np.ndarray | None,
+             shift: float) -> np.ndarray:
+    """The model (1) at the rows, the sensor read ``shift`` s later than aligned: P − Ṗ · shift (Ṗ by central
+    differences along the robot's time; first order in the shift, which stays within a fraction of the motion's
+    time scale). ``times`` None: no shift."""
     prediction = model.regressor(np.zeros(NONLINEAR), rows) @ x
-    return -np.gradient(prediction, record.robot_time_s[rows], axis=0)
+    if times is None or shift == 0.0:
+        return prediction
+    return prediction - np.gradient(prediction, times, axis=0) * shift
 
 
-def _lag_step(model: JointModel, record: MotionRecord, rows: np.ndarray, wrench: np.ndarray, weights: np.ndarray,
-              x: np.ndarray) -> float:
-    """The Gauss-Newton step of the lag, s, from the joint linearisation of all 22 parameters at (θ = 0, x)."""
+def _jacobian(model: JointModel, rows: np.ndarray, x: np.ndarray, times: np.ndarray | None) -> np.ndarray:
+    """(N, 6, 21 or 22): :meth:`JointModel.design`'s Jacobian, and the lag's column −Ṗ when ``times`` is given.
+
+    The lag: the sensor row aligned at t + lag₀ reads the state at t + lag₀ − lag_true, so a true lag larger by
+    δ shows the prediction P δ later: −Ṗ δ. Fitting δ in the model instead of re-aligning the samples keeps the
+    cost smooth in the lag (a re-aligned box average moves in steps of the sensor's period)."""
     a, jacobian = model.design(x, rows)
-    jacobian = np.concatenate([jacobian, _lag_column(model, record, rows, x)[:, :, None]], axis=2)
-    jw = (jacobian * weights[:, :, None]).reshape(-1, jacobian.shape[2])
-    rw = ((wrench - a @ x) * weights).reshape(-1)
-    scale = np.maximum(np.linalg.norm(jw, axis=0), _FLOOR)
-    scaled = jw / scale
-    delta = np.linalg.solve(scaled.T @ scaled, scaled.T @ rw) / scale
-    return float(np.clip(delta[-1], -LAG_GRID_S, LAG_GRID_S))
+    if times is None:
+        return jacobian
+    lag = -np.gradient(a @ x, times, axis=0)
+    return np.concatenate([jacobian, lag[:, :, None]], axis=2)
 
 
 def _gauss_newton(model: JointModel, rows: np.ndarray, wrench: np.ndarray, weights: np.ndarray,
-                  x: np.ndarray) -> tuple[np.ndarray, int]:
-    """Gauss-Newton over all 21 parameters with the analytic Jacobian (:meth:`JointModel.design`), the model
-    re-centred on each step (θ stays 0); a step that raises the cost is halved. Stops when no angle moves more
-    than :data:`THETA_TOLERANCE_RAD` and no linear parameter by more than that fraction, or after
-    :data:`MAX_ITERATIONS`. Returns (x, iterations)."""
-    def cost(a: np.ndarray, values: np.ndarray) -> float:
-        return float(np.sum(((wrench - a @ values) * weights) ** 2))
+                  x: np.ndarray, times: np.ndarray | None, shift: float) -> tuple[np.ndarray, float, int]:
+    """Gauss-Newton over all 21 parameters (and the lag's ``shift`` when ``times`` is given) with the analytic
+    Jacobian (:func:`_jacobian`), the model re-centred on each step (θ stays 0); a step that raises the cost is
+    halved. Stops when no angle moves more than :data:`THETA_TOLERANCE_RAD`, no linear parameter by more than that
+    fraction and the lag by less than :data:`LAG_TOLERANCE_S`, or after :data:`MAX_ITERATIONS`.
+    Returns (x, shift, iterations)."""
+    def cost(m: JointModel, values: np.ndarray, lag: float) -> float:
+        return float(np.sum(((wrench - _predict(m, rows, values, times, lag)) * weights) ** 2))
 
-    a, jacobian = model.design(x, rows)
-    current = cost(a, x)
+    current = cost(model, x, shift)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        jw = (jacobian * weights[:, :, None]).reshape(-1, NONLINEAR + LINEAR)
-        rw = ((wrench - a @ x) * weights).reshape(-1)
+        jacobian = _jacobian(model, rows, x, times)
+        jw = (jacobian * weights[:, :, None]).reshape(-1, jacobian.shape[2])
+        rw = ((wrench - _predict(model, rows, x, times, shift)) * weights).reshape(-1)
         scale = np.maximum(np.linalg.norm(jw, axis=0), _FLOOR)
         scaled = jw / scale
         delta = np.linalg.solve(scaled.T @ scaled, scaled.T @ rw) / scale
+        if times is None:
+            delta = np.append(delta, 0.0)
         for _ in range(30):
-            trial_model = model.moved(delta[:NONLINEAR])
-            trial_a = trial_model.regressor(np.zeros(NONLINEAR), rows)
-            trial = cost(trial_a, x + delta[NONLINEAR:])
+            trial = cost(model.moved(delta[:NONLINEAR]), x + delta[NONLINEAR:-1], shift + delta[-1])
             if trial <= current or np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD:
                 break
             delta *= 0.5
         model.recentre(delta[:NONLINEAR])
-        x = x + delta[NONLINEAR:]
-        a, jacobian = model.design(x, rows)
-        current = cost(a, x)
-        if (np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD
-                and np.all(np.abs(delta[NONLINEAR:]) <= THETA_TOLERANCE_RAD * (np.abs(x) + 1e-9))):
-            return x, iteration
-    return x, MAX_ITERATIONS
+        x, shift = x + delta[NONLINEAR:-1], shift + float(delta[-1])
+        current = cost(model, x, shift)
+        if (np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD and abs(delta[-1]) < LAG_TOLERANCE_S
+                and np.all(np.abs(delta[NONLINEAR:-1]) <= THETA_TOLERANCE_RAD * (np.abs(x) + 1e-9))):
+            return x, shift, iteration
+    return x, shift, MAX_ITERATIONS
 
 
 class _Rows:
