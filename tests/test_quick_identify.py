@@ -77,3 +77,28 @@ def test_noisy_motion_is_within_three_reported_sigma(plan):
         z = np.abs(np.asarray(value) - np.asarray(true)) / np.maximum(np.asarray(sigma[name]), 1e-15)
         assert np.all(z <= 4.0), (name, z)
     assert all(p in (FIT, "validate") for p in quick.purposes)
+
+
+def test_the_streams_lag_is_fitted_with_the_parameters(plan):
+    """The sensor at 2 kHz stamped 1.3 ms late (its samples read the state 1.3 ms before their stamps): the fit
+    finds the lag, and the rotation and tilt, which a wrong lag would turn, stay within their 4σ."""
+    settings, quick = plan
+    truth = CellTruth(base_tilt_deg=(1.5, -2.0))
+    lag_s, seed = 0.0013, 5
+    args = (quick.start_q_rad, quick.waypoints_rad, quick.hold_s, quick.speed_rad_s, quick.acceleration_rad_s2)
+    t, q, qd, qdd, _ = sample_trajectory(*args, RATE_HZ)
+    ts, qs, qds, qdds, _ = sample_trajectory(*args, 2000.0)
+    physics = SensorPhysics(truth, SettablePose(), robot=settings.ur, seed=seed)
+    wrench = physics.noiseless_wrench_moving(qs, qds, qdds)
+    sigma = np.array(truth.force_noise_n + truth.torque_noise_nm) * (
+        1 + truth.motion_noise_gain * np.max(np.abs(qds), axis=1)[:, None])
+    wrench += np.random.default_rng(seed).standard_normal(wrench.shape) * sigma
+    record = MotionRecord(ts + lag_s, wrench, t, q, qd, qdd)
+    result = identify_joint(record, settings.ur, np.array(truth.sensor_offset_m),
+                            np.array(mount_of("floor").down_base))
+    lag_sigma = result.calibration.metadata["quick"]["lag_sigma_ms"] * 1e-3
+    assert abs(result.lag_s - lag_s) <= max(4 * lag_sigma, 5e-5), (result.lag_s, lag_sigma)
+    rotation = rotvec_from_rotation(result.calibration.sensor_rotation @ truth.sensor_rotation.T)
+    assert np.all(np.abs(rotation) <= 4 * np.array(result.sigma["sensor_rotation_rad"])), rotation
+    tilt = np.array(result.calibration.base_tilt_deg) - np.array(truth.base_tilt_deg)
+    assert np.all(np.abs(tilt) <= 4 * np.array(result.sigma["base_tilt_deg"])), tilt

@@ -45,6 +45,7 @@ from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calibration import Calibration
 from ftacq.dynamics.identify import MIN_ROWS, MotionRecord, aligned_rows
 from ftacq.dynamics.model import SensorDynamics
+from ftacq.dynamics.timing import box_average
 from ftacq.errors import InputError
 from ftacq.identification.tilt import tilt_deg, tilt_jacobian_deg
 from ftacq.kinematics import URModel
@@ -58,6 +59,9 @@ NONLINEAR = 5
 """θ: rotation increment (3, sensor frame, rad) and tilt increment (2, rad, about two axes ⟂ the start's down)."""
 LINEAR = 16
 """x: π_O (10: m, h, I_O in Pinocchio's order xx, xy, yy, xz, yz, zz) and the biases (6)."""
+ACCELERATION_STEP_RAD_S2 = 0.1
+"""A change of a joint's acceleration between two robot samples beyond this is a step (rows around it are not
+fitted, :func:`_near_acceleration_steps`)."""
 REALIGN_S = 0.002
 """A fitted lag shift beyond this re-aligns the sensor samples (the shift is modelled to first order), s ..."""
 REALIGNMENTS = 3
@@ -65,8 +69,11 @@ REALIGNMENTS = 3
 LAG_TOLERANCE_S = 1e-9
 """Gauss-Newton's lag step below which it has converged, s."""
 MAX_ITERATIONS = 20
+MAX_HALVINGS = 8
+COST_TOLERANCE = 1e-12
+"""Gauss-Newton has converged when a step lowers the weighted cost by less than this fraction ..."""
 THETA_TOLERANCE_RAD = 1e-11
-"""Gauss-Newton stops when no angle moves more than this (and no linear parameter by this fraction)."""
+"""... or when no angle moves more than this (and no linear parameter by this fraction)."""
 _STEP = 1e-6
 """Central-difference step of θ (rad) and of the propagated outputs (relative)."""
 _FLOOR = 1e-12
@@ -263,10 +270,19 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     mask = np.ones(len(record.robot_time_s), dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
     model = JointModel(robot, sensor_offset_m, record.q, record.qd, record.qdd,
                        np.eye(3) if rotation_start is None else rotation_start, nominal_down)
+    mask = mask & ~_near_acceleration_steps(record.qdd)
+
     def align(lag: float) -> tuple[np.ndarray, np.ndarray]:
         keep, wrench = aligned_rows(record, lag)
         inside = mask[keep]
         return keep[inside], wrench[inside]
+
+    def timing(lag: float, rows: np.ndarray) -> _Timing | None:
+        if not fit_lag:
+            return None
+        at = record.robot_time_s[rows] + lag
+        stamps, _ = box_average(record.sensor_time_s, record.sensor_time_s, at, record.robot_period_s)
+        return _Timing(record.robot_time_s[rows], stamps[:, 0] - at)
 
     keep, wrench = align(0.0 if lag_s is None else lag_s)
     if keep.size < MIN_ROWS:
@@ -279,7 +295,7 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     lag_start = 0.0 if lag_s is None else float(lag_s)
     weights = np.ones((keep.size, 6)) / np.maximum(np.std(wrench, axis=0), _FLOOR)
     x = _solve_linear(model.regressor(theta, keep), wrench, weights)
-    times = record.robot_time_s[keep] if fit_lag else None
+    times = timing(lag_start, keep)
     shift, iterations = 0.0, 0
     for stage in range(REALIGNMENTS + 2):
         # a fit; the lag's shift beyond REALIGN_S re-aligns the samples; re-weight by speed group once
@@ -288,7 +304,7 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
         if fit_lag and abs(shift) > REALIGN_S and stage < REALIGNMENTS:
             lag_start, shift = lag_start + shift, 0.0
             keep, wrench = align(lag_start)
-            times = record.robot_time_s[keep]
+            times = timing(lag_start, keep)
         weights, still_noise, moving_noise = _row_weights(wrench - _predict(model, keep, x, times, shift),
                                                           speed[keep])
     x, shift, used = _gauss_newton(model, keep, wrench, weights, x, times, shift)
@@ -298,7 +314,7 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
 
     # 1σ: (JᵀJ)⁻¹ χ²/dof of the weighted Jacobian at the optimum (its columns scaled to unit norm), the lag
     # included when it was fitted (it is correlated with the rotation and the tilt: a late sensor turns gravity)
-    jacobian = _jacobian(model, keep, x, times)
+    jacobian = _jacobian(model, keep, x, times, shift)
     residual = wrench - _predict(model, keep, x, times, shift)
     columns = jacobian.shape[2]
     jacobian = (jacobian * weights[:, :, None]).reshape(-1, columns)
@@ -326,32 +342,58 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
                        parameters=model.calibration, optimum=optimum)
 
 
-def _predict(model: JointModel, rows: np.ndarray, x: np.ndarray, times: np.ndarray | None,
+@dataclass(frozen=True)
+class _Timing:
+    """The fitted rows' robot times (N,) s and, per row, how much later than its aligned time (robot time + lag₀)
+    the sensor samples averaged there were stamped on average (N,) s (half a sensor period at most: the box
+    [t − T/2, t + T/2) holds whole samples)."""
+
+    time_s: np.ndarray
+    offset_s: np.ndarray
+
+
+def _near_acceleration_steps(qdd: np.ndarray) -> np.ndarray:
+    """(M,) True within two robot samples of a step of the joint acceleration (a moveJ's profile switching): there
+    the sensor's box average and the model's instantaneous state differ by the step itself, which no lag or
+    parameter explains."""
+    step = np.zeros(len(qdd), dtype=bool)
+    if len(qdd) > 1:
+        jumps = np.flatnonzero(np.max(np.abs(np.diff(qdd, axis=0)), axis=1) > ACCELERATION_STEP_RAD_S2)
+        for offset in range(-1, 3):
+            index = jumps + offset
+            step[index[(index >= 0) & (index < len(qdd))]] = True
+    return step
+
+
+def _predict(model: JointModel, rows: np.ndarray, x: np.ndarray, timing: _Timing | None,
              shift: float) -> np.ndarray:
-    """The model (1) at the rows, the sensor read ``shift`` s later than aligned: P − Ṗ · shift (Ṗ by central
-    differences along the robot's time; first order in the shift, which stays within a fraction of the motion's
-    time scale). ``times`` None: no shift."""
+    """The model (1) at the rows as the sensor samples averaged there see it: P − Ṗ (δ − o) with δ = lag − lag₀ and
+    o the row's stamp offset (:class:`_Timing`); Ṗ by central differences along the robot's time (first order: δ
+    stays within :data:`REALIGN_S`). ``timing`` None: P."""
     prediction = model.regressor(np.zeros(NONLINEAR), rows) @ x
-    if times is None or shift == 0.0:
+    if timing is None:
         return prediction
-    return prediction - np.gradient(prediction, times, axis=0) * shift
+    return prediction - np.gradient(prediction, timing.time_s, axis=0) * (shift - timing.offset_s)[:, None]
 
 
-def _jacobian(model: JointModel, rows: np.ndarray, x: np.ndarray, times: np.ndarray | None) -> np.ndarray:
-    """(N, 6, 21 or 22): :meth:`JointModel.design`'s Jacobian, and the lag's column −Ṗ when ``times`` is given.
+def _jacobian(model: JointModel, rows: np.ndarray, x: np.ndarray, timing: _Timing | None,
+              shift: float = 0.0) -> np.ndarray:
+    """(N, 6, 21 or 22): the Jacobian of :func:`_predict`: :meth:`JointModel.design`'s, shifted like the prediction
+    (J − J̇ (δ − o)), and the lag's column −Ṗ when ``timing`` is given.
 
-    The lag: the sensor row aligned at t + lag₀ reads the state at t + lag₀ − lag_true, so a true lag larger by
-    δ shows the prediction P δ later: −Ṗ δ. Fitting δ in the model instead of re-aligning the samples keeps the
+    The lag: the sensor row aligned at t + lag₀ reads the state at t + lag₀ + o − lag_true, so a true lag larger
+    by δ shows the prediction P δ later: −Ṗ δ. Fitting δ in the model instead of re-aligning the samples keeps the
     cost smooth in the lag (a re-aligned box average moves in steps of the sensor's period)."""
     a, jacobian = model.design(x, rows)
-    if times is None:
+    if timing is None:
         return jacobian
-    lag = -np.gradient(a @ x, times, axis=0)
+    jacobian = jacobian - np.gradient(jacobian, timing.time_s, axis=0) * (shift - timing.offset_s)[:, None, None]
+    lag = -np.gradient(a @ x, timing.time_s, axis=0)
     return np.concatenate([jacobian, lag[:, :, None]], axis=2)
 
 
 def _gauss_newton(model: JointModel, rows: np.ndarray, wrench: np.ndarray, weights: np.ndarray,
-                  x: np.ndarray, times: np.ndarray | None, shift: float) -> tuple[np.ndarray, float, int]:
+                  x: np.ndarray, times: _Timing | None, shift: float) -> tuple[np.ndarray, float, int]:
     """Gauss-Newton over all 21 parameters (and the lag's ``shift`` when ``times`` is given) with the analytic
     Jacobian (:func:`_jacobian`), the model re-centred on each step (θ stays 0); a step that raises the cost is
     halved. Stops when no angle moves more than :data:`THETA_TOLERANCE_RAD`, no linear parameter by more than that
@@ -362,7 +404,7 @@ def _gauss_newton(model: JointModel, rows: np.ndarray, wrench: np.ndarray, weigh
 
     current = cost(model, x, shift)
     for iteration in range(1, MAX_ITERATIONS + 1):
-        jacobian = _jacobian(model, rows, x, times)
+        jacobian = _jacobian(model, rows, x, times, shift)
         jw = (jacobian * weights[:, :, None]).reshape(-1, jacobian.shape[2])
         rw = ((wrench - _predict(model, rows, x, times, shift)) * weights).reshape(-1)
         scale = np.maximum(np.linalg.norm(jw, axis=0), _FLOOR)
@@ -370,14 +412,18 @@ def _gauss_newton(model: JointModel, rows: np.ndarray, wrench: np.ndarray, weigh
         delta = np.linalg.solve(scaled.T @ scaled, scaled.T @ rw) / scale
         if times is None:
             delta = np.append(delta, 0.0)
-        for _ in range(30):
+        for _ in range(MAX_HALVINGS):
             trial = cost(model.moved(delta[:NONLINEAR]), x + delta[NONLINEAR:-1], shift + delta[-1])
-            if trial <= current or np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD:
+            if trial <= current:
                 break
             delta *= 0.5
+        else:
+            return x, shift, iteration  # no step lowers the cost: at the optimum within rounding
         model.recentre(delta[:NONLINEAR])
         x, shift = x + delta[NONLINEAR:-1], shift + float(delta[-1])
-        current = cost(model, x, shift)
+        previous, current = current, trial
+        if previous - current <= COST_TOLERANCE * previous:
+            return x, shift, iteration
         if (np.max(np.abs(delta[:NONLINEAR])) < THETA_TOLERANCE_RAD and abs(delta[-1]) < LAG_TOLERANCE_S
                 and np.all(np.abs(delta[NONLINEAR:-1]) <= THETA_TOLERANCE_RAD * (np.abs(x) + 1e-9))):
             return x, shift, iteration
