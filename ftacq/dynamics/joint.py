@@ -226,7 +226,7 @@ def _solve_linear(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.linalg.solve(aw.T @ aw, aw.T @ yw) / scale
 
 
-def _start(model: JointModel, y: np.ndarray) -> np.ndarray:
+def _start(model: "JointModel | _Rows", y: np.ndarray) -> np.ndarray:
     """Quasi-static start (module docstring): rotation by the polar factor, tilt at the nominal mount, x by LS."""
     gravity_o = np.einsum("nji,j->ni", model.base_R_o, STANDARD_GRAVITY_M_S2 * model.down0)
     design = np.hstack([gravity_o, np.ones((len(y), 1))])
@@ -458,7 +458,7 @@ def reported_vector(calibration: Calibration, reference_rotation: np.ndarray) ->
     return np.concatenate([rotvec_from_rotation(calibration.sensor_rotation @ reference_rotation.T),
                            calibration.force_bias, calibration.torque_bias, calibration.gravity_base,
                            [calibration.mass_kg], calibration.center_of_mass, tilt_deg(calibration.gravity_base),
-                           np.ravel(calibration.inertia)])
+                           np.ravel(calibration.inertia if calibration.inertia is not None else np.zeros((3, 3)))])
 
 
 REPORTED = (("sensor_rotation_rad", 0, 3), ("force_bias", 3, 6), ("torque_bias", 6, 9), ("gravity_base", 9, 12),

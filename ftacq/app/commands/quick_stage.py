@@ -278,9 +278,7 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
                              "fit_holds": len(hold_windows(recording, FIT, plan))}
         metadata["verdict"] = verdict.to_dict()
         calibration = replace(calibration, metadata=metadata)
-        truth = cell.truth.calibration() if cell is not None else None
-        if truth is not None:
-            truth = replace(truth, inertia=cell.truth.inertia)
+        truth = None if cell is None else replace(cell.truth.calibration(), inertia=cell.truth.inertia)
         report = write_quick_report(folder.path, result, verdict, plan, wall, truth)
         print("", flush=True)
         print(f"motion recorded in {wall['motion']:.1f} s ({len(recording.record.sensor_time_s)} sensor samples, "
