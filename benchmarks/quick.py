@@ -42,6 +42,10 @@ CASES = {
 }
 
 
+SAVE_MOTION: Path | None = None
+"""--save-motion: where the quick runs' recordings are kept."""
+
+
 def config_for(cell: SimulatedCell):
     from ftacq.app.config import config_from_dict
 
@@ -128,12 +132,22 @@ def run_quick(truth: CellTruth, folder: Path) -> tuple[dict, dict, str]:
             wall["identify"] = time.monotonic() - identifying
             verdict = quick_verdict(result, recording, plan, settings.ur, completed=True)
             save_calibration(folder / "quick.json", result.calibration)
+            if SAVE_MOTION is not None:
+                from ftacq.dynamics.motionfile import write_motion_csv
+
+                SAVE_MOTION.mkdir(parents=True, exist_ok=True)
+                write_motion_csv(SAVE_MOTION / f"quick-{truth.mass_kg:g}kg.csv", recording.record, settings.model)
+                np.save(SAVE_MOTION / f"quick-{truth.mass_kg:g}kg-rows.npy", rows)
             wall["total"] = time.monotonic() - started
         finally:
             stream.close()
             sensor.close()
             robot.close()
-    return errors_and_sigmas(result.calibration, truth), wall, verdict.status
+    status = verdict.status + "".join(f"; {f.check} {f.status}: {f.summary}" for f in verdict.findings
+                                      if f.status != "PASS")
+    lag = result.calibration.metadata["quick"]
+    wall["lag ms"], wall["lag 1σ ms"] = lag["lag_ms"], lag["lag_sigma_ms"]
+    return errors_and_sigmas(result.calibration, truth), wall, status
 
 
 def fmt(values: np.ndarray) -> str:
@@ -144,7 +158,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--case", choices=tuple(CASES), action="append", help="case(s) to run (default all)")
     parser.add_argument("--no-full", action="store_true", help="run the quick calibration only")
+    parser.add_argument("--save-motion", type=Path, metavar="DIR", help="keep the quick runs' motion CSVs there")
     args = parser.parse_args()
+    global SAVE_MOTION
+    SAVE_MOTION = args.save_motion
     load = os.getloadavg()
     print(f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at start")
     for name in args.case or tuple(CASES):
@@ -155,7 +172,7 @@ def main() -> int:
         print(f"\n== {name}: {truth.mass_kg:g} kg, base tilt {truth.base_tilt_deg} deg ==")
         print(f"wall time, plan to calibration written: quick {wall['total']:.1f} s (plan {wall['plan']:.1f}, motion "
               f"{wall['motion']:.1f} of {wall['motion planned']:.1f} planned, identify {wall['identify']:.1f}); "
-              f"full {full_wall:.1f} s; quick verdict {status}")
+              f"full {full_wall:.1f} s; lag {wall['lag ms']:.3f} ± {wall['lag 1σ ms']:.3f} ms; quick verdict {status}")
         print(f"{'parameter':<22} {'quick |err|':>11} {'quick 1σ':>9} {'max|e|/σ':>8} {'full |err|':>10} "
               f"{'full 1σ':>8} {'ratio':>6}")
         for key, (error, sigma) in quick.items():

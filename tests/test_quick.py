@@ -116,3 +116,29 @@ def test_quick_with_dynamic_is_a_one_line_input_error(tmp_path):
     done = run_cli(tmp_path, "--sim", "--quick", "--dynamic", "--dry-run")
     assert done.returncode == 2
     assert "--quick runs alone" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_sim_quick_with_a_wrong_tool_fails_is_not_saved_and_is_replayed(tmp_path):
+    """The whole command at real time (about a minute): a 0.2 kg part in the gripper during the validation holds
+    is caught (FAIL, exit 1, nothing saved); motion.csv and report.md are kept; the replay holds raw and
+    compensated wrenches over the run."""
+    import json
+
+    from ftacq.app.dashboard.layout import COMPENSATED_FORCE, RAW_FORCE
+    from tests.rrd_reader import read_scalars
+
+    rrd = tmp_path / "quick.rrd"
+    done = run_cli(tmp_path, "--sim", "--quick", "--yes", "--sim-wrong-tool", "--save", str(rrd))
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "verdict: FAIL" in done.stdout and "not saved" in done.stdout
+    (folder,) = (tmp_path / "runs").iterdir()
+    assert (folder / "motion.csv").is_file() and (folder / "report.md").is_file()
+    assert not (folder / "calibration.json").exists()
+    run = json.loads((folder / "run.json").read_text())
+    assert run["mode"] == "quick" and run["status"] == "failed" and run["verdict"]["status"] == "FAIL"
+    raw_t, raw = read_scalars(rrd, RAW_FORCE)
+    comp_t, compensated = read_scalars(rrd, COMPENSATED_FORCE)
+    assert raw_t[-1] - raw_t[0] > 30.0 and len(comp_t) == len(raw_t)
+    # the tool's weight is in the raw force and compensated out (but for the part during the validation holds)
+    assert np.median(np.linalg.norm(raw, axis=1)) > 5.0
+    assert np.median(np.linalg.norm(compensated, axis=1)) < 0.5

@@ -90,6 +90,11 @@ def quick_verdict(result, recording, plan, robot_model, completed: bool):
     return judge(findings)
 
 
+def _g(values) -> str:
+    """1σ values, two significant digits each."""
+    return "[" + ", ".join(f"{v:.2g}" for v in np.ravel(values)) + "]"
+
+
 def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None) -> Path:
     """report.md of a quick run (atomically): parameters with 1σ, the truth beside them on the simulated cell,
     the fit's figures, the verdict."""
@@ -103,18 +108,18 @@ def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=
              f"waypoints; every parameter identified from it (docs/quick.md).", "",
              "| parameter | value | 1σ |", "|---|---|---|",
              f"| force bias (N) | {np.array2string(cal.force_bias, precision=4)} | "
-             f"{np.array2string(np.array(sigma['force_bias']), precision=2)} |",
+             f"{_g(sigma['force_bias'])} |",
              f"| torque bias (N·m) | {np.array2string(cal.torque_bias, precision=5)} | "
-             f"{np.array2string(np.array(sigma['torque_bias']), precision=2)} |",
+             f"{_g(sigma['torque_bias'])} |",
              f"| mass (kg) | {cal.mass_kg:.4f} | {sigma['mass_kg']:.2g} |",
              f"| centre of mass (m) | {np.array2string(cal.center_of_mass, precision=5)} | "
-             f"{np.array2string(np.array(sigma['center_of_mass_m']), precision=2)} |",
+             f"{_g(sigma['center_of_mass_m'])} |",
              f"| base tilt (deg) | ({alpha:+.3f}, {beta:+.3f}) | "
-             f"{np.array2string(np.array(sigma['base_tilt_deg']), precision=2)} |",
+             f"{_g(sigma['base_tilt_deg'])} |",
              f"| sensor rotation (rad, 1σ per axis) | see calibration.json | "
-             f"{np.array2string(np.array(sigma['sensor_rotation_rad']), precision=2)} |",
+             f"{_g(sigma['sensor_rotation_rad'])} |",
              f"| inertia diag (kg·m²) | {np.array2string(np.diag(cal.inertia), precision=5)} | "
-             f"{np.array2string(np.diag(np.array(sigma['inertia_kg_m2'])), precision=2)} |", "",
+             f"{_g(np.diag(np.array(sigma['inertia_kg_m2'])))} |", "",
              f"Fit: {result.rows} robot rows, lag {1e3 * result.lag_s:.2f} ms, condition number "
              f"{result.condition_number:.3g}, residual RMS "
              + " ".join(f"{v:.3g}" for v in result.residual_rms) + " (N, N·m).", "",
@@ -122,7 +127,9 @@ def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=
     if truth is not None:
         from procedures.run_report import format_truth_comparison
 
-        lines += ["## Beside the simulation's truth", "", "```", format_truth_comparison(cal, truth), "```", ""]
+        lines += ["## Beside the simulation's truth", "", "```", format_truth_comparison(cal, truth),
+                  f"inertia (kg·m², about the centre of mass, sensor frame): identified {_g(cal.inertia)}, true "
+                  f"{_g(truth.inertia)}, 1σ {_g(sigma['inertia_kg_m2'])}", "```", ""]
     lines += ["## Verdict", "", "```", format_verdict(verdict), "```", ""]
     path = folder / "report.md"
     with atomic_write(path) as handle:
@@ -138,7 +145,7 @@ def replay(args: argparse.Namespace, recording, calibration, model_name: str) ->
 
     record = recording.record
     robot = ur_model(model_name)
-    every = max(len(record.sensor_time_s) // max(int(record.sensor_time_s.ptp() * 1000), 1), 1)  # ≤ ~1 kHz
+    every = max(len(record.sensor_time_s) // max(int(np.ptp(record.sensor_time_s) * 1000), 1), 1)  # ≤ ~1 kHz
     raw = record.wrench[::every]
     times = record.sensor_time_s[::every]
     lag = float(calibration.metadata.get("quick", {}).get("lag_ms", 0.0)) * 1e-3
@@ -290,6 +297,10 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
             from procedures.run_report import format_truth_comparison
 
             print(format_truth_comparison(calibration, truth), flush=True)
+            print(f"inertia about the centre of mass (kg·m²): identified {_g(calibration.inertia)}\n"
+                  f"                                        true       {_g(truth.inertia)}\n"
+                  f"                                        1σ         {_g(result.sigma['inertia_kg_m2'])}",
+                  flush=True)
         print(format_verdict(verdict), flush=True)
         if getattr(args, "rerun", False) or getattr(args, "save", None) is not None or getattr(args, "spawn", False) \
                 or getattr(args, "connect", None) or getattr(args, "serve", False):
