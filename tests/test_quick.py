@@ -142,3 +142,38 @@ def test_sim_quick_with_a_wrong_tool_fails_is_not_saved_and_is_replayed(tmp_path
     # the tool's weight is in the raw force and compensated out (but for the part during the validation holds)
     assert np.median(np.linalg.norm(raw, axis=1)) > 5.0
     assert np.median(np.linalg.norm(compensated, axis=1)) < 0.5
+
+
+def test_ctrl_c_stops_keeps_the_motion_and_says_how_to_restart(tmp_path):
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.conftest import wait_until
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    log = tmp_path / "stderr.txt"
+    with open(log, "w", encoding="utf-8") as stderr:
+        process = subprocess.Popen([sys.executable, "-m", "ftacq.app.cli", "calibrate", "--sim", "--quick", "--yes",
+                                    "--out", str(tmp_path / "runs")], cwd=root, env=env, stdout=subprocess.PIPE,
+                                   stderr=stderr, stdin=subprocess.DEVNULL, text=True)
+        try:
+            wait_until(lambda: "waypoint 2/" in log.read_text(encoding="utf-8") or process.poll() is not None,
+                       timeout_s=90.0)
+            process.send_signal(signal.SIGINT)
+            process.communicate(timeout=60)
+        finally:
+            if process.poll() is None:
+                process.kill()
+    err = log.read_text(encoding="utf-8")
+    assert process.returncode == 130, err
+    assert "the robot was stopped" in err and "restart with:" in err and "calibrate --sim --quick" in err
+    (folder,) = (tmp_path / "runs").iterdir()
+    assert json.loads((folder / "run.json").read_text())["status"] == "stopped"
+    assert (folder / "motion.csv").is_file() and not (folder / "calibration.json").exists()
+    done = run_cli(tmp_path, "--sim", "--resume", str(folder))
+    assert done.returncode == 2 and "restart it with" in done.stderr
