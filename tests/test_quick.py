@@ -177,3 +177,14 @@ def test_ctrl_c_stops_keeps_the_motion_and_says_how_to_restart(tmp_path):
     assert (folder / "motion.csv").is_file() and not (folder / "calibration.json").exists()
     done = run_cli(tmp_path, "--sim", "--resume", str(folder))
     assert done.returncode == 2 and "restart it with" in done.stderr
+
+
+def test_slow_cell_speeds_give_the_shortest_clear_trajectory_not_a_refusal():
+    from ftacq.app.config import config_from_dict
+    from procedures.quick import DEFAULT_BUDGET_S, check_quick
+
+    settings = config_from_dict({"robot": {"host": "x", "model": "UR5e", "mount": "floor",
+                                           "joint_speed_rad_s": 0.2}}, "test").plan_settings()
+    plan = design_quick(settings, home_configuration_rad("floor"))
+    assert plan.estimated_duration_s > DEFAULT_BUDGET_S
+    assert plan.speed_rad_s == 0.2 and check_quick(settings, plan.start_q_rad, plan.waypoints_rad) == []
