@@ -3,6 +3,8 @@
 - :mod:`ftacq.dynamics.model`: Pinocchio's sensor-frame motion and body regressor; the predicted wrench (RNEA).
 - :mod:`ftacq.dynamics.identify`: physically consistent least squares, 1σ, conditioning, held-out error, lag.
 - :mod:`ftacq.dynamics.clock`: one host clock for sensor and robot samples (the minimum-delay line).
+- :mod:`ftacq.dynamics.joint`: every calibration parameter (rotation, biases, mass, centre of mass, tilt,
+  inertia, and the lag) from one motion: ``ftacq calibrate --quick``.
 - :mod:`ftacq.dynamics.timing`: resampling between the sensor's and the robot's rates.
 - :mod:`ftacq.dynamics.compensate`: :func:`compensate_moving`, the batch compensation every stream uses.
 """

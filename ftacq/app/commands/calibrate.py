@@ -62,6 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="after the poses, run the excitation stage (a checked, confirmed motion recorded with "
                              "the robot state) and identify the tool's inertia: the calibration then compensates "
                              "while the arm moves (docs/dynamics.md)")
+    parser.add_argument("--quick", action="store_true",
+                        help="quick calibration: one planned, checked, confirmed continuous motion of about a minute; "
+                             "every parameter (inertia included) identified from it, judged on still validation "
+                             "poses, replayed with the viewer flags; --yes saves a PASS, otherwise you are asked "
+                             "(docs/quick.md)")
     parser.add_argument("--drift", choices=("auto", "none", "linear"), default="auto",
                         help="model a linear drift of the sensor's zero over the run: linear, none, or auto (when "
                              "the residuals trend with time beyond the drift thresholds; default); docs/verdict.md")
@@ -159,6 +164,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{args.resume}: this run is still {folder.status_note}; stop it before resuming")
         if folder.status == "interrupted":
             _err(f"note: {args.resume}: {folder.status_note}; resuming it")
+        from ftacq.app.commands.quick_stage import refuse_resume
+
+        refuse_resume(folder)
         config = config_from_dict(folder.config, str(folder.path / "run.json"))
         plan = Plan.from_json(folder.plan_json)
         sim_info = dict(folder.document.get("sim") or {})
@@ -182,6 +190,12 @@ def run(args: argparse.Namespace) -> int:
     out_parent = args.out or Path(config.output.folder)
     if folder is None:  # a new run folder will be made there: check it before the robot is connected
         check_output_folder(out_parent, "--out" if args.out else f"{config.source}: output.folder")
+    if getattr(args, "quick", False):
+        if args.resume or args.dynamic:
+            raise InputError("--quick runs alone: not with --resume or --dynamic (it identifies the inertia too)")
+        from ftacq.app.commands.quick_stage import run_quick
+
+        return run_quick(args, config, sim_info, out_parent)
 
     with contextlib.ExitStack() as stack:
         cell = None

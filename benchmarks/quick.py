@@ -1,0 +1,194 @@
+"""Benchmark: the quick calibration (issue 29) beside the full run, on the simulated cell at real time.
+
+    .venv/bin/python benchmarks/quick.py                 # demo tool, level base; then 4 kg tool, tilted base
+    .venv/bin/python benchmarks/quick.py --case demo     # one case only
+    .venv/bin/python benchmarks/quick.py --no-full       # the quick run only
+
+Per case, one simulated cell (UR5e controller at time scale 1, Net F/T at 1 kHz, the truth's noise) calibrated
+twice with the real drivers: the full run (default CELL.toml: A 24 + E 24 + V 12 + drift revisit, settling and
+averaging at every pose) and the quick run (procedures/quick.py: design, record, identify, verdict, write).
+Wall time from the plan to calibration.json written (the confirmation left out); the quick run's time is also
+split into motion, identification and the rest, and the motion's time beside its planned duration (what the
+machine and the controller's steady-waits add). Then each parameter's error against the truth and its reported
+1σ, side by side, the ratio quick/full, and the quick run's largest |error|/σ per parameter.
+
+Goals: quick wall ≤ 90 s; every parameter's error ≤ 1.5× the full run's and |error| ≤ 3σ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from ftacq.so3 import rotvec_from_rotation  # noqa: E402
+from tests.fakes.cell import SimulatedCell  # noqa: E402
+from tests.fakes.world import CellTruth  # noqa: E402
+
+CASES = {
+    "demo": CellTruth(),
+    "4kg-tilted": CellTruth(mass_kg=4.0, center_of_mass_m=(0.008, -0.015, 0.085),
+                            inertia_kg_m2=((0.0125, 0.0003, -0.0006), (0.0003, 0.0113, 0.00045),
+                                           (-0.0006, 0.00045, 0.0057)),
+                            base_tilt_deg=(1.5, -2.0)),
+}
+
+
+SAVE_MOTION: Path | None = None
+"""--save-motion: where the quick runs' recordings are kept."""
+
+
+def config_for(cell: SimulatedCell):
+    from ftacq.app.config import config_from_dict
+
+    return config_from_dict({"robot": {"host": cell.robot_host, "model": cell.model_name, "mount": cell.mount},
+                             "sensor": {"url": cell.sensor_url}}, "<benchmark>")
+
+
+def errors_and_sigmas(calibration, truth: CellTruth) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per parameter: (error vector, its 1σ vector) against the truth (rotation in the sensor frame, rad)."""
+    t = truth.calibration()
+    u = calibration.uncertainty
+    out = {
+        "rotation (mrad)": (1e3 * rotvec_from_rotation(calibration.sensor_rotation @ t.sensor_rotation.T),
+                            1e3 * np.asarray(u["sensor_rotation_rad"])),
+        "force bias (N)": (calibration.force_bias - t.force_bias, np.asarray(u["force_bias"])),
+        "torque bias (mN·m)": (1e3 * (calibration.torque_bias - t.torque_bias), 1e3 * np.asarray(u["torque_bias"])),
+        "mass (g)": (np.array([1e3 * (calibration.mass_kg - t.mass_kg)]), np.array([1e3 * u["mass_kg"]])),
+        "centre of mass (mm)": (1e3 * (calibration.center_of_mass - t.center_of_mass),
+                                1e3 * np.asarray(u["center_of_mass_m"])),
+        "base tilt (mdeg)": (1e3 * (np.array(calibration.base_tilt_deg) - np.array(t.base_tilt_deg)),
+                             1e3 * np.asarray(u["base_tilt_deg"])),
+    }
+    if calibration.inertia is not None and "inertia_kg_m2" in u:
+        out["inertia (g·m²)"] = (1e3 * np.ravel(calibration.inertia - truth.inertia),
+                                 1e3 * np.ravel(np.asarray(u["inertia_kg_m2"])))
+    return out
+
+
+def run_full(truth: CellTruth, folder: Path) -> tuple[dict, float]:
+    from tests.fakes.cell import run_calibration
+
+    with SimulatedCell(truth=truth, time_scale=1.0) as cell:
+        started = time.monotonic()
+        _, result = run_calibration(cell, config_for(cell))
+        wall = time.monotonic() - started
+        assert result.status == "done", result.message
+        from ftacq.calfile import save_calibration
+
+        save_calibration(folder / "full.json", result.identification.calibration)
+        wall = time.monotonic() - started
+    return errors_and_sigmas(result.identification.calibration, truth), wall
+
+
+def run_quick(truth: CellTruth, folder: Path) -> tuple[dict, dict, str]:
+    """The quick stage's steps (ftacq/app/commands/quick_stage.py) on a cell with this truth."""
+    from drivers.robot import MotionLimits
+    from drivers.sensor import open_sensor
+    from drivers.ur import URRobot
+    from drivers.ur_stream import URStateStream
+    from ftacq.app.commands.quick_stage import hold_windows, quick_verdict
+    from ftacq.calfile import save_calibration
+    from ftacq.dynamics.joint import identify_joint
+    from ftacq.mounts import mount_of
+    from procedures.plan import make_plan
+    from procedures.quick import VALIDATE, check_quick, design_quick, record_quick
+
+    with SimulatedCell(truth=truth, time_scale=1.0) as cell:
+        config = config_for(cell)
+        settings = config.plan_settings()
+        robot = URRobot(cell.robot_host, MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
+                                                      joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2),
+                        model=settings.model)
+        robot.start()
+        sensor = open_sensor(cell.sensor_url)
+        sensor.start()
+        stream = URStateStream(cell.robot_host).start()
+        try:
+            wall: dict[str, float] = {}
+            started = time.monotonic()
+            start_q = robot.joint_positions()
+            plan = design_quick(settings, start_q, make_plan(settings, start_q))
+            assert not check_quick(settings, robot.joint_positions(), plan.waypoints_rad)
+            wall["plan"] = time.monotonic() - started
+            moving = time.monotonic()
+            recording = record_quick(plan, robot, sensor, stream)
+            wall["motion"] = time.monotonic() - moving
+            wall["motion planned"] = plan.estimated_duration_s
+            identifying = time.monotonic()
+            rows = np.ones(len(recording.record.robot_time_s), dtype=bool)
+            for a, b in hold_windows(recording, VALIDATE, plan):
+                rows[a:b] = False
+            result = identify_joint(recording.record, settings.ur, np.array(truth.sensor_offset_m),
+                                    np.array(mount_of(settings.mount).down_base), rows=rows)
+            wall["identify"] = time.monotonic() - identifying
+            verdict = quick_verdict(result, recording, plan, settings.ur, completed=True)
+            save_calibration(folder / "quick.json", result.calibration)
+            if SAVE_MOTION is not None:
+                from ftacq.dynamics.motionfile import write_motion_csv
+
+                SAVE_MOTION.mkdir(parents=True, exist_ok=True)
+                write_motion_csv(SAVE_MOTION / f"quick-{truth.mass_kg:g}kg.csv", recording.record, settings.model)
+                np.save(SAVE_MOTION / f"quick-{truth.mass_kg:g}kg-rows.npy", rows)
+            wall["total"] = time.monotonic() - started
+        finally:
+            stream.close()
+            sensor.close()
+            robot.close()
+    status = verdict.status + "".join(f"; {f.check} {f.status}: {f.summary}" for f in verdict.findings
+                                      if f.status != "PASS")
+    lag = result.calibration.metadata["quick"]
+    wall["lag ms"], wall["lag 1σ ms"] = lag["lag_ms"], lag["lag_sigma_ms"]
+    return errors_and_sigmas(result.calibration, truth), wall, status
+
+
+def fmt(values: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v:+.3g}" for v in values) + "]"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", choices=tuple(CASES), action="append", help="case(s) to run (default all)")
+    parser.add_argument("--no-full", action="store_true", help="run the quick calibration only")
+    parser.add_argument("--save-motion", type=Path, metavar="DIR", help="keep the quick runs' motion CSVs there")
+    args = parser.parse_args()
+    global SAVE_MOTION
+    SAVE_MOTION = args.save_motion
+    load = os.getloadavg()
+    print(f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at start")
+    for name in args.case or tuple(CASES):
+        truth = CASES[name]
+        with tempfile.TemporaryDirectory() as tmp:
+            quick, wall, status = run_quick(truth, Path(tmp))
+            full, full_wall = (None, float("nan")) if args.no_full else run_full(truth, Path(tmp))
+        print(f"\n== {name}: {truth.mass_kg:g} kg, base tilt {truth.base_tilt_deg} deg ==")
+        print(f"wall time, plan to calibration written: quick {wall['total']:.1f} s (plan {wall['plan']:.1f}, motion "
+              f"{wall['motion']:.1f} of {wall['motion planned']:.1f} planned, identify {wall['identify']:.1f}); "
+              f"full {full_wall:.1f} s; lag {wall['lag ms']:.3f} ± {wall['lag 1σ ms']:.3f} ms; quick verdict {status}")
+        print(f"{'parameter':<22} {'quick |err|':>11} {'quick 1σ':>9} {'max|e|/σ':>8} {'full |err|':>10} "
+              f"{'full 1σ':>8} {'ratio':>6}")
+        for key, (error, sigma) in quick.items():
+            q_err, q_sig = float(np.linalg.norm(error)), float(np.linalg.norm(sigma))
+            z = float(np.max(np.abs(error) / np.maximum(sigma, 1e-15)))
+            if full is not None and key in full:
+                f_err, f_sig = float(np.linalg.norm(full[key][0])), float(np.linalg.norm(full[key][1]))
+                tail = f"{f_err:>10.3g} {f_sig:>8.3g} {q_err / max(f_err, 1e-15):>6.2f}"
+            else:
+                tail = f"{'—':>10} {'—':>8} {'—':>6}"
+            print(f"{key:<22} {q_err:>11.3g} {q_sig:>9.3g} {z:>8.2f} {tail}")
+            print(f"{'':<22} quick error {fmt(error)} σ {fmt(sigma)}")
+    load = os.getloadavg()
+    print(f"\nload average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,332 @@
+"""``ftacq calibrate --quick``: design, check and confirm one continuous trajectory; run and record it; identify every
+parameter from the motion (ftacq/dynamics/joint.py); judge it on still validation poses it never fitted; replay raw
+vs compensated in the Rerun dashboard; save or discard (docs/quick.md).
+
+Run folder: run.json (the plan and status), motion.csv (the recording, both streams), report.md, and
+calibration.json once saved (the same file as the full run's, with inertia). A stopped run (Ctrl-C, a
+protective stop) keeps motion.csv and says how to restart: a continuous motion is not resumed halfway, it is
+run again (about a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
+
+MOTION_CSV = "motion.csv"
+QUICK_MODE = "quick"
+"""run.json ``mode`` of a quick run (``--resume`` refuses it with the restart command)."""
+
+
+def _err(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def hold_windows(recording, purpose: str, plan) -> list[tuple[int, int]]:
+    """Robot-sample windows [start, end) of the holds with this purpose that were reached."""
+    return [(int(a), int(b)) for (a, b), p in zip(recording.hold_rows, plan.purposes) if p == purpose and b > a]
+
+
+def validation_poses(recording, plan, lag_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(q (M, 6), mean wrench (M, 6), its standard error (M, 6), labels) of each still validation hold: the sensor
+    samples within the hold's robot-time window (shifted by the lag), the first 0.2 s dropped (settling)."""
+    from procedures.quick import VALIDATE
+
+    record = recording.record
+    qs, means, errors, labels = [], [], [], []
+    for k, ((a, b), purpose) in enumerate(zip(recording.hold_rows, plan.purposes)):
+        if purpose != VALIDATE or b - a < 20:
+            continue
+        t0, t1 = record.robot_time_s[a] + lag_s + 0.2, record.robot_time_s[b - 1] + lag_s
+        inside = (record.sensor_time_s >= t0) & (record.sensor_time_s < t1)
+        if inside.sum() < 10:
+            continue
+        samples = record.wrench[inside]
+        qs.append(record.q[a:b].mean(axis=0))
+        means.append(samples.mean(axis=0))
+        errors.append(samples.std(axis=0, ddof=1) / np.sqrt(len(samples)))
+        labels.append(plan.labels[k])
+    return np.array(qs).reshape(-1, 6), np.array(means).reshape(-1, 6), np.array(errors).reshape(-1, 6), np.array(labels)
+
+
+def quick_verdict(result, recording, plan, robot_model, completed: bool):
+    """The verdict: the validation holds compensated with the result (static model: the arm is still), their
+    covariance the standard error of each mean plus the parameters' covariance propagated
+    (:func:`ftacq.verdict.validation_finding`); plus whether the whole trajectory ran."""
+    from ftacq.kinematics import forward_kinematics
+    from ftacq.verdict import FAIL, PASS, Finding, judge, validation_finding
+
+    q, mean, standard_error, labels = validation_poses(recording, plan, result.lag_s)
+    findings = []
+    if len(q):
+        rotations = np.array([forward_kinematics(robot_model, qi)[:3, :3].T for qi in q])  # flange_R_base
+        calibration = result.calibration
+        errors = mean - calibration.predict(rotations)
+        columns = []
+        for i in range(result.optimum.size):
+            step = 1e-6 * max(abs(result.optimum[i]), 1e-3)
+            plus, minus = result.optimum.copy(), result.optimum.copy()
+            plus[i] += step
+            minus[i] -= step
+            columns.append((result.parameters(plus).predict(rotations) - result.parameters(minus).predict(rotations))
+                           / (2 * step))
+        jac = np.stack(columns, axis=-1)  # (M, 6, 21)
+        covariance = np.einsum("mai,ij,mbj->mab", jac, result.covariance, jac)
+        covariance += np.einsum("ma,ab->mab", standard_error ** 2, np.eye(6))
+        findings.append(validation_finding(errors, covariance, list(labels)))
+    else:
+        findings.append(validation_finding(np.zeros((0, 6)), np.zeros((0, 6, 6)), []))
+    findings.append(Finding("poses", PASS if completed else FAIL,
+                            "the whole trajectory ran" if completed else "the trajectory did not finish",
+                            f"condition number {result.condition_number:.3g}, {result.rows} rows fitted, lag "
+                            f"{1e3 * result.lag_s:.2f} ms"))
+    return judge(findings)
+
+
+def _g(values) -> str:
+    """1σ values, two significant digits each."""
+    return "[" + ", ".join(f"{v:.2g}" for v in np.ravel(values)) + "]"
+
+
+def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None) -> Path:
+    """report.md of a quick run (atomically): parameters with 1σ, the truth beside them on the simulated cell,
+    the fit's figures, the verdict."""
+    from ftacq.fileio import atomic_write
+    from ftacq.verdict import format_verdict
+
+    cal, sigma = result.calibration, result.sigma
+    alpha, beta = cal.base_tilt_deg
+    lines = ["# ftacq quick calibration" + (" (simulated cell)" if truth is not None else ""), "",
+             f"One continuous motion ({plan.estimated_duration_s:.1f} s planned) through {len(plan.labels)} "
+             f"waypoints; every parameter identified from it (docs/quick.md).", "",
+             "| parameter | value | 1σ |", "|---|---|---|",
+             f"| force bias (N) | {np.array2string(cal.force_bias, precision=4)} | "
+             f"{_g(sigma['force_bias'])} |",
+             f"| torque bias (N·m) | {np.array2string(cal.torque_bias, precision=5)} | "
+             f"{_g(sigma['torque_bias'])} |",
+             f"| mass (kg) | {cal.mass_kg:.4f} | {sigma['mass_kg']:.2g} |",
+             f"| centre of mass (m) | {np.array2string(cal.center_of_mass, precision=5)} | "
+             f"{_g(sigma['center_of_mass_m'])} |",
+             f"| base tilt (deg) | ({alpha:+.3f}, {beta:+.3f}) | "
+             f"{_g(sigma['base_tilt_deg'])} |",
+             f"| sensor rotation (rad, 1σ per axis) | see calibration.json | "
+             f"{_g(sigma['sensor_rotation_rad'])} |",
+             f"| inertia diag (kg·m²) | {np.array2string(np.diag(cal.inertia), precision=5)} | "
+             f"{_g(np.diag(np.array(sigma['inertia_kg_m2'])))} |", "",
+             f"Fit: {result.rows} robot rows, lag {1e3 * result.lag_s:.2f} ms, condition number "
+             f"{result.condition_number:.3g}, residual RMS "
+             + " ".join(f"{v:.3g}" for v in result.residual_rms) + " (N, N·m).", "",
+             "Wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in wall_s.items()), ""]
+    if truth is not None:
+        from procedures.run_report import format_truth_comparison
+
+        lines += ["## Beside the simulation's truth", "", "```", format_truth_comparison(cal, truth),
+                  f"inertia (kg·m², about the centre of mass, sensor frame): identified {_g(cal.inertia)}, true "
+                  f"{_g(truth.inertia)}, 1σ {_g(sigma['inertia_kg_m2'])}", "```", ""]
+    lines += ["## Verdict", "", "```", format_verdict(verdict), "```", ""]
+    path = folder / "report.md"
+    with atomic_write(path) as handle:
+        handle.write("\n".join(lines))
+    return path
+
+
+def replay(args: argparse.Namespace, recording, calibration, model_name: str) -> None:
+    """Raw vs compensated (dynamic model) over the whole run, and the arm, in the Rerun dashboard."""
+    from ftacq.app.dashboard import Dashboard, close_recording, open_recording
+    from ftacq.dynamics import compensate_moving
+    from ftacq.kinematics import flange_pose, ur_model
+
+    record = recording.record
+    robot = ur_model(model_name)
+    every = max(len(record.sensor_time_s) // max(int(np.ptp(record.sensor_time_s) * 1000), 1), 1)  # ≤ ~1 kHz
+    raw = record.wrench[::every]
+    times = record.sensor_time_s[::every]
+    lag = float(calibration.metadata.get("quick", {}).get("lag_ms", 0.0)) * 1e-3
+    compensated = compensate_moving(calibration, raw, record.q, record.qd, record.qdd, robot=robot,
+                                    sensor_time_s=times - lag, robot_time_s=record.robot_time_s)
+    rec = open_recording(args)
+    try:
+        dashboard = Dashboard(rec)
+        dashboard.log_wrench_batch(times, raw, compensated)
+        arm_rows = slice(None, None, 10)
+        poses = np.array([flange_pose(robot, q) for q in record.q[arm_rows]])
+        dashboard.log_arm(record.robot_time_s[arm_rows], poses, record.q[arm_rows])
+        dashboard.flush_columns()
+    finally:
+        close_recording(rec)
+
+
+def _save_or_discard(args: argparse.Namespace, verdict) -> bool:
+    """--yes: save a PASS only. Otherwise ask (no terminal: discard)."""
+    from ftacq.verdict import PASS
+
+    if args.yes:
+        return verdict.status == PASS
+    if not sys.stdin or not sys.stdin.isatty():
+        return False
+    answer = input(f"verdict {verdict.status}: save this calibration? [y/N] ").strip().lower()
+    return answer in ("y", "yes")
+
+
+def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path) -> int:
+    """Run the quick calibration; return the exit status (0 saved, 1 not saved / FAIL)."""
+    from drivers.robot import MotionLimits
+    from drivers.sensor import open_sensor
+    from drivers.ur import URRobot
+    from drivers.ur_stream import URStateStream
+    from ftacq.app.commands.dynamic_stage import sensor_offset_from
+    from ftacq.app.confirm import confirm_motion
+    from ftacq.app.hints import ftacq_command
+    from ftacq.calfile import save_calibration
+    from ftacq.dynamics.joint import identify_joint
+    from ftacq.dynamics.motionfile import write_motion_csv
+    from ftacq.mounts import mount_of
+    from ftacq.verdict import format_verdict
+    from procedures.plan import make_plan
+    from procedures.quick import FIT, VALIDATE, check_quick, design_quick, format_quick, record_quick
+    from procedures.run_folder import RunFolder
+
+    restart = ftacq_command("calibrate", *(["--sim"] if args.sim else ["--config", args.config or "CELL.toml"]),
+                            "--quick")
+    with contextlib.ExitStack() as stack:
+        cell = None
+        if args.sim:
+            from ftacq.app.simcell import simulated_cell
+
+            _err(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, real time) "
+                 f"and a simulated {sim_info['sensor']} sensor on loopback …")
+            cell = stack.enter_context(simulated_cell(sensor=sim_info["sensor"], model=sim_info["model"],
+                                                     mount=sim_info["mount"], time_scale=1.0))
+            config = config.replace_section("robot", host=cell.robot_host)
+            config = config.replace_section("sensor", url=cell.sensor_url)
+        settings = config.plan_settings()
+        limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
+                              joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
+        robot = URRobot(config.robot.host, limits, model=settings.model)
+        stack.callback(robot.close)
+        robot.start()
+        wall: dict[str, float] = {}
+        started = time.monotonic()
+        start_q = robot.joint_positions()
+        plan = design_quick(settings, start_q, make_plan(settings, start_q))
+        print(format_quick(plan), flush=True)
+        problems = check_quick(settings, robot.joint_positions(), plan.waypoints_rad)
+        if problems:
+            from ftacq.errors import PlanError
+
+            raise PlanError("the quick trajectory is not clear from the robot's configuration:\n  "
+                            + "\n  ".join(problems))
+        wall["plan"] = time.monotonic() - started
+        if args.dry_run:
+            print("dry run: the robot did not move", flush=True)
+            return 0
+        confirm_motion(args)
+        confirmed = time.monotonic()
+        sensor = open_sensor(config.sensor.url)
+        stack.callback(sensor.close)
+        sensor.start()
+        extra = {"mode": QUICK_MODE, **({"sim": sim_info} if args.sim else {})}
+        folder = RunFolder.create(out_parent, config.to_dict(), plan.to_json(), extra=extra)
+        _err(f"run folder: {folder.path}")
+        folder.set_status("running", "quick calibration: recording the motion")
+        stream = URStateStream(config.robot.host)
+        stack.callback(stream.close)
+        stream.start()
+
+        def on_hold(k: int, purpose: str, begins: bool) -> None:
+            if cell is not None and args.sim_wrong_tool and purpose == VALIDATE:
+                extra_kg = sys.modules[type(cell).__module__].WRONG_TOOL_EXTRA_MASS_KG  # the simulated cell's own knob
+                cell.swap_tool(cell.truth.mass_kg + extra_kg) if begins else cell.swap_tool()
+
+        motion_path = folder.path / MOTION_CSV
+        moving = time.monotonic()
+        try:
+            recording = record_quick(plan, robot, sensor, stream, config.robot.move_timeout_s,
+                                     on_waypoint=lambda k, n: _err(f"quick trajectory: waypoint {k + 1}/{n}"),
+                                     on_hold=on_hold)
+        except (KeyboardInterrupt, FtacqError) as error:
+            partial = getattr(error, "quick_recording", None)
+            if partial is not None and len(partial.record.robot_time_s):
+                write_motion_csv(motion_path, partial.record, settings.model)
+            interrupted = isinstance(error, KeyboardInterrupt)
+            text = (f"quick calibration {'interrupted' if interrupted else 'failed'}: the robot was stopped; nothing "
+                    f"was saved; the motion so far is in {motion_path}. A continuous motion is not resumed: restart "
+                    f"with: {restart}")
+            folder.set_status("stopped" if interrupted else "failed", text)
+            if interrupted:
+                raise InterruptedByUser(text) from error
+            raise AbortedError(f"{error}\n{text}") from error
+        wall["motion"] = time.monotonic() - moving
+        write_motion_csv(motion_path, recording.record, settings.model)
+        identifying = time.monotonic()
+        offset, offset_source = sensor_offset_from(config, cell)
+        rows = np.ones(len(recording.record.robot_time_s), dtype=bool)
+        for a, b in hold_windows(recording, VALIDATE, plan):
+            rows[a:b] = False
+        result = identify_joint(recording.record, settings.ur, offset, np.array(mount_of(settings.mount).down_base),
+                                rows=rows, metadata={"run_folder": str(folder.path)})
+        wall["identify"] = time.monotonic() - identifying
+        verdict = quick_verdict(result, recording, plan, settings.ur,
+                                completed=recording.completed == len(plan.waypoints_rad))
+        wall["total_without_confirmation"] = time.monotonic() - confirmed + wall["plan"]
+        calibration = result.calibration
+        from dataclasses import replace
+
+        metadata = dict(calibration.metadata)
+        metadata["quick"] = {**metadata.get("quick", {}), "plan": plan.to_json(), "motion_file": MOTION_CSV,
+                             "sensor_offset_source": offset_source, "wall_time_s": wall,
+                             "fit_holds": len(hold_windows(recording, FIT, plan))}
+        metadata["verdict"] = verdict.to_dict()
+        calibration = replace(calibration, metadata=metadata)
+        truth = None if cell is None else replace(cell.truth.calibration(), inertia=cell.truth.inertia)
+        report = write_quick_report(folder.path, result, verdict, plan, wall, truth)
+        print("", flush=True)
+        print(f"motion recorded in {wall['motion']:.1f} s ({len(recording.record.sensor_time_s)} sensor samples, "
+              f"{len(recording.record.robot_time_s)} robot states) -> {motion_path}", flush=True)
+        print(f"identified from the motion in {wall['identify']:.1f} s: mass {calibration.mass_kg:.4f} kg "
+              f"(1σ {result.sigma['mass_kg']:.2g}), lag {1e3 * result.lag_s:.2f} ms, condition number "
+              f"{result.condition_number:.3g}", flush=True)
+        if truth is not None:
+            from procedures.run_report import format_truth_comparison
+
+            print(format_truth_comparison(calibration, truth), flush=True)
+            print(f"inertia about the centre of mass (kg·m²): identified {_g(calibration.inertia)}\n"
+                  f"                                        true       {_g(truth.inertia)}\n"
+                  f"                                        1σ         {_g(result.sigma['inertia_kg_m2'])}",
+                  flush=True)
+        print(format_verdict(verdict), flush=True)
+        if getattr(args, "rerun", False) or getattr(args, "save", None) is not None or getattr(args, "spawn", False) \
+                or getattr(args, "connect", None) or getattr(args, "serve", False):
+            replay(args, recording, calibration, settings.model)
+        if _save_or_discard(args, verdict):
+            save_calibration(folder.path / "calibration.json", calibration)
+            folder.set_status("done", f"quick calibration saved (verdict {verdict.status})",
+                              verdict=verdict.to_dict())
+            print(f"calibration: {folder.path / 'calibration.json'}")
+            print(f"report:      {report}")
+            return 0
+        folder.set_status("failed", f"quick calibration not saved (verdict {verdict.status})",
+                          verdict=verdict.to_dict())
+        print(f"not saved (verdict {verdict.status}{'' if args.yes else ', discarded'}); report: {report}; "
+              f"restart with: {restart}, or run the full calibration")
+        return 1
+
+
+def refuse_resume(folder) -> None:
+    """A quick run folder is not resumed: raise InputError with the restart command."""
+    if folder.document.get("mode") == QUICK_MODE:
+        from ftacq.app.hints import ftacq_command
+
+        raise InputError(f"{folder.path}: a quick calibration is not resumed (its motion is one piece); restart it "
+                         f"with: " + ftacq_command("calibrate", *(["--sim"] if folder.document.get("sim") else []),
+                                                   "--quick"))
+
+
+__all__ = ["run_quick", "quick_verdict", "refuse_resume", "validation_poses", "write_quick_report"]

@@ -1,0 +1,373 @@
+"""The quick calibration's trajectory: designed by the Fisher information of every parameter, checked along its whole
+path, then run and recorded as one continuous motion (``ftacq calibrate --quick``, docs/quick.md).
+
+Design (:func:`design_quick`). The waypoints come from the full run's checked pose plan (:func:`procedures.plan.make_plan`):
+its 24 special orientations (set A) put gravity along ±x, ±y, ±z of the flange, four spins each, all reachable
+and collision-free from this cell's centre. A candidate trajectory is one A pose per gravity direction (a random
+spin; optionally a few more), in nearest-neighbour order from the robot's configuration, with a short hold at
+each (a candidate hold length), then :data:`VALIDATION_HOLDS` poses of the plan's validation set (V) held still
+and never fitted. Between waypoints the arm moves by moveJ at the CELL.toml joint speed and acceleration (the
+wrist turns fast: that is what shows the inertia). Each candidate is sampled at :data:`DESIGN_RATE_HZ` and scored
+by log det of the Fisher information JᵀWJ of all 21 parameters of :mod:`ftacq.dynamics.joint` and the streams'
+lag (22 columns: the lag is fitted too, and a trajectory that cannot tell it from the rotation is a bad one) at a
+nominal tool
+(the CELL.toml cylinder, 1 kg), W the noise model (at rest the sensor's noise; while moving it grows by
+:data:`MOTION_NOISE_PER_RAD_S` per rad/s of joint speed, as the fit's speed groups measure). D-optimality is
+invariant to the parameters' units, so no scaling has to be chosen. The best candidate within
+:data:`DEFAULT_BUDGET_S` of motion is kept.
+
+Recording (:func:`record_quick`) reuses the excitation stage's recorder (procedures/excitation.py: the sensor in
+its own thread, every 2 ms robot state, both on the host clock); each hold is a count of robot states at rest, so
+its window is known in the robot's own samples.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ftacq.dynamics.identify import MotionRecord
+from ftacq.errors import PlanError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_BUDGET_S = 52.0
+"""Longest motion (moves and holds, validation included) a design may take, s (the wall-time goal is 90 s)."""
+CANDIDATES = 24
+"""Candidate trajectories scored per design."""
+HOLD_CHOICES_S = (0.0, 0.4, 0.8)
+"""Hold lengths at the fitted waypoints a design chooses between, s."""
+EXTRA_WAYPOINTS = (0, 1, 2)
+"""Waypoints beyond one per gravity direction a candidate may add."""
+TOUR_CHOICES = 2
+"""A candidate's next waypoint is one of this many quickest to reach (random): short tours, still diverse."""
+VALIDATION_HOLDS = 3
+"""Still validation poses at the end (the verdict's held-out poses)."""
+VALIDATION_HOLD_S = 1.0
+DESIGN_RATE_HZ = 25.0
+"""Sampling of a candidate for its Fisher information."""
+MOTION_NOISE_PER_RAD_S = 2.0
+"""The design's noise model: sensor noise × (1 + this × fastest joint speed) while moving."""
+NOMINAL_NOISE = np.array([0.05, 0.05, 0.08, 0.002, 0.002, 0.0015])
+"""1σ of one sample at rest per channel (N, N·m), a Net F/T's typical figure, for the design only."""
+FIT, VALIDATE = "fit", "validate"
+
+
+@dataclass(frozen=True)
+class QuickPlan:
+    """A designed, checked trajectory: moveJ waypoints (K, 6) rad from ``start_q_rad``, each followed by a hold of
+    ``hold_s`` (K,) s; ``purposes`` "fit" or "validate" (validation holds are never fitted); the last waypoint is
+    followed by nothing. ``information_logdet`` the design's score; ``estimated_duration_s`` the motion's length."""
+
+    start_q_rad: np.ndarray
+    waypoints_rad: np.ndarray
+    hold_s: np.ndarray
+    purposes: tuple[str, ...]
+    labels: tuple[str, ...]
+    speed_rad_s: float
+    acceleration_rad_s2: float
+    estimated_duration_s: float
+    information_logdet: float
+    candidates: int
+    seed: int = 0
+
+    def to_json(self) -> str:
+        return json.dumps({"start_q_rad": self.start_q_rad.tolist(), "waypoints_rad": self.waypoints_rad.tolist(),
+                           "hold_s": self.hold_s.tolist(), "purposes": list(self.purposes),
+                           "labels": list(self.labels),
+                           "set_names": ["V" if p == VALIDATE else "Q" for p in self.purposes], "speed_rad_s": self.speed_rad_s,
+                           "acceleration_rad_s2": self.acceleration_rad_s2,
+                           "estimated_duration_s": self.estimated_duration_s,
+                           "information_logdet": self.information_logdet, "candidates": self.candidates,
+                           "seed": self.seed})
+
+    @staticmethod
+    def from_json(text: str) -> "QuickPlan":
+        d = json.loads(text)
+        return QuickPlan(np.array(d["start_q_rad"]), np.array(d["waypoints_rad"]), np.array(d["hold_s"]),
+                         tuple(d["purposes"]), tuple(d["labels"]), float(d["speed_rad_s"]),
+                         float(d["acceleration_rad_s2"]), float(d["estimated_duration_s"]),
+                         float(d["information_logdet"]), int(d["candidates"]), int(d.get("seed", 0)))
+
+
+def move_profile(q_from: np.ndarray, q_to: np.ndarray, speed: float, acceleration: float,
+                 t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, q̇, q̈) (len(t), 6) of a moveJ (the leading joint on a trapezoid, the others in proportion) at times t
+    (s from its start); and its duration is :func:`move_duration_s`."""
+    delta = np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float)
+    length = float(np.max(np.abs(delta)))
+    t = np.asarray(t, dtype=float)
+    if length == 0.0:
+        return np.tile(q_from, (t.size, 1)), np.zeros((t.size, 6)), np.zeros((t.size, 6))
+    direction = delta / length
+    if length >= speed * speed / acceleration:
+        t_acc, peak = speed / acceleration, speed
+        t_cruise = length / speed - speed / acceleration
+    else:
+        t_acc = float(np.sqrt(length / acceleration))
+        peak, t_cruise = acceleration * t_acc, 0.0
+    total = 2 * t_acc + t_cruise
+    tc = np.clip(t, 0.0, total)
+    s = np.where(tc < t_acc, 0.5 * acceleration * tc ** 2,
+                 np.where(tc < t_acc + t_cruise, 0.5 * acceleration * t_acc ** 2 + peak * (tc - t_acc),
+                          length - 0.5 * acceleration * (total - tc) ** 2))
+    v = np.where(tc < t_acc, acceleration * tc, np.where(tc < t_acc + t_cruise, peak, acceleration * (total - tc)))
+    a = np.where(tc < t_acc, acceleration, np.where(tc < t_acc + t_cruise, 0.0, -acceleration))
+    a = np.where((t <= 0) | (t >= total), 0.0, a)
+    return np.asarray(q_from) + np.outer(s, direction), np.outer(v, direction), np.outer(a, direction)
+
+
+def move_duration_s(q_from: np.ndarray, q_to: np.ndarray, speed: float, acceleration: float) -> float:
+    from procedures.plan import trapezoid_time_s
+
+    return trapezoid_time_s(float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from)))), speed, acceleration)
+
+
+def sample_trajectory(start_q: np.ndarray, waypoints: np.ndarray, hold_s: np.ndarray, speed: float,
+                      acceleration: float, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t, q, q̇, q̈, waypoint index (−1 while moving)) of a trajectory sampled at ``rate_hz``."""
+    parts: list[tuple[np.ndarray, ...]] = []
+    t0, q = 0.0, np.asarray(start_q, dtype=float)
+    for k, (target, hold) in enumerate(zip(waypoints, hold_s)):
+        duration = move_duration_s(q, target, speed, acceleration)
+        times = np.arange(0.0, duration, 1.0 / rate_hz)
+        qs, qds, qdds = move_profile(q, target, speed, acceleration, times)
+        parts.append((t0 + times, qs, qds, qdds, np.full(times.size, -1)))
+        n_hold = int(round(hold * rate_hz))
+        if n_hold:
+            parts.append((t0 + duration + np.arange(n_hold) / rate_hz, np.tile(target, (n_hold, 1)),
+                          np.zeros((n_hold, 6)), np.zeros((n_hold, 6)), np.full(n_hold, k)))
+        t0 += duration + hold
+        q = np.asarray(target, dtype=float)
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(5))  # type: ignore[return-value]
+
+
+def nominal_tool(settings) -> tuple[float, np.ndarray, np.ndarray]:
+    """The design's nominal tool: 1 kg, a solid cylinder of the CELL.toml tool's radius and length."""
+    mass, r, length = 1.0, float(settings.tool_radius_m), max(float(settings.tool_length_m), 0.02)
+    lateral = mass * (3 * r * r + length * length) / 12.0
+    return mass, np.array([0.0, 0.0, 0.5 * length]), np.diag([lateral, lateral, 0.5 * mass * r * r])
+
+
+def information_logdet(settings, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
+    """log det of the Fisher information of all 21 parameters and the streams' lag (:mod:`ftacq.dynamics.joint`)
+    over these states at times ``t`` (s)."""
+    from ftacq.dynamics.joint import LINEAR, NONLINEAR, JointModel
+    from ftacq.dynamics.model import inertial_parameters
+    from ftacq.mounts import mount_of
+
+    mass, com, inertia = nominal_tool(settings)
+    model = JointModel(settings.ur, np.zeros(3), q, qd, qdd, np.eye(3), np.array(mount_of(settings.mount).down_base))
+    x = np.concatenate([inertial_parameters(mass, com, inertia), np.zeros(6)])
+    sigma = NOMINAL_NOISE[None, :] * (1.0 + MOTION_NOISE_PER_RAD_S * np.max(np.abs(qd), axis=1))[:, None]
+    weights = 1.0 / sigma
+    a, jacobian = model.design(x)
+    lag = -np.gradient(a @ x, t, axis=0)
+    jacobian = np.concatenate([jacobian, lag[:, :, None]], axis=2) * weights[:, :, None]
+    jacobian = jacobian.reshape(-1, NONLINEAR + LINEAR + 1)
+    sign, logdet = np.linalg.slogdet(jacobian.T @ jacobian)
+    return float(logdet) if sign > 0 else -np.inf
+
+
+def _gravity_classes(settings, targets: np.ndarray) -> np.ndarray:
+    """Which flange axis (0..5: +x, −x, +y, −y, +z, −z) gravity points along at each joint target."""
+    from ftacq.kinematics import forward_kinematics
+    from ftacq.mounts import mount_of
+
+    down = np.array(mount_of(settings.mount).down_base)
+    out = []
+    for q in targets:
+        g_flange = forward_kinematics(settings.ur, q)[:3, :3].T @ down
+        axis = int(np.argmax(np.abs(g_flange)))
+        out.append(2 * axis + (0 if g_flange[axis] > 0 else 1))
+    return np.array(out)
+
+
+def _greedy_tour(rng: np.random.Generator, start: np.ndarray, special: list[int], classes: np.ndarray,
+                 targets: np.ndarray, extra: int, speed: float, acceleration: float) -> list[int]:
+    """One candidate order: from the robot's configuration, repeatedly one of the :data:`TOUR_CHOICES` quickest
+    poses of a gravity direction not yet visited (at random among them), then ``extra`` more special poses the
+    same way."""
+    order: list[int] = []
+    q, missing = start, set(range(6))
+    while missing or extra > 0:
+        options = [i for i, c in zip(special, classes) if i not in order and (c in missing or not missing)]
+        if not options:
+            break
+        cost = np.array([move_duration_s(q, targets[i], speed, acceleration) for i in options])
+        nearest = np.argsort(cost)[:TOUR_CHOICES]
+        pick = options[int(rng.choice(nearest))]
+        if not missing:
+            extra -= 1
+        missing.discard(int(classes[special.index(pick)]))
+        order.append(pick)
+        q = targets[pick]
+    return order
+
+
+def _tour(start: np.ndarray, targets: list[int], joint_targets: np.ndarray) -> list[int]:
+    """Nearest-neighbour order (largest joint move) from ``start``."""
+    order, q, left = [], start, list(targets)
+    while left:
+        nearest = min(left, key=lambda i: float(np.max(np.abs(joint_targets[i] - q))))
+        order.append(nearest)
+        left.remove(nearest)
+        q = joint_targets[nearest]
+    return order
+
+
+def check_quick(settings, start_q: np.ndarray, waypoints: np.ndarray) -> list[str]:
+    """Joint limits and collisions (tool cylinder, links, table) along every move of the trajectory."""
+    from procedures.plan import check_path
+
+    problems, q = [], np.asarray(start_q, dtype=float)
+    for k, target in enumerate(waypoints):
+        problems += [f"move {k + 1}: {p}" for p in check_path(settings, q, target)]
+        q = target
+    return problems
+
+
+def design_quick(settings, start_q_rad: np.ndarray, pose_plan=None, budget_s: float = DEFAULT_BUDGET_S,
+                 candidates: int = CANDIDATES, seed: int = 0) -> QuickPlan:
+    """Design the quick trajectory from ``start_q_rad`` (module docstring). ``pose_plan`` is the full run's plan
+    (:func:`procedures.plan.make_plan`; made here when None). Raises PlanError when no candidate is clear."""
+    from procedures.plan import make_plan
+
+    start = np.asarray(start_q_rad, dtype=float).reshape(6)
+    plan = pose_plan if pose_plan is not None else make_plan(settings, start)
+    special = [i for i, s in enumerate(plan.set_names) if s == "A"]
+    validation = [i for i, s in enumerate(plan.set_names) if s == "V"]
+    if not special:
+        raise PlanError("the quick calibration needs the special orientations (CELL.toml poses.special = true)")
+    targets = np.asarray(plan.joint_targets_rad)
+    classes = _gravity_classes(settings, targets[special])
+    if len(set(classes.tolist())) < 6:
+        raise PlanError("the plan does not reach gravity along all six flange directions; the quick calibration "
+                        "needs them (move the pose centre)")
+    speed, acceleration = float(settings.joint_speed_rad_s), float(settings.joint_acceleration_rad_s2)
+    rng = np.random.default_rng(seed)
+    best: tuple[float, list[int], float] | None = None
+    shortest: tuple[float, list[int], np.ndarray] | None = None
+    scored = 0
+    for _ in range(candidates):
+        order = _greedy_tour(rng, start, special, classes, targets, int(rng.choice(EXTRA_WAYPOINTS)), speed,
+                             acceleration)
+        last = targets[order[-1]]
+        checks = _tour(last, validation, targets)[:VALIDATION_HOLDS] if validation else []
+        hold = float(rng.choice(HOLD_CHOICES_S))
+        waypoints = targets[order + checks]
+        holds = np.array([hold] * len(order) + [VALIDATION_HOLD_S] * len(checks))
+        duration = sum(move_duration_s(a, b, speed, acceleration)
+                       for a, b in zip(np.vstack([start, waypoints])[:-1], waypoints)) + float(holds.sum())
+        if check_quick(settings, start, waypoints):
+            continue
+        if duration > budget_s:  # kept in case no candidate fits (slow CELL.toml speeds)
+            if shortest is None or duration < shortest[0]:
+                shortest = (duration, order + checks, holds)
+            continue
+        t, q, qd, qdd, _ = sample_trajectory(start, waypoints[:len(order)], holds[:len(order)], speed,
+                                                 acceleration, DESIGN_RATE_HZ)
+        score = information_logdet(settings, t, q, qd, qdd)
+        scored += 1
+        if best is None or score > best[0]:
+            best = (score, order + checks, duration)
+            best_holds = holds
+    if best is None and shortest is not None:  # the CELL.toml speeds make every candidate longer: the shortest
+        duration, indices, best_holds = shortest
+        log.warning("no quick trajectory fits in %.0f s at these joint speeds; the shortest takes %.0f s",
+                    budget_s, duration)
+        waypoints = targets[indices]
+        fit = len(indices) - min(VALIDATION_HOLDS, len(validation))
+        t, q, qd, qdd, _ = sample_trajectory(start, waypoints[:fit], best_holds[:fit], speed, acceleration,
+                                             DESIGN_RATE_HZ)
+        best, scored = (information_logdet(settings, t, q, qd, qdd), indices, duration), 1
+    if best is None:
+        raise PlanError("no quick trajectory is clear of collisions and joint limits from this configuration; "
+                        "use the full calibration")
+    score, indices, duration = best
+    n_fit = len(indices) - min(VALIDATION_HOLDS, len(validation))
+    return QuickPlan(start, targets[indices].copy(), best_holds,
+                     tuple([FIT] * n_fit + [VALIDATE] * (len(indices) - n_fit)),
+                     tuple(plan.labels[i] for i in indices), speed, acceleration, float(duration), float(score),
+                     scored, seed)
+
+
+def format_quick(plan: QuickPlan) -> str:
+    """A few lines for the operator: what will move, how fast, how long."""
+    fit = sum(1 for p in plan.purposes if p == FIT)
+    span = np.ptp(np.vstack([plan.start_q_rad, plan.waypoints_rad]), axis=0)
+    holds = sorted({round(float(h), 2) for h, p in zip(plan.hold_s, plan.purposes) if p == FIT})
+    return (f"Quick calibration plan: one continuous motion through {fit} waypoints (gravity along every flange "
+            f"axis; holds {', '.join(f'{h:g}' for h in holds)} s), then {len(plan.purposes) - fit} still validation "
+            f"poses ({VALIDATION_HOLD_S:g} s each)\n"
+            f"  chosen by the Fisher information of all 21 parameters among {plan.candidates} checked candidates "
+            f"(log det {plan.information_logdet:.1f})\n"
+            f"  joint speed {plan.speed_rad_s:g} rad/s, acceleration {plan.acceleration_rad_s2:g} rad/s²; joint "
+            f"ranges (rad): " + " ".join(f"{v:.2f}" for v in span) + "\n"
+            f"  every move checked for joint limits and collisions along its path: clear\n"
+            f"  estimated duration: {plan.estimated_duration_s:.1f} s")
+
+
+@dataclass(frozen=True)
+class QuickRecording:
+    """The recorded motion and each hold's window in robot samples [start, end) (K, 2) (−1 when not reached)."""
+
+    record: MotionRecord
+    hold_rows: np.ndarray
+    completed: int
+
+
+def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float = 60.0, on_waypoint=None,
+                 on_hold=None) -> QuickRecording:
+    """Run the plan while recording; return the recording. ``on_waypoint(k, n)`` before each move,
+    ``on_hold(k, purpose, started)`` around each hold (True at its start, False at its end). Ctrl-C or a fault
+    stops the robot; the partial recording is attached to the raised exception as ``error.quick_recording``."""
+    from procedures.excitation import SENSOR_READ_TIMEOUT_S, _assemble, _SensorRecorder, counts_samples
+
+    sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)
+    first_robot = stream.count
+    rate = 500.0
+    holds = np.full((len(plan.waypoints_rad), 2), -1, dtype=int)
+    recorder = _SensorRecorder(sensor)
+    recorder.start()
+    completed = 0
+
+    def assemble() -> QuickRecording:
+        return QuickRecording(_assemble(recorder.batches, stream, first_robot, counts_samples(sensor)), holds,
+                              completed)
+
+    try:
+        for k, (target, hold) in enumerate(zip(plan.waypoints_rad, plan.hold_s)):
+            if on_waypoint is not None:
+                on_waypoint(k, len(plan.waypoints_rad))
+            if recorder.error is not None:
+                raise recorder.error
+            robot.move_joints(target, plan.speed_rad_s, plan.acceleration_rad_s2, timeout_s=move_timeout_s)
+            if hold > 0:
+                if on_hold is not None:
+                    on_hold(k, plan.purposes[k], True)
+                begin = stream.count
+                stream.wait_for_samples(begin + int(round(hold * rate)), timeout_s=hold + 1.0)
+                holds[k] = (begin - first_robot, stream.count - first_robot)
+                if on_hold is not None:
+                    on_hold(k, plan.purposes[k], False)
+            completed = k + 1
+        stream.wait_for_samples(stream.count + 5, timeout_s=1.0)
+    except BaseException as error:
+        try:
+            robot.stop()
+        finally:
+            recorder.stop()
+            error.quick_recording = assemble()  # type: ignore[attr-defined]
+        raise
+    recorder.stop()
+    if recorder.error is not None:
+        raise recorder.error
+    return assemble()
+
+
+__all__ = ["QuickPlan", "QuickRecording", "design_quick", "check_quick", "format_quick", "record_quick",
+           "sample_trajectory", "move_profile", "information_logdet"]
