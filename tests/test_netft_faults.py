@@ -78,8 +78,9 @@ def test_dropped_records_count_as_lost(sensor, fake) -> None:
 def test_dropped_records_are_a_gap_in_device_time(sensor, fake) -> None:
     # the box's own sample counter (ft_sequence) counts the samples the host never received: the device time of the
     # delivered samples steps over them instead of compressing the clock (what the packet count would do)
+    before = sensor.read(timeout_s=READ_TIMEOUT_S)  # the last records before the drop: the gap lies after them
     fake.drop(5)
-    batches = settle(sensor, fake)
+    batches = [before, *settle(sensor, fake)]
     period_s = 1.0 / RATE_HZ
     for _ in range(RECORDS_PAST_FAULT):  # the records past the gap may still be held for late ones: read them
         batch = WrenchBatch.concatenate(batches)

@@ -479,6 +479,10 @@ class NetFTBox:
             if command == RDT_STOP:
                 self._target = None
             elif command in RDT_STARTS:
+                if self._target is not None and self._silent:
+                    # the old stream's records due by now went into the quiet link too (a real box sends each
+                    # as it is sampled; this fake produces them in bursts, so the tail of the last burst is here)
+                    self.records_silenced += max(0, self._due_count(now) - self._stream_done)
                 self._target = embedded or address
                 self._mode = command
                 self._remaining = count if count > 0 else None
