@@ -93,3 +93,16 @@ def test_a_crash_ends_the_run_failed_with_the_error(tmp_path, monkeypatch, capsy
     assert run["status"] == "failed"
     assert "RuntimeError: simulated crash in the recorder" in run["message"]
     assert not (folder / "calibration.json").exists()
+
+
+def test_a_controller_of_another_model_than_the_cell_file_is_a_one_line_error(tmp_path, capsys):
+    from ftacq.app.cli import main
+
+    with SimulatedCell(model="UR5e") as cell:
+        config = tmp_path / "CELL.toml"
+        config.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "UR10e"\n\n[sensor]\nurl = "{cell.sensor_url}"\n',
+                          encoding="utf-8")
+        status = main(["calibrate", "--config", str(config), "--quick", "--dry-run", "--out", str(tmp_path / "runs")])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert "says it is a UR5e" in err and "robot.model = UR10e" in err and "Traceback" not in err

@@ -243,6 +243,11 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         robot = URRobot(config.robot.host, limits, model=settings.model)
         stack.callback(robot.close)
         robot.start()
+        reported = getattr(getattr(robot, "info", None), "model", None)
+        if reported is not None and reported.name != settings.ur.name:
+            raise InputError(f"the controller at {config.robot.host} says it is a {reported.name}, "
+                             f"{config.source} says robot.model = {settings.model}: the quick calibration's motion "
+                             f"model needs the right one (set robot.model)")
         wall: dict[str, float] = {}
         started = time.monotonic()
         start_q = robot.joint_positions()
