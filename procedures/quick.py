@@ -17,8 +17,9 @@ invariant to the parameters' units, so no scaling has to be chosen. The best can
 :data:`DEFAULT_BUDGET_S` of motion is kept.
 
 Recording (:func:`record_quick`) reuses the excitation stage's recorder (procedures/excitation.py: the sensor in
-its own thread, every 2 ms robot state, both on the host clock); each hold is a count of robot states at rest, so
-its window is known in the robot's own samples.
+its own thread, every robot state; the sensor's times from its own sample counter, the robot's from the
+controller's timestamps, both put on the host clock by the minimum-delay line there and nowhere else); each hold
+is a count of robot states at the stream's RTDE rate, so its window is known in the robot's own samples.
 """
 
 from __future__ import annotations
