@@ -17,8 +17,9 @@ invariant to the parameters' units, so no scaling has to be chosen. The best can
 :data:`DEFAULT_BUDGET_S` of motion is kept.
 
 Recording (:func:`record_quick`) reuses the excitation stage's recorder (procedures/excitation.py: the sensor in
-its own thread, every 2 ms robot state, both on the host clock); each hold is a count of robot states at rest, so
-its window is known in the robot's own samples.
+its own thread, every robot state; the sensor's times from its own sample counter, the robot's from the
+controller's timestamps, both put on the host clock by the minimum-delay line there and nowhere else); each hold
+is a count of robot states at the stream's RTDE rate, so its window is known in the robot's own samples.
 """
 
 from __future__ import annotations
@@ -325,19 +326,18 @@ def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float =
     """Run the plan while recording; return the recording. ``on_waypoint(k, n)`` before each move,
     ``on_hold(k, purpose, started)`` around each hold (True at its start, False at its end). Ctrl-C or a fault
     stops the robot; the partial recording is attached to the raised exception as ``error.quick_recording``."""
-    from procedures.excitation import SENSOR_READ_TIMEOUT_S, _assemble, _SensorRecorder, counts_samples
+    from procedures.excitation import SENSOR_READ_TIMEOUT_S, _assemble, _SensorRecorder
 
     sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)
     first_robot = stream.count
-    rate = 500.0
+    rate = float(getattr(stream, "frequency_hz", 500.0))  # the controller's RTDE rate (125 Hz on a CB3)
     holds = np.full((len(plan.waypoints_rad), 2), -1, dtype=int)
     recorder = _SensorRecorder(sensor)
     recorder.start()
     completed = 0
 
     def assemble() -> QuickRecording:
-        return QuickRecording(_assemble(recorder.batches, stream, first_robot, counts_samples(sensor)), holds,
-                              completed)
+        return QuickRecording(_assemble(recorder.batches, stream, first_robot), holds, completed)
 
     try:
         for k, (target, hold) in enumerate(zip(plan.waypoints_rad, plan.hold_s)):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import sys
 import time
 from pathlib import Path
@@ -19,6 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
+
+log = logging.getLogger(__name__)
 
 MOTION_CSV = "motion.csv"
 QUICK_MODE = "quick"
@@ -34,9 +37,15 @@ def hold_windows(recording, purpose: str, plan) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for (a, b), p in zip(recording.hold_rows, plan.purposes) if p == purpose and b > a]
 
 
+REST_SPEED_RAD_S = 0.005
+"""A robot state is at rest when no joint moves faster than this, rad/s (a hold's window is counted in states as they
+arrive: one that arrived in a burst may begin with the end of the move before it)."""
+
+
 def validation_poses(recording, plan, lag_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(q (M, 6), mean wrench (M, 6), its standard error (M, 6), labels) of each still validation hold: the sensor
-    samples within the hold's robot-time window (shifted by the lag), the first 0.2 s dropped (settling)."""
+    samples within the hold's robot-time window (shifted by the lag) from its first state at rest
+    (:data:`REST_SPEED_RAD_S`), the first 0.2 s dropped (settling)."""
     from procedures.quick import VALIDATE
 
     record = recording.record
@@ -44,6 +53,10 @@ def validation_poses(recording, plan, lag_s: float) -> tuple[np.ndarray, np.ndar
     for k, ((a, b), purpose) in enumerate(zip(recording.hold_rows, plan.purposes)):
         if purpose != VALIDATE or b - a < 20:
             continue
+        still = np.flatnonzero(np.max(np.abs(record.qd[a:b]), axis=1) <= REST_SPEED_RAD_S)
+        if still.size < 20:
+            continue
+        a, b = a + int(still[0]), a + int(still[-1]) + 1
         t0, t1 = record.robot_time_s[a] + lag_s + 0.2, record.robot_time_s[b - 1] + lag_s
         inside = (record.sensor_time_s >= t0) & (record.sensor_time_s < t1)
         if inside.sum() < 10:
@@ -163,6 +176,24 @@ def replay(args: argparse.Namespace, recording, calibration, model_name: str) ->
         close_recording(rec)
 
 
+def _end_unfinished(folder, error: BaseException | None, restart: str) -> bool:
+    """The run folder's exit handler (an ExitStack exit callback): a run left "running" by an exception the stages
+    did not handle ends "stopped" (Ctrl-C) or "failed" with the error, as the full run does; an unexpected crash is
+    logged with its traceback and reported as one line with the restart command. Returns False (the exception, if
+    any, goes on)."""
+    if error is None or folder.document.get("status") != "running":
+        return False
+    interrupted = isinstance(error, KeyboardInterrupt)
+    if not interrupted and not isinstance(error, FtacqError):
+        log.error("quick calibration crashed", exc_info=error)
+    what = error if isinstance(error, FtacqError) else f"{type(error).__name__}: {error}"
+    text = f"quick calibration {'interrupted' if interrupted else 'failed'} ({what}); nothing was saved; restart with: {restart}"
+    folder.set_status("stopped" if interrupted else "failed", text)
+    if isinstance(error, Exception) and not isinstance(error, FtacqError):
+        raise AbortedError(text) from error
+    return False
+
+
 def _save_or_discard(args: argparse.Namespace, verdict) -> bool:
     """--yes: save a PASS only. Otherwise ask (no terminal: discard)."""
     from ftacq.verdict import PASS
@@ -212,6 +243,11 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         robot = URRobot(config.robot.host, limits, model=settings.model)
         stack.callback(robot.close)
         robot.start()
+        reported = getattr(getattr(robot, "info", None), "model", None)
+        if reported is not None and reported.name != settings.ur.name:
+            raise InputError(f"the controller at {config.robot.host} says it is a {reported.name}, "
+                             f"{config.source} says robot.model = {settings.model}: the quick calibration's motion "
+                             f"model needs the right one (set robot.model)")
         wall: dict[str, float] = {}
         started = time.monotonic()
         start_q = robot.joint_positions()
@@ -236,6 +272,7 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         folder = RunFolder.create(out_parent, config.to_dict(), plan.to_json(), extra=extra)
         _err(f"run folder: {folder.path}")
         folder.set_status("running", "quick calibration: recording the motion")
+        stack.push(lambda kind, error, trace: _end_unfinished(folder, error, restart))
         stream = URStateStream(config.robot.host)
         stack.callback(stream.close)
         stream.start()
