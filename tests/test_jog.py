@@ -67,7 +67,7 @@ def test_a_separate_process_jogs_the_arm_while_the_monitor_reads_it(tmp_path):
         try:
             wait_for_line(monitor, "dynamic compensation", START_DEADLINE_S)  # reading the arm from here on
             jog = subprocess.run([sys.executable, "-m", "tests.fakes.jog", "--host", cell.robot_host, "--moves", "3",
-                                  "--rest-s", "0.2", "--seed", "4"],
+                                  "--rest-s", "1.0", "--seed", "4"],
                                  capture_output=True, text=True, env=env, cwd=ROOT, timeout=START_DEADLINE_S)
         finally:
             monitor.send_signal(signal.SIGINT)  # Ctrl-C: the monitor stops and closes its record

@@ -129,6 +129,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"jog: move {k + 1} refused by the controller", file=sys.stderr)
                 return 1
             _emit(move=k + 1, start_s=started, end_s=time.monotonic(), target=target.tolist(), **{"from": q_from.tolist()})
+        if args.every_s <= 0:  # the rest after the last move too (a reader lagging behind still sees it at rest)
+            due = time.monotonic() + args.rest_s
+            while (wait := due - time.monotonic()) > 0:
+                time.sleep(wait)
         _emit(done=True)
         return 0
     finally:
