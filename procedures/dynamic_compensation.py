@@ -28,7 +28,7 @@ from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
 from ftacq.dynamics.clock import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import URModel
-from procedures.flange_orientation import MAX_STATE_GAP_S, FlangeOrientations, pose_rows
+from procedures.flange_orientation import MAX_STATE_GAP_S, FlangeOrientations, pose_rows, still_over
 
 STATE_WINDOW_ROWS = 64
 """Newest robot states looked at per batch (128 ms at 500 Hz), and predictions kept."""
@@ -142,13 +142,8 @@ class DynamicCompensator:
         return self.calibration.compensate(batch.wrench, flange_R_base)
 
     def still_over(self, window_s: float, tolerance_rad: float) -> bool:
-        """True when every joint stayed within ``tolerance_rad`` from ``window_s`` before the last batch's first
-        sample to its last one (their times, from the state stream): the arm was still while the samples were
-        taken, however late they were read (the drift tracker's rest windows)."""
-        if self._times.size == 0:
-            return False
-        return self.orientations.still_between(float(self._times[0]) - window_s, float(self._times[-1]),
-                                               tolerance_rad)
+        """:func:`procedures.flange_orientation.still_over` for the last batch's sample times."""
+        return still_over(self.orientations, self._times, window_s, tolerance_rad)
 
     def sample_flange_pose(self) -> np.ndarray | None:
         """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample's time of the last batch (the lag

@@ -177,3 +177,13 @@ def pose_rows(position_m: np.ndarray, flange_R_base: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["FlangeOrientations", "MAX_STATE_GAP_S", "pose_rows"]
+
+
+def still_over(orientations: FlangeOrientations, sample_times_s: np.ndarray, window_s: float,
+               tolerance_rad: float) -> bool:
+    """True when every joint stayed within ``tolerance_rad`` from ``window_s`` before a batch's first sample to its
+    last one (``sample_times_s``, host s, from the sample clock): the arm was still while the samples were taken,
+    however late they were read (the drift tracker's rest windows)."""
+    if sample_times_s.size == 0:
+        return False
+    return orientations.still_between(float(sample_times_s[0]) - window_s, float(sample_times_s[-1]), tolerance_rad)

@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.calibration import Calibration
 from ftacq.dynamics.clock import SampleClock
 from ftacq.kinematics import URModel
-from procedures.flange_orientation import FlangeOrientations, pose_rows
+from procedures.flange_orientation import FlangeOrientations, pose_rows, still_over
 
 
 class StaticCompensator:
@@ -68,13 +68,8 @@ class StaticCompensator:
         return self.calibration.compensate(batch.wrench, self.flange_R_base)
 
     def still_over(self, window_s: float, tolerance_rad: float) -> bool:
-        """True when every joint stayed within ``tolerance_rad`` from ``window_s`` before the last batch's first
-        sample to its last one (their times, from the state stream): the arm was still while the samples were
-        taken, however late they were read (the drift tracker's rest windows)."""
-        if self._times.size == 0:
-            return False
-        return self.orientations.still_between(float(self._times[0]) - window_s, float(self._times[-1]),
-                                               tolerance_rad)
+        """:func:`procedures.flange_orientation.still_over` for the last batch's sample times."""
+        return still_over(self.orientations, self._times, window_s, tolerance_rad)
 
     def sample_flange_pose(self) -> np.ndarray | None:
         """The flange pose (N, 6) (m, rad: a UR pose, base frame) at each sample of the last batch, as it was

@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     The CLI handles SIGTERM as Ctrl-C (:mod:`ftacq.app.signals`), so the simulated cell and the drivers are
     always closed.
     """
-    from drivers.robot import MotionLimits
+    from ftacq.app.commands.robot import start_robot
     from drivers.sensor import open_sensor
     from ftacq.app.config import config_from_dict, load_config
     from procedures.calibration_procedure import (
@@ -209,13 +209,7 @@ def run(args: argparse.Namespace) -> int:
             config = config.replace_section("robot", host=cell.robot_host)
             config = config.replace_section("sensor", url=cell.sensor_url)
         settings = config.plan_settings() if plan is None else plan.settings
-        limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
-                              joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
-        from drivers.ur import URRobot
-
-        robot = URRobot(config.robot.host, limits, model=settings.model)
-        stack.callback(robot.close)
-        robot.start()
+        robot = start_robot(config.robot.host, settings, stack)
         start_q = robot.joint_positions()
 
         measured = folder.measured() if folder else {}

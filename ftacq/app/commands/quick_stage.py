@@ -208,9 +208,8 @@ def _save_or_discard(args: argparse.Namespace, verdict) -> bool:
 
 def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path) -> int:
     """Run the quick calibration; return the exit status (0 saved, 1 not saved / FAIL)."""
-    from drivers.robot import MotionLimits
+    from ftacq.app.commands.robot import start_robot
     from drivers.sensor import open_sensor
-    from drivers.ur import URRobot
     from drivers.ur_stream import URStateStream
     from ftacq.app.commands.dynamic_stage import sensor_offset_from
     from ftacq.app.confirm import confirm_motion
@@ -238,11 +237,7 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
             config = config.replace_section("robot", host=cell.robot_host)
             config = config.replace_section("sensor", url=cell.sensor_url)
         settings = config.plan_settings()
-        limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
-                              joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
-        robot = URRobot(config.robot.host, limits, model=settings.model)
-        stack.callback(robot.close)
-        robot.start()
+        robot = start_robot(config.robot.host, settings, stack)
         reported = getattr(getattr(robot, "info", None), "model", None)
         if reported is not None and reported.name != settings.ur.name:
             raise InputError(f"the controller at {config.robot.host} says it is a {reported.name}, "

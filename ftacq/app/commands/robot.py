@@ -246,3 +246,18 @@ def run_set_payload(args: argparse.Namespace) -> int:
 
         raise RobotError(f"robot controller {host}: the payload read back differs from the one sent (see above)")
     return 0
+
+
+def start_robot(host: str, settings, stack):
+    """Connect to the UR controller at ``host`` with the plan's speed and acceleration bounds (``settings``: a
+    :class:`procedures.plan_settings.PlanSettings`), close it with ``stack`` (an ExitStack) and start it: the one
+    way calibrate, calibrate --quick and tare open the arm they move."""
+    from drivers.robot import MotionLimits
+    from drivers.ur import URRobot
+
+    limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
+                          joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
+    robot = URRobot(host, limits, model=settings.model)
+    stack.callback(robot.close)
+    robot.start()
+    return robot

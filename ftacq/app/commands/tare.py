@@ -63,9 +63,8 @@ def run(args: argparse.Namespace) -> int:
     """Run ``ftacq tare``; return the exit status (SIGTERM stops it as Ctrl-C does: :mod:`ftacq.app.signals`)."""
     from dataclasses import replace
 
-    from drivers.robot import MotionLimits
+    from ftacq.app.commands.robot import start_robot
     from drivers.sensor import open_sensor
-    from drivers.ur import URRobot
     from ftacq.app.commands.calibrate import sim_sampling
     from ftacq.app.confirm import confirm_motion
     from ftacq.app.config import CellConfig, load_config
@@ -112,11 +111,7 @@ def run(args: argparse.Namespace) -> int:
         assert calibration is not None
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         settings = config.plan_settings()
-        limits = MotionLimits(joint_speed_rad_s=settings.joint_speed_rad_s,
-                              joint_acceleration_rad_s2=settings.joint_acceleration_rad_s2)
-        robot = URRobot(config.robot.host, limits, model=settings.model)
-        stack.callback(robot.close)
-        robot.start()
+        robot = start_robot(config.robot.host, settings, stack)
         plan = None
         if args.poses:
             from procedures.calibration_procedure import Move, calibration_steps, check_steps
