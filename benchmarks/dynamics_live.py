@@ -127,14 +127,16 @@ def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folde
     try:
         wait_for_text(err_path, "dynamic compensation", READY_TIMEOUT_S)
         process = psutil.Process(monitor.pid)
-        skipped_before = cell.netft.stats()["skipped_backlog"]
+        before = cell.netft.stats()
         cpu_start = (sum(process.cpu_times()[:2]), time.monotonic())
         jog = subprocess.run([sys.executable, "-m", "tests.fakes.jog", "--host", cell.robot_host, "--moves",
                               str(moves), "--every-s", str(every_s), "--speed", "1.0", "--acc", "2.0", "--seed",
                               str(seed)], capture_output=True, text=True, env=env, cwd=ROOT,
                              timeout=minutes * 60.0 + 300.0)
         cpu_end = (sum(process.cpu_times()[:2]), time.monotonic())
-        skipped = cell.netft.stats()["skipped_backlog"] - skipped_before
+        after = cell.netft.stats()
+        skipped = after["skipped_backlog"] - before["skipped_backlog"]
+        send_errors = after["send_errors"] - before["send_errors"]
     finally:
         monitor.send_signal(signal.SIGINT)
         out, _ = monitor.communicate(timeout=120)
@@ -150,7 +152,7 @@ def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folde
             "summary": [line for line in out.splitlines() if line.startswith(("ftacq monitor:", "dynamic"))],
             "stderr": err_path.read_text(encoding="utf-8", errors="replace"),
             "cpu_fraction": (cpu_end[0] - cpu_start[0]) / (cpu_end[1] - cpu_start[1]),
-            "skipped_live": skipped}
+            "skipped_live": skipped, "send_errors_live": send_errors}
 
 
 def per_minute(run: dict, static) -> list[str]:
@@ -257,7 +259,9 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
                      f"core (goal < 50 %); the simulated sensor's sender skipped {run['skipped_live']} samples meanwhile "
                      f"(at the source: ft_sequence jumps, not the monitor's losses; its 'lost' below counts RDT "
                      f"sequence gaps, split into the kernel's drops at the monitor's socket, the reader's ring "
-                     f"overflows, and the rest: never reached the socket)")
+                     f"overflows, and the rest: never reached the socket); the sender's sendto failed for "
+                     f"{run['send_errors_live']} datagrams (on loopback a datagram stays charged to the sender's "
+                     f"buffer until the receiver reads it: a monitor not draining its socket fills it)")
         lines += ["  " + line for line in run["summary"]]
         lines += ["  " + line.strip() for line in run["stderr"].splitlines() if "compensation" in line or "receive" in line][:5]
     lines.append(f"wall time {time.monotonic() - started:.0f} s, load average at end {os.getloadavg()[0]:.1f}")
