@@ -106,15 +106,12 @@ def rms(values: np.ndarray) -> float:
 
 
 def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folder: Path, seed: int,
-             keep: Path | None = None, monitor_priority: int = 0) -> dict:
+             keep: Path | None = None) -> dict:
     """Run the monitor and the jog for ``minutes``; return the record, the moves and the monitor's figures."""
     import psutil
 
     cell_toml = folder / "CELL.toml"
-    url = cell.sensor_url
-    if monitor_priority > 0:  # the receive thread at SCHED_FIFO (the URL's own key)
-        url += ("&" if "?" in url else "?") + f"realtime_priority={monitor_priority}"
-    cell_toml.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "UR5e"\n[sensor]\nurl = "{url}"\n',
+    cell_toml.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "UR5e"\n[sensor]\nurl = "{cell.sensor_url}"\n',
                          encoding="utf-8")
     record_path, err_path = folder / "record.csv", folder / "monitor.err"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -201,7 +198,7 @@ def per_minute(run: dict, static) -> list[str]:
 
 
 def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: float, backlog_s: float,
-         seed: int, keep: Path | None = None, sim_priority: int = 0, monitor_priority: int = 0) -> int:
+         seed: int, keep: Path | None = None, sim_priority: int = 0) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
@@ -222,8 +219,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
              f"{sensor_rate_error * 1e6:+.0f} ppm, bursts {clocks.sensor_burst_interval_s * 1e3:g} ms "
              f"(jitter {clocks.sensor_burst_jitter_s * 1e3:g} ms), sensor backlog {backlog_s * 1e3:g} ms, controller "
              f"{clocks.controller_rate_error * 1e6:+.0f} ppm, send jitter {clocks.controller_send_jitter_s * 1e3:g} ms; "
-             f"simulated devices at {f'SCHED_FIFO {sim_priority}' if sim_priority else 'normal priority'}, the "
-             f"monitor's receive thread at {f'SCHED_FIFO {monitor_priority}' if monitor_priority else 'normal priority'}; "
+             f"simulated devices at {f'SCHED_FIFO {sim_priority}' if sim_priority else 'normal priority'}; "
              f"load average at start {os.getloadavg()[0]:.1f}"]
     with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=7000.0, clocks=clocks, sensor_process=True,
                        realtime_priority=sim_priority) as cell, \
@@ -253,7 +249,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
                          f"about the COM; goal ≤ 2 %), mass {1e3 * (dynamic.mass_kg - truth.mass_kg):+.2f} g, lag "
                          f"{1e3 * identified.lag_s:.2f} ms")
             save_calibration(folder / "calibration.json", dynamic)
-            run = live_run(cell, folder / "calibration.json", minutes, every_s, folder, seed, keep, monitor_priority)
+            run = live_run(cell, folder / "calibration.json", minutes, every_s, folder, seed, keep)
         lines += per_minute(run, static)
         lines.append(f"monitor (own process, dynamic, --record at 7 kHz): CPU {100 * run['cpu_fraction']:.1f} % of one "
                      f"core (goal < 50 %); the simulated sensor's sender skipped {run['skipped_live']} samples meanwhile "

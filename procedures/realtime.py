@@ -12,10 +12,9 @@ A PREEMPT_RT kernel runs these threads (and the network card's interrupt threads
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
-
-from drivers.netft.receiver import ask_fifo
 
 SOFTIRQ_THREAD_PREFIX = "ksoftirqd/"
 
@@ -25,7 +24,13 @@ def ask_realtime(priority: int) -> str:
     e.g. ``"SCHED_FIFO 80"`` or ``"normal (SCHED_FIFO 80 refused: Operation not permitted)"``."""
     if priority <= 0:
         return "normal (real-time priority not asked)"
-    return ask_fifo(priority)
+    if not hasattr(os, "sched_setscheduler"):
+        return "normal (no SCHED_FIFO on this system)"
+    try:
+        os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, ValueError) as error:  # EPERM without CAP_SYS_NICE / rtprio limit
+        return f"normal (SCHED_FIFO {priority} refused: {getattr(error, 'strerror', None) or error})"
+    return f"SCHED_FIFO {priority}"
 
 
 def ask_realtime_all_threads(priority: int, tasks: Path = Path("/proc/self/task")) -> str:

@@ -275,9 +275,9 @@ def test_a_reader_that_stops_reading_loses_records_counted_as_lost(physics, smal
 
 def test_url_keys_become_constructor_arguments() -> None:
     assert parse_netft_url("netft://box.local:5000?tcp_port=5001&http_port=8080&rate_hz=500&buffered=yes"
-                           "&buffer_size=20&timeout_s=0.5&status_map=axia&realtime_priority=40") == {
+                           "&buffer_size=20&timeout_s=0.5&status_map=axia") == {
         "host": "box.local", "rdt_port": 5000, "tcp_port": 5001, "http_port": 8080, "rate_hz": 500.0,
-        "buffered": True, "buffer_size": 20, "timeout_s": 0.5, "status_map": "axia", "realtime_priority": 40}
+        "buffered": True, "buffer_size": 20, "timeout_s": 0.5, "status_map": "axia"}
 
 
 def test_the_kernels_drops_at_the_socket_are_read_from_its_table() -> None:
@@ -377,16 +377,6 @@ def test_benchmark_figures_are_available_from_the_driver(fake) -> None:
         assert sensor.receive_buffer_bytes > 0 and sensor.delivered > 0 and sensor.overflowed == 0
         health = sensor.health()
         assert health.socket_drops == health.ring_overflows == 0
-
-
-def test_the_receive_thread_asks_the_priority_the_url_names(fake) -> None:
-    with NetFTSensor.from_url(fake.url + "&realtime_priority=1") as sensor:
-        sensor.read(timeout_s=READ_TIMEOUT_S)
-        scheduling = sensor._receiver.scheduling
-        assert scheduling == "SCHED_FIFO 1" or scheduling.startswith("normal (SCHED_FIFO 1 refused")
-        assert len(sensor.read(timeout_s=READ_TIMEOUT_S)) > 0  # streams either way
-    with NetFTSensor.from_url(fake.url) as sensor:
-        assert sensor._receiver.scheduling == "normal"
 
 
 def test_sensor_urls_from_random_pieces_raise_only_input_errors() -> None:

@@ -12,7 +12,7 @@ docs/protocols-ati.md.
 
 URL: ``netft://HOST[:RDT_PORT][?tcp_port=49151&http_port=80&rate_hz=R&buffered=0&buffer_size=N&timeout_s=T
 &counts_per_force=C&counts_per_torque=C&force_unit=N&torque_unit=N-mm&status_map=auto|netft|axia
-&http_timeout_s=T&tcp_timeout_s=T&accept_any_port=0&realtime_priority=0]``; each key at most once.
+&http_timeout_s=T&tcp_timeout_s=T&accept_any_port=0]``; each key at most once.
 """
 
 from __future__ import annotations
@@ -89,9 +89,6 @@ class NetFTSensor(SensorBase):
         accept_any_port: also accept records from the box's address but another port (a box that does not send
             from its RDT port; by default such datagrams are rejected as ``foreign``).
         reorder_window_s: how long records past a gap wait for late ones, seconds.
-        realtime_priority: SCHED_FIFO priority (1-99) the receive thread asks for, so that other programs on a busy
-            host do not hold it off while the socket's buffer fills (0: normal scheduling; refused without
-            CAP_SYS_NICE or an rtprio limit: said in the log, the stream runs on). docs/hardware.md.
 
     The constructor does no I/O. ``start()`` discovers, opens the socket, starts the receive thread and the
     stream and waits for the first record. ``close()`` sends stop (0x0000) and joins the thread.
@@ -105,8 +102,7 @@ class NetFTSensor(SensorBase):
                  counts_per_force: float | None = None, counts_per_torque: float | None = None,
                  force_unit: str | None = None, torque_unit: str | None = None, status_map: str = "auto",
                  http_timeout_s: float = DEFAULT_HTTP_TIMEOUT_S, tcp_timeout_s: float = DEFAULT_TCP_TIMEOUT_S,
-                 accept_any_port: bool = False, reorder_window_s: float = REORDER_WINDOW_S,
-                 realtime_priority: int = 0) -> None:
+                 accept_any_port: bool = False, reorder_window_s: float = REORDER_WINDOW_S) -> None:
         super().__init__()
         if not host:
             raise InputError(f"Net F/T host is empty; expected {URL_FORM}")
@@ -143,7 +139,6 @@ class NetFTSensor(SensorBase):
         self.requested_timeout_s, self.status_map_setting = timeout_s, status_map
         self.http_timeout_s, self.tcp_timeout_s = http_timeout_s, tcp_timeout_s
         self.accept_any_port = bool(accept_any_port)
-        self.realtime_priority = int(realtime_priority)
         self.scaling: Scaling | None = None
         self.status_map = "netft"
         self.info = SensorInfo(transport="netft", serial="", firmware="", force_unit="", torque_unit="",
@@ -212,7 +207,7 @@ class NetFTSensor(SensorBase):
                          buffer_size=self.requested_buffer_size, status_map=self.status_map_setting)
         self._apply(found)
         receiver = RdtReceiver(self.host, self._address, self._family, self.timeout_s, self._resend,
-                               self.accept_any_port, self.realtime_priority)
+                               self.accept_any_port)
         receiver.open()
         self._receiver = receiver
         self._apply_hold()
@@ -465,7 +460,7 @@ _URL_KEYS: dict[str, Callable[[str], Any]] = {
     "tcp_port": int, "http_port": int, "rate_hz": float, "buffered": _parse_bool, "buffer_size": int,
     "timeout_s": float, "counts_per_force": float, "counts_per_torque": float, "force_unit": str,
     "torque_unit": str, "status_map": str, "http_timeout_s": float, "tcp_timeout_s": float,
-    "accept_any_port": _parse_bool, "realtime_priority": int,
+    "accept_any_port": _parse_bool,
 }
 
 

@@ -95,18 +95,6 @@ def socket_drops(sock: socket.socket, tables: tuple[Path, ...] = UDP_TABLES) -> 
     return None
 
 
-def ask_fifo(priority: int) -> str:
-    """Ask SCHED_FIFO ``priority`` for the calling thread; return ``"SCHED_FIFO N"`` or why it runs normally (also
-    behind procedures/realtime.py's ask_realtime)."""
-    if not hasattr(os, "sched_setscheduler"):
-        return "normal (no SCHED_FIFO on this system)"
-    try:
-        os.sched_setscheduler(threading.get_native_id(), os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, ValueError) as error:  # EPERM without CAP_SYS_NICE / rtprio limit
-        return f"normal (SCHED_FIFO {priority} refused: {getattr(error, 'strerror', None) or error})"
-    return f"SCHED_FIFO {priority}"
-
-
 def local_address_towards(family: int, address: tuple) -> str:
     """The local address of the interface that routes to ``address`` (a connected UDP socket sends nothing)."""
     with socket.socket(family, socket.SOCK_DGRAM) as probe:
@@ -122,19 +110,14 @@ class RdtReceiver:
         timeout_s: silence after which ``resend`` is called (the driver re-sends its start), seconds.
         resend: called from the receive thread to re-send the start command.
         accept_any_port: also accept records from the box's address but another port.
-        realtime_priority: SCHED_FIFO priority the receive thread asks for (0: not asked); the outcome is logged
-            and kept in ``scheduling``.
     """
 
     def __init__(self, host: str, address: tuple, family: int, timeout_s: float, resend: Callable[[], None],
-                 accept_any_port: bool = False, realtime_priority: int = 0) -> None:
+                 accept_any_port: bool = False) -> None:
         self.host, self.address, self.family = host, address, family
         self.timeout_s = timeout_s
         self.coalesce_s = COALESCE_S
         self.accept_any_port = accept_any_port
-        self.realtime_priority = int(realtime_priority)
-        self.scheduling = "normal"
-        """How the receive thread is scheduled: "normal", "SCHED_FIFO N" or "normal (SCHED_FIFO N refused: …)"."""
         self._resend = resend
         self.capacity = RING_RECORDS
         self.slack = SLACK_RECORDS
@@ -228,10 +211,6 @@ class RdtReceiver:
             self.sock.close()
 
     def _run(self) -> None:
-        if self.realtime_priority > 0:
-            self.scheduling = ask_fifo(self.realtime_priority)
-            logger.log(logging.INFO if self.scheduling.startswith("SCHED_FIFO") else logging.WARNING,
-                       "Net F/T %s: receive thread %s", self.host, self.scheduling)
         try:
             self._receive()
         except BaseException as error:  # re-raised by the driver's close(); the loop catches everything expected
