@@ -85,6 +85,11 @@ class ScriptedReceiver:
     def problems(self) -> str:
         return ""
 
+    overflowed = 0
+
+    def socket_drops(self) -> int | None:
+        return None  # no socket
+
 
 def scripted_sensor(cycles: int, seed: int):
     """The real Net F/T driver (drivers/netft/driver.py: sequence tracking, decoding, the sensor contract) reading

@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/dynamics.py [--jog-s 15] [--monitor-s 15]
     .venv/bin/python benchmarks/dynamics.py --live-minutes 5 [--burners 2] [--every-s 20] [--sensor-rate-error 150e-6]
+        [--sim-priority N]
 
 With ``--live-minutes``: the run of issue 27 instead (benchmarks/dynamics_live.py): minutes of ``ftacq monitor``
 with dynamic compensation on a cell whose devices keep their own clocks, a 4.2 kg tool, a separate-process jog,
@@ -94,12 +95,15 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=7, help="with --live-minutes: the jog's seed")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="with --live-minutes: keep the monitor's record, "
                         "its stderr and the jog's moves there")
+    parser.add_argument("--sim-priority", type=int, default=0, metavar="N",
+                        help="with --live-minutes: run the simulated controller and Net F/T sender at SCHED_FIFO N "
+                             "(a real controller and box never stall behind the host's other programs)")
     args = parser.parse_args()
     if args.live_minutes > 0:
         import dynamics_live
 
         return dynamics_live.main(args.live_minutes, args.every_s, args.burners, args.sensor_rate_error,
-                                  args.sensor_backlog_s, args.seed, args.keep)
+                                  args.sensor_backlog_s, args.seed, args.keep, args.sim_priority)
     truth = CellTruth(motion_noise_gain=0.0)
     model = ur_model("UR5e")
     settings = PlanSettings(joint_speed_rad_s=SPEED, joint_acceleration_rad_s2=ACCELERATION)

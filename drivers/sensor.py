@@ -132,6 +132,9 @@ class SensorHealth:
 
     ``lost`` counts samples the device produced that were never delivered; ``gaps`` the losses (one run of
     consecutive lost samples is one gap) and ``longest_gap_s`` the longest host time across one gap, seconds.
+    ``socket_drops``: datagrams the host's kernel dropped at the receive socket (its buffer full: the receive thread
+    was late), where the driver and the system can tell (Net F/T on Linux), else 0; ``ring_overflows``: datagrams
+    the receive thread dropped because the reader fell behind its ring. Both are among ``lost``.
     """
 
     received: int = 0
@@ -148,6 +151,8 @@ class SensorHealth:
     timeouts: int = 0
     restarts: int = 0
     reconnects: int = 0
+    socket_drops: int = 0
+    ring_overflows: int = 0
     last_status: int = 0
     rate_hz: float = 0.0
 

@@ -5,7 +5,7 @@ Per sensor batch (≈ 10 ms, 70 samples at 7 kHz in the monitor; 2 ms, 14 sample
 on the host clock through the device's own sample times (:class:`ftacq.dynamics.clock.SampleClock`: the
 minimum-delay line, docs/dynamics.md "How the clocks are aligned"), shifted by the lag the identification measured, and compensated as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model
 (:class:`ftacq.dynamics.model.WrenchPredictor`, Pinocchio's RNEA) is evaluated once per new 500 Hz robot state from
-:class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring, not recomputed for the next batch) and
+:class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring of :data:`PREDICTION_WINDOW_S`, not recomputed for the next batch) and
 interpolated onto the samples. The acceleration is target_qdd while the arm tracks the controller's trajectory, else
 a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new states only.
 
@@ -28,10 +28,19 @@ from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
 from ftacq.dynamics.clock import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import URModel
-from procedures.flange_orientation import MAX_STATE_GAP_S, FlangeOrientations, pose_rows, still_over
+from procedures.flange_orientation import (
+    DEFAULT_STATE_RATE_HZ,
+    MAX_STATE_GAP_S,
+    FlangeOrientations,
+    pose_rows,
+    still_over,
+)
 
-STATE_WINDOW_ROWS = 64
-"""Newest robot states looked at per batch (128 ms at 500 Hz), and predictions kept."""
+PREDICTION_WINDOW_S = 2.0
+"""How far behind the robot state stream a batch's samples may be and still be compensated dynamically, s: the
+predictions of the newest states over this span are kept (a reader that lags by up to ~1 s under load, e.g. a
+descheduled monitor, still finds the states of its samples' time; 64 rows = 128 ms was too few: beyond that the
+batches fell back to the static model). Memory, not CPU: each prediction is computed once, when its state is new."""
 TAIL_ROWS = 16
 """Newest robot states read per batch when few are new (the bridge: one per controller cycle; the monitor: about
 five per 10 ms batch)."""
@@ -43,17 +52,18 @@ class DynamicCompensator:
     Args: calibration (``has_dynamics``), robot (the arm's model), stream (a started URStateStream, or anything with
     its ``window(last=…)``), lag_s (the sensor's lag behind the robot stream; default the one the identification
     measured), clock (the samples' :class:`~ftacq.dynamics.clock.SampleClock`, shared with the monitor or the
-    bridge so that each batch is observed once; default its own).
+    bridge so that each batch is observed once; default its own), window_s (how far back predictions are kept, s;
+    default :data:`PREDICTION_WINDOW_S`).
 
-    Per batch it reads the newest :data:`TAIL_ROWS` states (all :data:`STATE_WINDOW_ROWS` when the new ones reach
+    Per batch it reads the newest :data:`TAIL_ROWS` states (all ``window_rows`` when the new ones reach
     into their first :data:`~ftacq.dynamics.acceleration.DERIVATIVE_HALF_WIDTH`: the derivative needs that many
     older neighbours), takes q̈ for the new states only, runs the model once per new state
-    (:class:`ftacq.dynamics.model.WrenchPredictor`) and keeps the newest :data:`STATE_WINDOW_ROWS` predictions in a
-    ring. The result equals evaluating the whole window each batch and keeping the new rows.
+    (:class:`ftacq.dynamics.model.WrenchPredictor`) and keeps the newest ``window_s`` of predictions in a ring (one
+    slice of it is interpolated per batch: a binary search, so the ring's size costs memory, not time). The result equals evaluating the whole window each batch and keeping the new rows.
     """
 
     def __init__(self, calibration: Calibration, robot: URModel, stream, lag_s: float | None = None,
-                 clock: SampleClock | None = None) -> None:
+                 clock: SampleClock | None = None, window_s: float = PREDICTION_WINDOW_S) -> None:
         if not calibration.has_dynamics:
             raise ValueError("the calibration has no inertia: use the static GravityCompensator")
         self.calibration = calibration
@@ -66,10 +76,14 @@ class DynamicCompensator:
         self.clock = clock if clock is not None else SampleClock()
         self.orientations = FlangeOrientations(robot, stream)
         """The static fallback's flange orientation at the samples' time (slerp between the states around them)."""
-        # the newest STATE_WINDOW_ROWS predictions, written twice (at k and k + rows) so that they are always one
+        rate_hz = float(getattr(stream, "frequency_hz", None) or DEFAULT_STATE_RATE_HZ)
+        self.window_rows = max(int(round(window_s * rate_hz)), 2 * TAIL_ROWS)
+        """Predictions kept (``window_s`` at the stream's rate: 1000 at 500 Hz), and robot states read at once
+        after a stall."""
+        # the newest window_rows predictions, written twice (at k and k + rows) so that they are always one
         # contiguous slice, oldest first
-        self._ring_times = np.empty(2 * STATE_WINDOW_ROWS)
-        self._ring_predicted = np.empty((2 * STATE_WINDOW_ROWS, 6))
+        self._ring_times = np.empty(2 * self.window_rows)
+        self._ring_predicted = np.empty((2 * self.window_rows, 6))
         self._predictions = 0
         self._last_controller_time = -np.inf
         self.static_batches = 0
@@ -83,10 +97,10 @@ class DynamicCompensator:
         self.derivative_states = 0
 
     def _kept(self) -> tuple[np.ndarray, np.ndarray]:
-        """(host times (K,), predicted wrenches (K, 6)) of the newest K ≤ STATE_WINDOW_ROWS states, oldest first."""
-        count = self._predictions
-        start = count % STATE_WINDOW_ROWS if count >= STATE_WINDOW_ROWS else 0
-        stop = start + min(count, STATE_WINDOW_ROWS)
+        """(host times (K,), predicted wrenches (K, 6)) of the newest K ≤ window_rows states, oldest first."""
+        count, rows = self._predictions, self.window_rows
+        start = count % rows if count >= rows else 0
+        stop = start + min(count, rows)
         return self._ring_times[start:stop], self._ring_predicted[start:stop]
 
     def _update_predictions(self) -> None:
@@ -101,7 +115,7 @@ class DynamicCompensator:
             rows: list[int] = list(range(first, size))  # the usual case: the newest few states are the new ones
             low = max(first - DERIVATIVE_HALF_WIDTH, 0)
         else:  # many new states (the first batch, a stall): the whole window, as before
-            window = self.stream.window(last=STATE_WINDOW_ROWS)
+            window = self.stream.window(last=self.window_rows)
             new = window.controller_time_s > self._last_controller_time
             rows = np.flatnonzero(new).tolist()
             size = len(window)
@@ -113,11 +127,12 @@ class DynamicCompensator:
         self.derivative_states += len(rows) - int(np.count_nonzero(tracking[[row - low for row in rows]]))
         q, qd, time_s = window.q, window.qd, window.time_s
         ring_times, ring_predicted, predict = self._ring_times, self._ring_predicted, self.predictor.predict_one
+        kept = self.window_rows
         for row in rows:
-            slot = self._predictions % STATE_WINDOW_ROWS
+            slot = self._predictions % kept
             predict(q[row], qd[row], qdd[row - low], ring_predicted[slot])
-            ring_predicted[slot + STATE_WINDOW_ROWS] = ring_predicted[slot]
-            ring_times[slot] = ring_times[slot + STATE_WINDOW_ROWS] = time_s[row]
+            ring_predicted[slot + kept] = ring_predicted[slot]
+            ring_times[slot] = ring_times[slot + kept] = time_s[row]
             self._predictions += 1
         self._last_controller_time = float(window.controller_time_s[-1])
 

@@ -126,7 +126,9 @@ class MonitorSummary:
         batches: sensor reads that returned samples.
         compensated_samples: samples compensated (0 without a compensator or a robot).
         first_sample_s, last_sample_s: receive times of the first and last sample (host monotonic clock, s).
-        lost: samples the sensor stream lost (driver health, since the driver started).
+        lost: samples the sensor stream lost (driver health, since the driver started); of which socket_drops
+            (datagrams the kernel dropped at the receive socket: this host was late) and ring_overflows (the reader
+            fell behind the driver's ring). The rest never reached this host's socket (the sender or the link).
         driver_rate_hz: the sample rate the driver measured at the end of the run.
         timeouts: reads that timed out.
         dropped_batches, dropped_samples: not delivered to the listeners (queue full, or every listener failed);
@@ -144,6 +146,8 @@ class MonitorSummary:
     first_sample_s: float | None = None
     last_sample_s: float | None = None
     lost: int = 0
+    socket_drops: int = 0
+    ring_overflows: int = 0
     driver_rate_hz: float = 0.0
     timeouts: int = 0
     dropped_batches: int = 0
@@ -357,6 +361,7 @@ class LiveMonitor:
             try:
                 health = self.sensor.health()
                 summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
+                summary.socket_drops, summary.ring_overflows = int(health.socket_drops), int(health.ring_overflows)
                 if summary.last_sample_s is not None:
                     publisher(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
             except FtacqError:

@@ -22,21 +22,22 @@ from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import ur_model
 from procedures.bridge import CycleStates
 from ftacq.kinematics import FlangeRotation
-from procedures.dynamic_compensation import MAX_STATE_GAP_S, STATE_WINDOW_ROWS, DynamicCompensator
+from procedures.dynamic_compensation import MAX_STATE_GAP_S, PREDICTION_WINDOW_S, DynamicCompensator
 from tests.fakes.world import CellTruth
 
 pytest.importorskip("pinocchio")
 MODEL = ur_model("UR5e")
 
 
-def cycles(count: int, seed: int):
-    """Controller cycles of a smooth motion; target q̇ leaves actual q̇ (the derivative path) now and then."""
+def cycles(count: int, seed: int, departs: bool = True):
+    """Controller cycles of a smooth motion; target q̇ leaves actual q̇ (the derivative path) now and then (when
+    ``departs``; else the arm tracks throughout and q̈ is target q̈)."""
     rng = np.random.default_rng(seed)
     t = np.arange(count) * 0.002
     phase = 2 * np.pi * t[:, None] / np.array([1.7, 1.3, 1.9, 0.9, 0.7, 1.1])
     q = np.array([0.1, -1.2, 1.0, -1.4, -1.6, 0.2]) + 0.6 * np.sin(phase)
     qd = 0.6 * np.cos(phase) * 2 * np.pi / np.array([1.7, 1.3, 1.9, 0.9, 0.7, 1.1]) + rng.normal(0, 1e-4, (count, 6))
-    off = (np.mod(t, 0.5) < 0.05)[:, None]
+    off = (np.mod(t, 0.5) < 0.05)[:, None] & departs
     received = 80.0 + t + rng.uniform(1e-4, 4e-4, count)
     for k in range(count):
         yield ControllerCycle(timestamp_s=float(t[k]), q=q[k], qd=qd[k], tcp_force=np.zeros(6), runtime_state=2,
@@ -46,14 +47,15 @@ def cycles(count: int, seed: int):
 
 def plain_compensation(compensator: DynamicCompensator, states: CycleStates, batch, kept: dict) -> np.ndarray | None:
     """What the compensator computed before: the whole window's q̈ each batch, the model for the new states,
-    the newest STATE_WINDOW_ROWS predictions kept by concatenation."""
-    window = states.window(last=STATE_WINDOW_ROWS)
+    the newest window_rows predictions kept by concatenation."""
+    rows = compensator.window_rows
+    window = states.window(last=rows)
     new = window.controller_time_s > kept["last"]
     if np.any(new):
         qdd, _ = joint_acceleration(window.time_s, window.qd, window.target_qd, window.qdd)
         predicted = compensator.predictor(window.q[new], window.qd[new], qdd[new])
-        kept["times"] = np.concatenate([kept["times"], window.time_s[new]])[-STATE_WINDOW_ROWS:]
-        kept["predicted"] = np.vstack([kept["predicted"], predicted])[-STATE_WINDOW_ROWS:]
+        kept["times"] = np.concatenate([kept["times"], window.time_s[new]])[-rows:]
+        kept["predicted"] = np.vstack([kept["predicted"], predicted])[-rows:]
         kept["last"] = float(window.controller_time_s[-1])
     times = batch.time_s - compensator.lag_s
     if kept["times"].size >= 2 and times[0] >= kept["times"][0] and times[-1] <= kept["times"][-1] + 0.05:
@@ -66,7 +68,7 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
     calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
     states = CycleStates()
     # a sensor without a sample clock (NaN device times): the batch keeps its receive times
-    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0012)
+    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0012, window_s=0.128)
     kept = {"times": np.empty(0), "predicted": np.empty((0, 6)), "last": -np.inf}
     rng = np.random.default_rng(6)
     compared = 0
@@ -85,7 +87,7 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
         expected = plain_compensation(compensator, states, batch, kept)
         if expected is None:  # the first cycles (fewer than two states): static, with the pose at the samples' time,
             # or none for samples older than the first state
-            first_state_s = float(states.window(last=STATE_WINDOW_ROWS).time_s[0])
+            first_state_s = float(states.window(last=compensator.window_rows).time_s[0])
             assert (got is None) == (k == 700 or batch.time_s[0] - compensator.lag_s < first_state_s)
             continue
         compared += 1
@@ -99,14 +101,14 @@ def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_sam
     truth = CellTruth()
     calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
     states = CycleStates()  # 0.5 s of controller cycles kept
-    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0)
+    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0, window_s=0.128)
     flange = FlangeRotation(MODEL)
     all_cycles = list(cycles(200, seed=3))
     for cycle in all_cycles:
         states.append(cycle)
     window = states.window(last=200)
     wrench = np.random.default_rng(1).normal(size=(14, 6))
-    # the reader fell behind: a batch 0.3 s old, older than the STATE_WINDOW_ROWS predictions (0.128 s) but within
+    # the reader fell behind: a batch 0.3 s old, older than the predictions kept (window_s 0.128 s) but within
     # the states kept, while the arm moves fast (the newest pose would be off by tenths of a radian)
     at = np.sort(window.time_s[40] + np.random.default_rng(2).uniform(0.0, 0.003, 14))
     batch = SimpleNamespace(time_s=at, device_time_s=np.full(14, np.nan), wrench=wrench)
@@ -127,3 +129,37 @@ def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_sam
     # a gap in the stream inside the batch's span counts too
     assert compensator.compensate(SimpleNamespace(time_s=window.time_s[0] - 0.2 + np.arange(3) * 0.1,
                                                   device_time_s=np.full(3, np.nan), wrench=wrench[:3]), None) is None
+
+
+def test_a_reader_a_second_behind_the_states_is_still_compensated_dynamically():
+    """The monitor descheduled for ~1 s on a loaded machine: its batches are that old when it reads them. With the
+    default ring (PREDICTION_WINDOW_S) they still find the predictions of their samples' time, and get what a reader
+    on time got; with the old 128 ms ring they fell back to the static model."""
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    states, prompt_states = CycleStates(capacity=2048), CycleStates(capacity=2048)
+    lagging = DynamicCompensator(calibration, MODEL, states, lag_s=0.0)
+    prompt = DynamicCompensator(calibration, MODEL, prompt_states, lag_s=0.0)
+    assert lagging.window_rows * 0.002 >= PREDICTION_WINDOW_S - 0.002
+    rng = np.random.default_rng(4)
+    batches = []
+    for k, cycle in enumerate(cycles(1200, seed=5, departs=False)):
+        states.append(cycle)
+        prompt_states.append(cycle)
+        if k >= 20 and k % 5 == 0:  # a 10 ms batch of samples up to the newest state, read at once by `prompt`
+            newest_s = float(states.window(last=1).time_s[-1])
+            batch = SimpleNamespace(time_s=newest_s - np.sort(rng.uniform(0.0, 0.009, 70)),
+                                    device_time_s=np.full(70, np.nan), wrench=rng.normal(size=(70, 6)))
+            batch.time_s.sort()
+            batches.append((batch, prompt.compensate(batch, None)))
+    # `lagging` read nothing for the last 1.0 s (500 states): it reads those batches now, in order
+    late = [(batch, expected) for batch, expected in batches if batch.time_s[0] > states.window(last=500).time_s[0]]
+    assert len(late) >= 90
+    for batch, expected in late:
+        got = lagging.compensate(batch, None)
+        assert got is not None and expected is not None
+        # (to 1 mN, not 1e-12: read at once, the newest states' q̈ had fewer newer neighbours than read late)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-3)
+    assert lagging.static_batches == 0 and lagging.uncompensated_batches == 0
+    assert lagging.dynamic_batches == len(late) and prompt.static_batches <= 1
+

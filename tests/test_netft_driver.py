@@ -280,6 +280,36 @@ def test_url_keys_become_constructor_arguments() -> None:
         "buffered": True, "buffer_size": 20, "timeout_s": 0.5, "status_map": "axia"}
 
 
+def test_the_kernels_drops_at_the_socket_are_read_from_its_table() -> None:
+    """Datagrams sent into a socket nobody drains: what its (small) buffer cannot hold the kernel drops and counts;
+    received + dropped = sent (loopback delivers in the sender's call)."""
+    import socket
+
+    from drivers.netft.receiver import socket_drops
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as receiving, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sending:
+        receiving.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        receiving.bind(("127.0.0.1", 0))
+        if socket_drops(receiving) is None:
+            pytest.skip("this system does not report per-socket drops (/proc/self/net/udp)")
+        assert socket_drops(receiving) == 0
+        sent = 500
+        for k in range(sent):
+            sending.sendto(k.to_bytes(4, "little") * 9, receiving.getsockname())
+        receiving.setblocking(False)
+        received = 0
+        while True:
+            try:
+                receiving.recv(64)
+            except BlockingIOError:
+                break
+            received += 1
+        dropped = socket_drops(receiving)
+        assert dropped is not None and dropped > 0 and received + dropped == sent
+        assert socket_drops(receiving, tables=()) is None  # no table: not known, not zero
+
+
 def test_records_from_another_port_are_rejected_unless_allowed(physics) -> None:
     with make_fake(physics, send_from_other_socket=True) as device:
         with pytest.raises(DeviceError, match=r"foreign.*accept_any_port=1"):
@@ -345,6 +375,8 @@ def test_benchmark_figures_are_available_from_the_driver(fake) -> None:
     with NetFTSensor.from_url(fake.url) as sensor:
         sensor.read(timeout_s=READ_TIMEOUT_S)
         assert sensor.receive_buffer_bytes > 0 and sensor.delivered > 0 and sensor.overflowed == 0
+        health = sensor.health()
+        assert health.socket_drops == health.ring_overflows == 0
 
 
 def test_sensor_urls_from_random_pieces_raise_only_input_errors() -> None:

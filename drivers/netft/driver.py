@@ -316,7 +316,8 @@ class NetFTSensor(SensorBase):
     def health(self) -> SensorHealth:
         """Return a snapshot: received (well-formed records), lost, gaps, longest_gap_s, duplicate, out_of_order,
         stalled, restarts, saturated (saturation bits), status_errors (any error bit), malformed, foreign (other
-        senders), timeouts, reconnects, last_status and the measured rate_hz."""
+        senders), timeouts, reconnects, socket_drops (the kernel's, at the socket), ring_overflows, last_status and the
+        measured rate_hz."""
         if self._started and not self._closed:
             self._decode()
         with self._decode_lock:
@@ -325,6 +326,7 @@ class NetFTSensor(SensorBase):
             rx = self._receiver.counters
             snapshot.malformed, snapshot.foreign = rx.malformed, rx.foreign
             snapshot.timeouts, snapshot.reconnects = rx.timeouts, rx.reconnects
+            snapshot.socket_drops, snapshot.ring_overflows = self._receiver.socket_drops() or 0, self._receiver.overflowed
         return snapshot
 
     @property

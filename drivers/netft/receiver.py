@@ -9,17 +9,21 @@ from the box's address and RDT port (others: ``foreign``); a datagram whose leng
 36 is ``malformed``. Silence longer than the stream timeout is a ``timeout``, and the start command is re-sent
 (``reconnects``) on the schedule of :func:`next_retry_interval_s`. The reader side (:meth:`RdtReceiver.take`)
 copies whole runs of records out of the ring; records the reader did not take before the ring filled are dropped
-whole datagram by datagram (``overflowed``) and show up as sequence gaps.
+whole datagram by datagram (``overflowed``) and show up as sequence gaps, as do the datagrams the kernel dropped
+because the socket's buffer was full (:func:`socket_drops`, from /proc on Linux): the two losses this side of the
+wire. A sample the box itself skipped (``ft_sequence`` jumps, ``rdt_sequence`` does not) is neither.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import select
 import socket
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -37,6 +41,8 @@ SLACK_RECORDS = -(-MAX_DATAGRAM_BYTES // RECORD_SIZE)
 RECEIVE_BUFFER_BYTES = 8 << 20
 """Requested SO_RCVBUF (the kernel caps it at net.core.rmem_max; SO_RCVBUFFORCE, tried first, needs
 CAP_NET_ADMIN)."""
+UDP_TABLES = (Path("/proc/self/net/udp"), Path("/proc/self/net/udp6"))
+"""Linux's tables of this process's UDP sockets, whose last column counts each socket's dropped datagrams."""
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
 """Linux's SO_RCVBUFFORCE (33; Python's socket module does not name it)."""
 POLL_S = 0.05
@@ -64,6 +70,29 @@ def next_retry_interval_s(previous_s: float, silent_for_s: float) -> float:
     while the silence is recent (a box restarting or a link hiccup), at most BACKOFF_MAX_S after that."""
     cap = BACKOFF_RESTARTING_MAX_S if silent_for_s < UNREACHABLE_AFTER_S else BACKOFF_MAX_S
     return min(max(previous_s, BACKOFF_INITIAL_S / 2.0) * 2.0, cap)
+
+
+def socket_drops(sock: socket.socket, tables: tuple[Path, ...] = UDP_TABLES) -> int | None:
+    """Datagrams the kernel dropped at ``sock`` because its receive buffer was full (the receive thread did not
+    drain it in time), from the ``drops`` column of Linux's /proc/net/udp(6) (the socket found by its inode);
+    None where the system does not say. Read on demand (a diagnostic), never per datagram."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+    except OSError:
+        return None
+    for table in tables:
+        try:
+            lines = table.read_text(encoding="ascii", errors="replace").splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            if len(fields) >= 13 and fields[9] == inode:
+                try:
+                    return int(fields[-1])
+                except ValueError:
+                    return None
+    return None
 
 
 def local_address_towards(family: int, address: tuple) -> str:
@@ -127,6 +156,13 @@ class RdtReceiver:
                 except OSError:
                     continue
             self.receive_buffer_bytes = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+            # Linux reports twice the payload it accounts (its bookkeeping included); under RECEIVE_BUFFER_BYTES the
+            # request was capped by net.core.rmem_max (no CAP_NET_ADMIN for SO_RCVBUFFORCE)
+            capped = self.receive_buffer_bytes < RECEIVE_BUFFER_BYTES
+            logger.log(logging.WARNING if capped else logging.INFO,
+                       "Net F/T %s: UDP receive buffer %d kB granted (%d kB asked)%s", self.host,
+                       self.receive_buffer_bytes >> 10, RECEIVE_BUFFER_BYTES >> 10,
+                       "; raise it with 'sysctl -w net.core.rmem_max=8388608' (docs/hardware.md)" if capped else "")
             try:
                 local = local_address_towards(self.family, self.address)
             except OSError:  # no route yet: any interface (the sender filter still applies)
@@ -300,6 +336,10 @@ class RdtReceiver:
                     self.data_ready.wait(max(timeout_s, 0.0))
             finally:
                 self.waiters -= 1
+
+    def socket_drops(self) -> int | None:
+        """Datagrams the kernel dropped at this socket (its buffer full); None where the system does not say."""
+        return socket_drops(self.sock) if self.sock is not None else None
 
     def problems(self) -> str:
         """``; datagrams rejected: …`` when some were, else ""."""

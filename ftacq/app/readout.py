@@ -85,7 +85,9 @@ def format_summary(summary) -> str:
     """Return the run's last line from a :class:`procedures.monitor.MonitorSummary`: samples / seconds = rate,
     all three on the samples' receive clock."""
     text = (f"ftacq monitor: {summary.samples} samples received over {summary.span_s:.4f} s "
-            f"(first to last sample, host monotonic clock) = {summary.rate_hz:.0f} Hz; {summary.lost} lost, "
+            f"(first to last sample, host monotonic clock) = {summary.rate_hz:.0f} Hz; {summary.lost} lost "
+            f"({getattr(summary, 'socket_drops', 0)} dropped at this host's socket, "
+            f"{getattr(summary, 'ring_overflows', 0)} by the reader falling behind), "
             f"{summary.timeouts} read timeouts, {summary.dropped_samples} dropped for the viewer")
     if summary.listener_error:
         text += f", dashboard failed: {summary.listener_error}"
