@@ -21,12 +21,13 @@ import sys
 import time
 from pathlib import Path
 
+from tests.fakes.child_process import end_process
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 READY_TIMEOUT_S = 20.0
 """How long the process may take to import and bind, s."""
 REPLY_TIMEOUT_S = 5.0
 """How long a ``stats`` answer may take, s."""
-STOP_TIMEOUT_S = 5.0
 
 
 class NetFTProcess:
@@ -104,15 +105,7 @@ class NetFTProcess:
             process.stdin.close()
         except OSError:
             pass
-        try:
-            process.wait(timeout=STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            process.terminate()
-            try:
-                process.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=STOP_TIMEOUT_S)
+        end_process(process)
         for stream in (process.stdout, process.stderr):
             if stream is not None:
                 stream.close()

@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from ftacq.errors import DeviceError
+from tests.fakes.child_process import STOP_TIMEOUT_S, end_process
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 READY_TIMEOUT_S = 20.0
-STOP_TIMEOUT_S = 5.0
 CONTROL_TIMEOUT_S = 5.0
 MAX_BIND_ATTEMPTS = 12
 
@@ -141,15 +141,7 @@ class URControllerProcess:
                     self.control("quit")
                 except (OSError, DeviceError):
                     pass
-                try:
-                    process.wait(timeout=STOP_TIMEOUT_S)
-                except subprocess.TimeoutExpired:
-                    process.terminate()
-                    try:
-                        process.wait(timeout=STOP_TIMEOUT_S)
-                    except subprocess.TimeoutExpired:
-                        process.kill()
-                        process.wait()
+                end_process(process)
         finally:
             if self._control_sock is not None:
                 self._control_sock.close()
