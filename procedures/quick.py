@@ -4,8 +4,8 @@ path, then run and recorded as one continuous motion (``ftacq calibrate --quick`
 Design (:func:`design_quick`). The waypoints come from the full run's checked pose plan (:func:`procedures.plan.make_plan`):
 its 24 special orientations (set A) put gravity along ±x, ±y, ±z of the flange, four spins each, all reachable
 and collision-free from this cell's centre. A candidate trajectory is one A pose per gravity direction (a random
-spin; optionally a few more), in nearest-neighbour order from the robot's configuration, with a short hold at
-each (a candidate hold length), then :data:`VALIDATION_HOLDS` poses of the plan's validation set (V) held still
+spin; optionally a few more), in nearest-neighbour order from the robot's configuration, with a still hold at
+each (lengths shared out below), then :data:`VALIDATION_HOLDS` poses of the plan's validation set (V) held still
 and never fitted. Between waypoints the arm moves by moveJ at the CELL.toml joint speed and acceleration (the
 wrist turns fast: that is what shows the inertia). Each candidate is sampled at :data:`DESIGN_RATE_HZ` and scored
 by log det of the Fisher information JᵀWJ of all 21 parameters of :mod:`ftacq.dynamics.joint` and the streams'
