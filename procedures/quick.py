@@ -4,8 +4,8 @@ path, then run and recorded as one continuous motion (``ftacq calibrate --quick`
 Design (:func:`design_quick`). The waypoints come from the full run's checked pose plan (:func:`procedures.plan.make_plan`):
 its 24 special orientations (set A) put gravity along ±x, ±y, ±z of the flange, four spins each, all reachable
 and collision-free from this cell's centre. A candidate trajectory is one A pose per gravity direction (a random
-spin; optionally a few more), in nearest-neighbour order from the robot's configuration, with a short hold at
-each (a candidate hold length), then :data:`VALIDATION_HOLDS` poses of the plan's validation set (V) held still
+spin; optionally a few more), in nearest-neighbour order from the robot's configuration, with a still hold at
+each (lengths shared out below), then :data:`VALIDATION_HOLDS` poses of the plan's validation set (V) held still
 and never fitted. Between waypoints the arm moves by moveJ at the CELL.toml joint speed and acceleration (the
 wrist turns fast: that is what shows the inertia). Each candidate is sampled at :data:`DESIGN_RATE_HZ` and scored
 by log det of the Fisher information JᵀWJ of all 21 parameters of :mod:`ftacq.dynamics.joint` and the streams'
@@ -13,8 +13,16 @@ lag (22 columns: the lag is fitted too, and a trajectory that cannot tell it fro
 nominal tool
 (the CELL.toml cylinder, 1 kg), W the noise model (at rest the sensor's noise; while moving it grows by
 :data:`MOTION_NOISE_PER_RAD_S` per rad/s of joint speed, as the fit's speed groups measure). D-optimality is
-invariant to the parameters' units, so no scaling has to be chosen. The best candidate within
-:data:`DEFAULT_BUDGET_S` of motion is kept.
+invariant to the parameters' units, so no scaling has to be chosen.
+
+Which candidate is run: the one whose predicted 1σ is smallest relative to the full run's, at its worst
+parameter (:func:`predicted_sigmas`: the inverse of that information, rotation, tilt, mass, mass moment, force and
+torque biases; the full run's from the same pose plan's fitted poses, each averaged still for
+``sampling.average_time_s``, the same noise model). So the design answers the question the quick run is judged by
+(is it as precise as the full run?) and spends the budget where the weakest parameter gains: the still holds,
+whose rows carry the sensor's bare noise (no motion noise, no timing error) with gravity along a flange axis,
+carry the biases, the mass, the rotation and the tilt; the moves between them carry the inertia and the lag.
+Among the candidates within :data:`DEFAULT_BUDGET_S` of motion the lowest worst ratio is kept (ties: log det).
 
 Recording (:func:`record_quick`) reuses the excitation stage's recorder (procedures/excitation.py: the sensor in
 its own thread, every robot state; the sensor's times from its own sample counter, the robot's from the
@@ -26,21 +34,28 @@ from __future__ import annotations
 
 import json
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ftacq.dynamics.identify import MotionRecord
+from ftacq.dynamics.joint import LINEAR, NONLINEAR
 from ftacq.errors import PlanError
 
 log = logging.getLogger(__name__)
 
-DEFAULT_BUDGET_S = 52.0
-"""Longest motion (moves and holds, validation included) a design may take, s (the wall-time goal is 90 s)."""
-CANDIDATES = 24
+DEFAULT_BUDGET_S = 66.0
+"""Longest motion (moves and holds, validation included) a design may take, s: with the plan (~1-2 s), the
+identification (~4-5 s) and what a loaded computer adds to the moves (~4 s), about 76 s of the 90 s wall-time goal."""
+CANDIDATES = 32
 """Candidate trajectories scored per design."""
-HOLD_CHOICES_S = (0.0, 0.4, 0.8)
-"""Hold lengths at the fitted waypoints a design chooses between, s."""
+MIN_HOLD_S = 0.4
+"""Every fitted waypoint is held at least this long, s (a moveJ's end settles; the rest of the budget is shared
+out by :data:`HOLD_QUANTUM_S`)."""
+HOLD_QUANTUM_S = 0.4
+"""The budget left after the moves is given to the holds in steps of this, s, each step to the waypoint where it
+lowers the worst predicted 1σ ratio most (a hold's second is worth about four seconds of motion for the static
+parameters: the motion noise is ×(1 + 2 s/rad · speed))."""
 EXTRA_WAYPOINTS = (0, 1, 2)
 """Waypoints beyond one per gravity direction a candidate may add."""
 TOUR_CHOICES = 2
@@ -55,6 +70,10 @@ MOTION_NOISE_PER_RAD_S = 2.0
 NOMINAL_NOISE = np.array([0.05, 0.05, 0.08, 0.002, 0.002, 0.0015])
 """1σ of one sample at rest per channel (N, N·m), a Net F/T's typical figure, for the design only."""
 FIT, VALIDATE = "fit", "validate"
+SIGMA_GROUPS = {"rotation": (0, 1, 2), "tilt": (3, 4), "mass": (5,), "mass moment": (6, 7, 8),
+                "force bias": (15, 16, 17), "torque bias": (18, 19, 20)}
+"""The parameters both runs report, as columns of the fit's (θ, x) vector (:mod:`ftacq.dynamics.joint`); a group's
+1σ is the root sum of squares of its columns' (the benchmark's too)."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +93,8 @@ class QuickPlan:
     information_logdet: float
     candidates: int
     seed: int = 0
+    predicted_sigma_ratio: dict[str, float] = field(default_factory=dict)
+    """Per :data:`SIGMA_GROUPS` entry: the design's predicted 1σ over the full run's (the choice's criterion)."""
 
     def to_json(self) -> str:
         return json.dumps({"start_q_rad": self.start_q_rad.tolist(), "waypoints_rad": self.waypoints_rad.tolist(),
@@ -83,7 +104,7 @@ class QuickPlan:
                            "acceleration_rad_s2": self.acceleration_rad_s2,
                            "estimated_duration_s": self.estimated_duration_s,
                            "information_logdet": self.information_logdet, "candidates": self.candidates,
-                           "seed": self.seed})
+                           "seed": self.seed, "predicted_sigma_ratio": self.predicted_sigma_ratio})
 
     @staticmethod
     def from_json(text: str) -> "QuickPlan":
@@ -91,7 +112,8 @@ class QuickPlan:
         return QuickPlan(np.array(d["start_q_rad"]), np.array(d["waypoints_rad"]), np.array(d["hold_s"]),
                          tuple(d["purposes"]), tuple(d["labels"]), float(d["speed_rad_s"]),
                          float(d["acceleration_rad_s2"]), float(d["estimated_duration_s"]),
-                         float(d["information_logdet"]), int(d["candidates"]), int(d.get("seed", 0)))
+                         float(d["information_logdet"]), int(d["candidates"]), int(d.get("seed", 0)),
+                         {str(k): float(v) for k, v in d.get("predicted_sigma_ratio", {}).items()})
 
 
 def move_profile(q_from: np.ndarray, q_to: np.ndarray, speed: float, acceleration: float,
@@ -153,10 +175,13 @@ def nominal_tool(settings) -> tuple[float, np.ndarray, np.ndarray]:
     return mass, np.array([0.0, 0.0, 0.5 * length]), np.diag([lateral, lateral, 0.5 * mass * r * r])
 
 
-def information_logdet(settings, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
-    """log det of the Fisher information of all 21 parameters and the streams' lag (:mod:`ftacq.dynamics.joint`)
-    over these states at times ``t`` (s)."""
-    from ftacq.dynamics.joint import LINEAR, NONLINEAR, JointModel
+def information(settings, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                lag: bool = True) -> np.ndarray:
+    """The Fisher information JᵀWJ (22, 22) of the 21 parameters of :mod:`ftacq.dynamics.joint` and the streams'
+    lag (the last; left out, (21, 21), with ``lag=False``) over these states at times ``t`` (s), at the nominal
+    tool, W from :data:`NOMINAL_NOISE` grown by :data:`MOTION_NOISE_PER_RAD_S` while moving. Rows are states at
+    the rate of ``t``: only ratios between designs sampled at the same rate mean something."""
+    from ftacq.dynamics.joint import JointModel
     from ftacq.dynamics.model import inertial_parameters
     from ftacq.mounts import mount_of
 
@@ -164,13 +189,42 @@ def information_logdet(settings, t: np.ndarray, q: np.ndarray, qd: np.ndarray, q
     model = JointModel(settings.ur, np.zeros(3), q, qd, qdd, np.eye(3), np.array(mount_of(settings.mount).down_base))
     x = np.concatenate([inertial_parameters(mass, com, inertia), np.zeros(6)])
     sigma = NOMINAL_NOISE[None, :] * (1.0 + MOTION_NOISE_PER_RAD_S * np.max(np.abs(qd), axis=1))[:, None]
-    weights = 1.0 / sigma
     a, jacobian = model.design(x)
-    lag = -np.gradient(a @ x, t, axis=0)
-    jacobian = np.concatenate([jacobian, lag[:, :, None]], axis=2) * weights[:, :, None]
-    jacobian = jacobian.reshape(-1, NONLINEAR + LINEAR + 1)
-    sign, logdet = np.linalg.slogdet(jacobian.T @ jacobian)
+    if lag:
+        jacobian = np.concatenate([jacobian, -np.gradient(a @ x, t, axis=0)[:, :, None]], axis=2)
+    jacobian = (jacobian / sigma[:, :, None]).reshape(-1, jacobian.shape[2])
+    return jacobian.T @ jacobian
+
+
+def information_logdet(settings, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> float:
+    """log det of :func:`information` (all 21 parameters and the lag)."""
+    sign, logdet = np.linalg.slogdet(information(settings, t, q, qd, qdd))
     return float(logdet) if sign > 0 else -np.inf
+
+
+def predicted_sigmas(fisher: np.ndarray, columns: list[int] | None = None) -> dict[str, float]:
+    """Per :data:`SIGMA_GROUPS` entry, the 1σ the information ``fisher`` predicts (its inverse; ``columns``: which
+    parameter each of its rows is, default all 22 in order). inf when singular."""
+    columns = list(range(fisher.shape[0])) if columns is None else columns
+    try:
+        covariance = np.linalg.inv(fisher)
+    except np.linalg.LinAlgError:
+        return {name: np.inf for name in SIGMA_GROUPS}
+    diagonal = dict(zip(columns, np.diag(covariance)))
+    return {name: float(np.sqrt(max(sum(diagonal[c] for c in cols), 0.0))) for name, cols in SIGMA_GROUPS.items()}
+
+
+def full_run_sigmas(settings, pose_plan) -> dict[str, float]:
+    """The full run's predicted 1σ per :data:`SIGMA_GROUPS` entry: its fitted poses (sets A and E) each averaged
+    still for ``sampling.average_time_s`` at :data:`DESIGN_RATE_HZ` (the static model: the inertia and the lag are
+    not seen, so left out)."""
+    fitted = [i for i, name in enumerate(pose_plan.set_names) if name in ("A", "E")]
+    rows = max(int(round(float(settings.average_time_s) * DESIGN_RATE_HZ)), 1)
+    q = np.repeat(np.asarray(pose_plan.joint_targets_rad)[fitted], rows, axis=0)
+    still = np.zeros_like(q)
+    fisher = information(settings, np.arange(len(q)) / DESIGN_RATE_HZ, q, still, still, lag=False)
+    static = [c for c in range(fisher.shape[0]) if not NONLINEAR + 4 <= c < NONLINEAR + 10]  # inertia left out
+    return predicted_sigmas(fisher[np.ix_(static, static)], static)
 
 
 def _gravity_classes(settings, targets: np.ndarray) -> np.ndarray:
@@ -249,63 +303,104 @@ def design_quick(settings, start_q_rad: np.ndarray, pose_plan=None, budget_s: fl
         raise PlanError("the plan does not reach gravity along all six flange directions; the quick calibration "
                         "needs them (move the pose centre)")
     speed, acceleration = float(settings.joint_speed_rad_s), float(settings.joint_acceleration_rad_s2)
+    reference = full_run_sigmas(settings, plan)
+    still = {}  # pose index -> information of one second held still there (22, 22)
+
+    def still_information(index: int) -> np.ndarray:
+        if index not in still:
+            q = np.tile(targets[index], (int(DESIGN_RATE_HZ), 1))
+            fisher = np.zeros((NONLINEAR + LINEAR + 1,) * 2)
+            zero = np.zeros_like(q)
+            fisher[:-1, :-1] = information(settings, np.arange(len(q)) / DESIGN_RATE_HZ, q, zero, zero, lag=False)
+            still[index] = fisher
+        return still[index]
+
+    def ratios_of(fisher: np.ndarray) -> dict[str, float]:
+        sigmas = predicted_sigmas(fisher)
+        return {k: sigmas[k] / reference[k] if reference[k] > 0 else np.inf for k in SIGMA_GROUPS}
+
+    def allocate(order: list[int], moving: np.ndarray, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+        """Holds (len(order),) s adding up to ``seconds`` in :data:`HOLD_QUANTUM_S` steps, each step where it
+        lowers the worst predicted 1σ ratio most (the information is additive: a hold of h s at a pose adds h
+        times that pose's still information); and the total information."""
+        holds, fisher = np.zeros(len(order)), moving.copy()
+        for _ in range(int(seconds / HOLD_QUANTUM_S + 1e-9)):
+            trials = [fisher + HOLD_QUANTUM_S * still_information(i) for i in order]
+            worst = [max(ratios_of(f).values()) for f in trials]
+            k = int(np.argmin(worst))
+            holds[k] = round(holds[k] + HOLD_QUANTUM_S, 3)
+            fisher = trials[k]
+        return holds, fisher
+
     rng = np.random.default_rng(seed)
-    best: tuple[float, list[int], float] | None = None
-    shortest: tuple[float, list[int], np.ndarray] | None = None
+    best: tuple[tuple[float, float], list[int], float, dict[str, float], np.ndarray] | None = None
+    shortest: tuple[float, list[int]] | None = None
     scored = 0
     for _ in range(candidates):
         order = _greedy_tour(rng, start, special, classes, targets, int(rng.choice(EXTRA_WAYPOINTS)), speed,
                              acceleration)
-        last = targets[order[-1]]
-        checks = _tour(last, validation, targets)[:VALIDATION_HOLDS] if validation else []
-        hold = float(rng.choice(HOLD_CHOICES_S))
+        checks = _tour(targets[order[-1]], validation, targets)[:VALIDATION_HOLDS] if validation else []
         waypoints = targets[order + checks]
-        holds = np.array([hold] * len(order) + [VALIDATION_HOLD_S] * len(checks))
-        duration = sum(move_duration_s(a, b, speed, acceleration)
-                       for a, b in zip(np.vstack([start, waypoints])[:-1], waypoints)) + float(holds.sum())
+        moves = sum(move_duration_s(a, b, speed, acceleration)
+                    for a, b in zip(np.vstack([start, waypoints])[:-1], waypoints))
+        fixed = moves + VALIDATION_HOLD_S * len(checks)
         if check_quick(settings, start, waypoints):
             continue
-        if duration > budget_s:  # kept in case no candidate fits (slow CELL.toml speeds)
-            if shortest is None or duration < shortest[0]:
-                shortest = (duration, order + checks, holds)
+        if fixed + MIN_HOLD_S * len(order) > budget_s:  # kept in case no candidate fits (slow CELL.toml speeds)
+            if shortest is None or fixed < shortest[0]:
+                shortest = (fixed, order + checks)
             continue
-        t, q, qd, qdd, _ = sample_trajectory(start, waypoints[:len(order)], holds[:len(order)], speed,
-                                                 acceleration, DESIGN_RATE_HZ)
-        score = information_logdet(settings, t, q, qd, qdd)
+        t, q, qd, qdd, _ = sample_trajectory(start, targets[order], np.zeros(len(order)), speed, acceleration,
+                                             DESIGN_RATE_HZ)
+        moving = information(settings, t, q, qd, qdd)
+        floor = np.full(len(order), MIN_HOLD_S)
+        moving = moving + sum(MIN_HOLD_S * still_information(i) for i in order)
+        holds, fisher = allocate(order, moving, budget_s - fixed - float(floor.sum()))
+        holds = np.round(holds + floor, 3)
+        ratios = ratios_of(fisher)
+        sign, logdet = np.linalg.slogdet(fisher)
+        key = (max(ratios.values()), float(logdet) if sign > 0 else -np.inf)
         scored += 1
-        if best is None or score > best[0]:
-            best = (score, order + checks, duration)
-            best_holds = holds
+        if best is None or (key[0], -key[1]) < (best[0][0], -best[0][1]):
+            all_holds = np.concatenate([holds, np.full(len(checks), VALIDATION_HOLD_S)])
+            best = (key, order + checks, fixed + float(holds.sum()), ratios, all_holds)
     if best is None and shortest is not None:  # the CELL.toml speeds make every candidate longer: the shortest
-        duration, indices, best_holds = shortest
+        fixed, indices = shortest
+        n_fit = len(indices) - min(VALIDATION_HOLDS, len(validation))
+        all_holds = np.array([MIN_HOLD_S] * n_fit + [VALIDATION_HOLD_S] * (len(indices) - n_fit))
+        duration = fixed + MIN_HOLD_S * n_fit
         log.warning("no quick trajectory fits in %.0f s at these joint speeds; the shortest takes %.0f s",
                     budget_s, duration)
-        waypoints = targets[indices]
-        fit = len(indices) - min(VALIDATION_HOLDS, len(validation))
-        t, q, qd, qdd, _ = sample_trajectory(start, waypoints[:fit], best_holds[:fit], speed, acceleration,
-                                             DESIGN_RATE_HZ)
-        best, scored = (information_logdet(settings, t, q, qd, qdd), indices, duration), 1
+        t, q, qd, qdd, _ = sample_trajectory(start, targets[indices[:n_fit]], all_holds[:n_fit], speed,
+                                             acceleration, DESIGN_RATE_HZ)
+        fisher = information(settings, t, q, qd, qdd)
+        ratios = ratios_of(fisher)
+        best, scored = ((max(ratios.values()), float(np.linalg.slogdet(fisher)[1])), indices, duration, ratios,
+                        all_holds), 1
     if best is None:
         raise PlanError("no quick trajectory is clear of collisions and joint limits from this configuration; "
                         "use the full calibration")
-    score, indices, duration = best
+    (_, logdet), indices, duration, ratios, best_holds = best
     n_fit = len(indices) - min(VALIDATION_HOLDS, len(validation))
     return QuickPlan(start, targets[indices].copy(), best_holds,
                      tuple([FIT] * n_fit + [VALIDATE] * (len(indices) - n_fit)),
-                     tuple(plan.labels[i] for i in indices), speed, acceleration, float(duration), float(score),
-                     scored, seed)
+                     tuple(plan.labels[i] for i in indices), speed, acceleration, float(duration), logdet,
+                     scored, seed, {k: round(float(v), 4) for k, v in ratios.items()})
 
 
 def format_quick(plan: QuickPlan) -> str:
     """A few lines for the operator: what will move, how fast, how long."""
     fit = sum(1 for p in plan.purposes if p == FIT)
     span = np.ptp(np.vstack([plan.start_q_rad, plan.waypoints_rad]), axis=0)
-    holds = sorted({round(float(h), 2) for h, p in zip(plan.hold_s, plan.purposes) if p == FIT})
+    holds = [float(h) for h, p in zip(plan.hold_s, plan.purposes) if p == FIT]
+    ratios = plan.predicted_sigma_ratio
+    worst = (f"≤ {max(ratios.values()):.2f}× ({max(ratios, key=ratios.__getitem__)} the largest)" if ratios
+             else "against")
     return (f"Quick calibration plan: one continuous motion through {fit} waypoints (gravity along every flange "
-            f"axis; holds {', '.join(f'{h:g}' for h in holds)} s), then {len(plan.purposes) - fit} still validation "
+            f"axis; held still {min(holds):g}-{max(holds):g} s each, {sum(holds):.1f} s in all), then {len(plan.purposes) - fit} still validation "
             f"poses ({VALIDATION_HOLD_S:g} s each)\n"
-            f"  chosen by the Fisher information of all 21 parameters among {plan.candidates} checked candidates "
-            f"(log det {plan.information_logdet:.1f})\n"
+            f"  chosen by the Fisher information of all 21 parameters and the lag among {plan.candidates} checked "
+            f"candidates: predicted 1σ {worst} the full run's (log det {plan.information_logdet:.1f})\n"
             f"  joint speed {plan.speed_rad_s:g} rad/s, acceleration {plan.acceleration_rad_s2:g} rad/s²; joint "
             f"ranges (rad): " + " ".join(f"{v:.2f}" for v in span) + "\n"
             f"  every move checked for joint limits and collisions along its path: clear\n"
@@ -370,4 +465,5 @@ def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float =
 
 
 __all__ = ["QuickPlan", "QuickRecording", "design_quick", "check_quick", "format_quick", "record_quick",
-           "sample_trajectory", "move_profile", "information_logdet"]
+           "sample_trajectory", "move_profile", "information", "information_logdet", "predicted_sigmas", "full_run_sigmas",
+           "SIGMA_GROUPS"]

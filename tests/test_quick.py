@@ -13,7 +13,8 @@ from ftacq.dynamics.joint import identify_joint
 from ftacq.errors import InputError
 from ftacq.mounts import mount_of
 from procedures.plan import collision_checker, home_configuration_rad
-from procedures.quick import FIT, VALIDATE, QuickPlan, QuickRecording, design_quick, sample_trajectory
+from procedures.quick import (DEFAULT_BUDGET_S, FIT, VALIDATE, QuickPlan, QuickRecording, design_quick,
+                              sample_trajectory)
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
 from tests.test_quick_identify import settings_for
 
@@ -35,7 +36,7 @@ def test_trajectory_stays_within_limits_and_clear_along_its_whole_path(designed)
     checker = collision_checker(settings)
     problems = [p for qi in q for p in checker.problems_at(qi)]
     assert problems == []
-    assert plan.estimated_duration_s <= 60.0
+    assert plan.estimated_duration_s <= DEFAULT_BUDGET_S
     assert plan.purposes.count(VALIDATE) == 3 and plan.purposes.count(FIT) >= 6
 
 
