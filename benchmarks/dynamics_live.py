@@ -41,6 +41,8 @@ REST_MARGIN_S = 1.0
 READY_TIMEOUT_S = 90.0
 """The monitor's start-up (imports, connections, viewer) within this, s."""
 BURNER = "while True: pass"
+STOP_TIMEOUT_S = 120.0
+"""The monitor stops (record written) within this after SIGINT, s; else its stacks are dumped and it is killed."""
 
 
 @contextlib.contextmanager
@@ -136,7 +138,18 @@ def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folde
         send_errors = after["send_errors"] - before["send_errors"]
     finally:
         monitor.send_signal(signal.SIGINT)
-        out, _ = monitor.communicate(timeout=120)
+        try:
+            out, _ = monitor.communicate(timeout=STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:  # it did not stop: where its threads wait (ftacq's SIGUSR1 stack dump)
+            monitor.send_signal(signal.SIGUSR1)
+            time.sleep(2.0)  # the dump is written by the monitor's own process; nothing to wait on from here
+            monitor.kill()
+            monitor.communicate(timeout=30)
+            if keep is not None:
+                keep.mkdir(parents=True, exist_ok=True)
+                shutil.copy(err_path, keep / "monitor.err")
+            raise RuntimeError(f"the monitor did not stop within {STOP_TIMEOUT_S:g} s of SIGINT; its threads' stacks "
+                               f"(SIGUSR1): {err_path.read_text(encoding='utf-8', errors='replace')[-6000:]}") from None
     if jog.returncode != 0:
         raise RuntimeError(f"jog failed: {jog.stderr[-2000:]}")
     (folder / "jog.jsonl").write_text(jog.stdout, encoding="utf-8")
