@@ -223,6 +223,10 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
     from procedures.plan import PlanSettings
     from tests.fakes.cell import SimClocks, SimulatedCell, fast_config, run_calibration
 
+    # The benchmark stands for a user at a terminal: its SIGINT is the user's Ctrl-C. Started in the background
+    # (`cmd &` in a shell without job control, nohup) it inherits SIGINT ignored and so would the monitor, which
+    # then rightly keeps it ignored and never stops (the "monitor did not stop on SIGINT" runs of issue 27).
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # children start with SIGINT at its default
     truth = heavy_truth()
     clocks = replace(SimClocks(), sensor_rate_error=sensor_rate_error, sensor_max_backlog_s=backlog_s)
     settings = PlanSettings(joint_speed_rad_s=1.0, joint_acceleration_rad_s2=2.0)

@@ -200,7 +200,11 @@ def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event) -> bool
     handler (an ignored SIGINT stays ignored, a custom handler is kept); return whether it was installed."""
     if threading.current_thread() is not threading.main_thread():
         return False
-    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+    current = signal.getsignal(signal.SIGINT)
+    if current is signal.SIG_IGN:  # inherited: a shell without job control starts `cmd &` (and nohup) so
+        log.warning("Ctrl-C (SIGINT) is ignored in this process (started in the background?): stop it with "
+                    "SIGTERM (kill PID)")
+    if current is not signal.default_int_handler:
         return False
 
     def handler(signum: int, frame: object) -> None:
