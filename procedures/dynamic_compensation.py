@@ -91,6 +91,11 @@ class DynamicCompensator:
         self.uncompensated_batches = 0
         """Batches with no robot state within MAX_STATE_GAP_S of their samples: compensate() returned None."""
         self.dynamic_batches = 0
+        self.held_samples = 0
+        """Dynamically compensated samples newer than the newest robot state: that state's prediction is held for
+        them (interpolate_rows holds beyond the end), an error of about dW/dt × how far ahead (issue 27)."""
+        self.held_max_s = 0.0
+        """The farthest such a sample was ahead of the newest robot state, s."""
         self._times = np.empty(0)
         """The last batch's sample times on the host clock, lag taken off, s."""
         self._static_pose: np.ndarray | None = None
@@ -146,6 +151,9 @@ class DynamicCompensator:
         state_times, predicted = self._kept()
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
+            if times[-1] > state_times[-1]:  # the batch's newest samples are ahead of the RTDE stream
+                self.held_samples += int(times.size - np.searchsorted(times, state_times[-1], side="right"))
+                self.held_max_s = max(self.held_max_s, float(times[-1] - state_times[-1]))
             contact = interpolate_rows(times, state_times, predicted)
             return np.subtract(batch.wrench, contact, out=contact)
         flange_R_base = self.orientations.flange_R_base_at(times)

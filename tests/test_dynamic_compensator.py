@@ -71,7 +71,8 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
     compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0012, window_s=0.128)
     kept = {"times": np.empty(0), "predicted": np.empty((0, 6)), "last": -np.inf}
     rng = np.random.default_rng(6)
-    compared = 0
+    compared = held = 0
+    farthest = 0.0
     for k, cycle in enumerate(cycles(1400, seed=7)):
         states.append(cycle)
         if 300 <= k < 340 or k % 97 == 5:
@@ -91,8 +92,12 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
             assert (got is None) == (k == 700 or batch.time_s[0] - compensator.lag_s < first_state_s)
             continue
         compared += 1
+        ahead = batch.time_s - compensator.lag_s - kept["times"][-1]  # samples newer than the newest state
+        held += int(np.count_nonzero(ahead > 0))
+        farthest = max(farthest, float(ahead.max()))
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
     assert compared > 1000
+    assert compensator.held_samples == held > 0 and compensator.held_max_s == pytest.approx(farthest, abs=1e-12)
     assert compensator.uncompensated_batches >= 1 and compensator.derivative_states > 0  # both paths ran
 
 

@@ -425,3 +425,21 @@ def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
     assert record.size >= rows_before and time_s.size + dropped == compensated.sum(), out
     if dropped == 0:
         np.testing.assert_allclose(time_s, record["time_s"][compensated], atol=1e-6)
+
+
+def test_an_ignored_sigint_stays_ignored_and_is_said(caplog):
+    """A monitor started in the background inherits SIGINT ignored (a shell without job control, nohup): it keeps
+    it so, and says how to stop it instead (the benchmark runs that "did not stop on SIGINT", issue 27)."""
+    import signal
+    import threading
+
+    from procedures.monitor import _stop_on_sigint
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with caplog.at_level("WARNING", logger="procedures.monitor"):
+            installed = _stop_on_sigint(threading.Event(), threading.Event())
+        assert not installed and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        assert any("SIGTERM" in record.getMessage() for record in caplog.records)
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -22,7 +22,7 @@ import sys
 
 from ftacq import __version__
 from ftacq.app.helptext import examples
-from ftacq.app.signals import sigterm_as_interrupt
+from ftacq.app.signals import sigterm_as_interrupt, stack_dump_on_sigusr1
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
 
 COMMAND_MODULES = (
@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_BAD_INPUT
+    stack_dump_on_sigusr1()  # `kill -USR1 PID`: where every thread waits (a command that does not stop)
     try:
         with sigterm_as_interrupt():  # SIGTERM stops every command as Ctrl-C does (exit 130, data kept)
             return int(args.func(args) or 0)

@@ -3,12 +3,18 @@
 ``kill PID`` (or a service manager stopping ``ftacq``) then takes the same clean path as Ctrl-C: a procedure
 stops the robot and keeps its data, recordings are finished, the drivers and the simulated cell are closed, and
 the CLI exits 130.
+
+SIGUSR1 (:func:`stack_dump_on_sigusr1`) writes every thread's Python stack to stderr and carries on: the way to see
+where a process that does not stop is waiting (``kill -USR1 PID``), written by :mod:`faulthandler` from C, so it
+works while the main thread is blocked.
 """
 
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import signal
+import sys
 from collections.abc import Iterator
 from types import FrameType
 
@@ -33,3 +39,15 @@ def sigterm_as_interrupt() -> Iterator[None]:
     finally:
         if previous is not None:  # None: the previous handler was not installed from Python; nothing to restore
             signal.signal(signal.SIGTERM, previous)
+
+
+def stack_dump_on_sigusr1() -> bool:
+    """Make SIGUSR1 dump every thread's stack to stderr (the process goes on); False where it cannot (no SIGUSR1,
+    or stderr without a file descriptor, e.g. under a test capturing it)."""
+    if not hasattr(signal, "SIGUSR1"):
+        return False
+    try:
+        faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True, chain=False)
+    except (ValueError, OSError, AttributeError, RuntimeError, TypeError):  # io.StringIO and the like: no fileno
+        return False
+    return True

@@ -283,7 +283,8 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(summary))
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
-    if live is not None and (live.uncompensated_batches or getattr(live, "static_batches", 0)):
+    if live is not None and (live.uncompensated_batches or getattr(live, "static_batches", 0)
+                             or getattr(live, "held_samples", 0)):
         print(_compensation_summary(live))
     return 0
 
@@ -299,7 +300,9 @@ def _compensation_summary(live: DynamicCompensator | StaticCompensator) -> str:
         return f"static compensation: of {total} reads, {uncompensated}"
     total = live.static_batches + live.uncompensated_batches + live.dynamic_batches
     return (f"dynamic compensation: {live.static_batches} of {total} reads fell outside the kept robot states and "
-            f"were compensated statically (pose at the samples' time); {uncompensated}")
+            f"were compensated statically (pose at the samples' time); {uncompensated}; {live.held_samples} samples "
+            f"were newer than the newest robot state (its prediction held for them; up to "
+            f"{1e3 * live.held_max_s:.1f} ms ahead)")
 
 
 def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack,

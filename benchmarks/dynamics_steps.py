@@ -1,0 +1,89 @@
+"""Offline: what linear interpolation of the 2 ms robot states' predictions costs across a moveJ's acceleration
+steps, and what a timing error costs (issue 27). No sockets, no clocks: exact timing, no noise.
+
+    .venv/bin/python benchmarks/dynamics_steps.py [--moves 5] [--seed 0]
+
+The simulated arm's q̈ is the moveJ trapezoid's (tests/fakes/ur_motion.py), with steps at any instant, and the
+simulated sensor follows it exactly; the live compensator (procedures/dynamic_compensation.py) evaluates the model
+at each 2 ms state (q, q̇, target q̈) and interpolates linearly onto the samples. Per move of the live benchmark's
+jog (tests/fakes/jog.py targets, 1 rad/s, 2 rad/s², the 4.2 kg tool of benchmarks/dynamics_live.py): RMS per
+component of (interpolated − true) at 7 kHz; the same with the step located from the velocity change
+(q̇ₖ₊₁ − q̇ₖ = q̈ₖ τ + q̈ₖ₊₁ (Δ − τ), least squares over the joints) and the prediction's q̈-linear part switched
+there; and the error of a prediction shifted by 0.5, 1, 2 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+SAMPLE_RATE_HZ = 7000.0
+STATE_PERIOD_S = 0.002
+
+
+def rms_per_component(error: np.ndarray) -> tuple[float, float]:
+    """(force N, torque N·m): RMS over samples and the three components."""
+    return float(np.sqrt(np.mean(error[:, :3] ** 2))), float(np.sqrt(np.mean(error[:, 3:] ** 2)))
+
+
+def main(moves: int, seed: int) -> int:
+    from benchmarks.dynamics_live import heavy_truth
+    from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
+    from ftacq.dynamics.timing import interpolate_rows
+    from ftacq.kinematics import ur_model
+    from procedures.plan import home_configuration_rad
+    from tests.fakes.jog import plan_targets
+    from tests.fakes.ur_motion import JointMove
+
+    truth = heavy_truth()
+    calibration = replace(truth.calibration(), inertia=truth.inertia, sensor_offset=np.array(truth.sensor_offset_m))
+    robot = ur_model("UR5e")
+    predict = WrenchPredictor(SensorDynamics.for_calibration(robot, calibration), calibration)
+    start = home_configuration_rad("floor")
+    rng = np.random.default_rng(seed + 1)
+    q_from = start
+    for target in plan_targets(start, moves, seed, "UR5e", 1.0, 2.0):
+        move = JointMove(robot, q_from, target, 1.0, 2.0)
+        q_from = target
+
+        def states(times: np.ndarray, move: JointMove = move) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            rows = [(*move.sample(t), move.acceleration(t)[0]) for t in times]
+            return tuple(np.array([row[i] for row in rows]) for i in range(3))  # type: ignore[return-value]
+
+        samples_s = np.arange(0.0, move.duration_s, 1.0 / SAMPLE_RATE_HZ)
+        true = predict(*states(samples_s))
+        states_s = np.arange(-2 * STATE_PERIOD_S + rng.uniform(0, STATE_PERIOD_S), move.duration_s + 2 * STATE_PERIOD_S,
+                             STATE_PERIOD_S)
+        q, qd, qdd = states(states_s)
+        predicted = predict(q, qd, qdd)
+        linear = interpolate_rows(samples_s, states_s, predicted)
+        stepped = linear.copy()
+        for k in np.flatnonzero(np.any(qdd[1:] != qdd[:-1], axis=1)):
+            span, change = states_s[k + 1] - states_s[k], qdd[k] - qdd[k + 1]
+            tau = float(np.clip(np.dot(qd[k + 1] - qd[k] - qdd[k + 1] * span, change) / np.dot(change, change), 0, span))
+            jump = predict(q[k], qd[k], qdd[k + 1])[0] - predict(q[k], qd[k], qdd[k])[0]
+            inside = (samples_s > states_s[k]) & (samples_s < states_s[k + 1])
+            since = samples_s[inside] - states_s[k]
+            stepped[inside] += jump * ((since >= tau).astype(float) - since / span)[:, None]
+        shifted = [rms_per_component(interpolate_rows(samples_s + d, states_s, predicted) - true)
+                   for d in (0.0005, 0.001, 0.002)]
+        f, t = rms_per_component(linear - true)
+        fs, ts = rms_per_component(stepped - true)
+        print(f"move {move.duration_s:.2f} s: linear {f:.4f} N {t:.5f} N·m (max {np.abs(linear - true)[:, :3].max():.3f} N, "
+              f"{np.abs(linear - true)[:, 3:].max():.4f} N·m); step located {fs:.5f} N {ts:.6f} N·m; shifted 0.5/1/2 ms "
+              + " / ".join(f"{a:.4f} N {b:.5f} N·m" for a, b in shifted))
+    return 0
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--moves", type=int, default=5)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    sys.exit(main(args.moves, args.seed))
