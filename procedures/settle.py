@@ -12,8 +12,10 @@ Theory of operation (as ophyd's ``StatusBase``: always under a finite timeout):
    count; saturated samples excluded and counted, lost samples counted).
 
 A silence of the sensor shorter than ``sensor_timeout_s`` never aborts a pose: settling keeps reading through it,
-and an averaging window it spoils (fewer than half the samples the rate promises) is taken again, up to
-``MAX_AVERAGE_ATTEMPTS`` times; each window may wait ``average_time_s + sensor_timeout_s`` for its samples.
+and an averaging window it spoils (fewer than half the samples the rate promises over ``average_time_s``) is taken
+again over twice the previous window (the arm is still: a longer window is as good, and a link that delivers in
+bursts, such as a shared CAN bus or a starved host, fills it), up to ``MAX_AVERAGE_ATTEMPTS`` times; each window may
+wait its length ``+ sensor_timeout_s`` for its samples, and the fullest window is kept.
 
 Both check a stop flag between reads, so a requested stop lands within one read.
 """
@@ -177,22 +179,30 @@ def average_at_pose(sensor: ForceTorqueSensor, settings: SettleSettings,
     info = getattr(sensor, "info", None)
     rate_hz = float(getattr(info, "rate_hz", 0.0) or 0.0)
     minimum = max(MIN_SAMPLES, int(MIN_SAMPLE_FRACTION * rate_hz * settings.average_time_s))
+    best: tuple[WrenchAverage, float, float] | None = None
+    window_s = settings.average_time_s
     for attempt in range(MAX_AVERAGE_ATTEMPTS):
         if should_stop():
             raise StopRequested("stop requested before averaging")
         t_start = time.time()
-        average = sensor.average(settings.average_time_s,
-                                 timeout_s=settings.average_time_s + settings.sensor_timeout_s)
+        average = sensor.average(window_s, timeout_s=window_s + settings.sensor_timeout_s)
         t_end = time.time()
+        if best is None or average.count > best[0].count:
+            best = (average, t_start, t_end)
         if average.count >= minimum:
             break
+        last = attempt + 1 == MAX_AVERAGE_ATTEMPTS
         log.warning("averaging window %d/%d: %d samples in %.3g s, expected at least %d (%.0f Hz); %s",
-                    attempt + 1, MAX_AVERAGE_ATTEMPTS, average.count, settings.average_time_s, minimum, rate_hz,
-                    "averaging again" if attempt + 1 < MAX_AVERAGE_ATTEMPTS else "keeping it")
+                    attempt + 1, MAX_AVERAGE_ATTEMPTS, average.count, window_s, minimum, rate_hz,
+                    f"keeping the fullest ({best[0].count} samples)" if last else
+                    f"averaging again over {2 * window_s:.3g} s")
+        window_s *= 2.0
+    assert best is not None
+    average, t_start, t_end = best
     if average.count < MIN_SAMPLES:
-        raise SensorFaultError(f"only {average.count} usable sample(s) in the {settings.average_time_s:g} s "
-                               f"averaging window after {MAX_AVERAGE_ATTEMPTS} tries ({average.saturated} "
-                               f"saturated, {average.lost} lost)")
+        raise SensorFaultError(f"only {average.count} usable sample(s) in the fullest of {MAX_AVERAGE_ATTEMPTS} "
+                               f"averaging windows ({settings.average_time_s:g} s, doubled after each short one; "
+                               f"{average.saturated} saturated, {average.lost} lost)")
     if not np.all(np.isfinite(average.mean)):
         raise SensorFaultError("the averaged wrench is not finite")
     return average, t_start, t_end
