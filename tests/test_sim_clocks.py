@@ -108,6 +108,32 @@ def test_a_descheduled_sender_skips_samples_seen_in_ft_sequence_not_rdt_sequence
     assert np.sum(steps // 7 - 1) == skipped  # the box's samples the sender skipped, and only those
 
 
+def test_a_start_heard_mid_burst_loses_none_of_the_samples_taken_before_it():
+    """A real box sends each record as it samples it, so a start re-sent by the client (a driver that thinks the
+    link went quiet) restarts rdt_sequence with nothing missing on the box's clock: the old stream's last record
+    and the new stream's first are one sample period apart in ft_sequence. This fake produces in bursts, so the
+    records due when it hears the command go out first (before, up to a burst of them was dropped unseen:
+    counted as lost by a client, a loss no box makes)."""
+    with FakeNetFT(drifting_physics(), rate_hz=1000.0, burst_interval_s=0.2, burst_jitter_s=0.0) as fake:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.connect(("127.0.0.1", fake.rdt_port))
+        sock.settimeout(RECEIVE_TIMEOUT_S)
+        try:
+            sock.send(struct.pack(">HHI", 0x1234, 0x0002, 0))
+            records, _ = receive_records(sock, 2)  # the start's first record, then the first burst
+            sock.send(struct.pack(">HHI", 0x1234, 0x0002, 0))  # re-sent between bursts
+            fake.wait_until(lambda f: f.streams_started >= 2)
+            records = np.concatenate([records, receive_records(sock, 300)[0]])
+        finally:
+            sock.send(struct.pack(">HHI", 0x1234, 0x0000, 0))
+            sock.close()
+    rdt = records["rdt_sequence"].astype(np.int64)
+    ft = records["ft_sequence"].astype(np.int64)
+    restart = np.flatnonzero(np.diff(rdt) != 1)
+    assert len(restart) == 1 and rdt[restart[0] + 1] == 1  # one restart, at the re-sent start
+    assert np.all(np.diff(ft) == 7)  # 1 kHz: every 7th of the box's 7 kHz samples, none missing across it
+
+
 def test_the_controller_stamps_rtde_packages_on_its_own_clock():
     rtde_receive = pytest.importorskip("rtde_receive")
     from tests.fakes.ur_process import URControllerProcess

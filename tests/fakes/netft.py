@@ -200,11 +200,13 @@ class FakeNetFT(NetFTBox):
                 return
             except OSError:  # e.g. ICMP port unreachable from a client that went away
                 continue
-            if self.handle_rdt(bytes(buffer[:size]), address, time.monotonic()):
+            heard_at = time.monotonic()  # one instant: every sample up to it is sent, the new stream starts after
+            self._send_due(flush=True, now=heard_at)  # what the box sampled before it heard the command goes first
+            if self.handle_rdt(bytes(buffer[:size]), address, heard_at):
                 self._send_due(first=True)
 
-    def _send_due(self, first: bool = False) -> None:
-        datagrams, target = self.due_datagrams(time.monotonic(), first)
+    def _send_due(self, first: bool = False, flush: bool = False, now: float | None = None) -> None:
+        datagrams, target = self.due_datagrams(time.monotonic() if now is None else now, first, flush)
         if not datagrams:
             return
         failed = []

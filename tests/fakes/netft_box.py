@@ -511,9 +511,12 @@ class NetFTBox:
             due_at = self._due_s(self._stream_done + records_per_datagram - 1)
         return max(0.0, due_at - now)
 
-    def due_datagrams(self, now: float, first: bool = False) -> tuple[list[bytes], tuple | None]:
+    def due_datagrams(self, now: float, first: bool = False,
+                      flush: bool = False) -> tuple[list[bytes], tuple | None]:
         """Produce the records due by ``now`` and return (datagrams to send, target); nothing while the link is
-        silent (the records are produced all the same) or the box is off."""
+        silent (the records are produced all the same) or the box is off. ``flush``: every record due by ``now``,
+        whatever the burst schedule (before a command is applied: a real box has sent each record it sampled
+        before it hears a start or a stop; this fake produces in bursts, so the tail due so far is sent first)."""
         with self._lock:
             if self._target is None:
                 return [], None
@@ -522,7 +525,7 @@ class NetFTBox:
             if now < self._paused_until_s:
                 return [], None
             until = now
-            if self.burst_interval_s > 0.0 and not first:
+            if self.burst_interval_s > 0.0 and not first and not flush:
                 if now < self._next_burst_s:
                     return [], None
                 until = now - self.burst_jitter_s * self._timing_rng.random()
