@@ -8,6 +8,7 @@ installed ``ftacq`` has no ``tests`` package. From a clone, this module puts the
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import sys
 from pathlib import Path
@@ -43,3 +44,15 @@ def simulated_cell(**kwargs: Any) -> Any:
 def simulated_truth(**changes: Any) -> Any:
     """Return a :class:`tests.fakes.world.CellTruth` (the simulated cell's ground truth) with some fields changed."""
     return _fakes_module("world").CellTruth(**changes)
+
+
+def enter_calibration_cell(stack: contextlib.ExitStack, config: Any, sim_info: dict, time_scale: float) -> tuple:
+    """Start the simulated cell a ``calibrate --sim`` run moves (``sim_info``: its sensor, robot model and mount),
+    say so on stderr, keep it open in ``stack``; return (the cell, ``config`` pointed at its robot and sensor)."""
+    pace = "real time" if time_scale == 1.0 else f"time scale {time_scale:g}"
+    print(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, {pace}) and a "
+          f"simulated {sim_info['sensor']} sensor on loopback …", file=sys.stderr, flush=True)
+    cell = stack.enter_context(simulated_cell(sensor=sim_info["sensor"], model=sim_info["model"],
+                                              mount=sim_info["mount"], time_scale=time_scale))
+    config = config.replace_section("robot", host=cell.robot_host)
+    return cell, config.replace_section("sensor", url=cell.sensor_url)

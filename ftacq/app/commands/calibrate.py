@@ -200,14 +200,9 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         cell = None
         if args.sim:
-            from ftacq.app.simcell import simulated_cell
+            from ftacq.app.simcell import enter_calibration_cell
 
-            _err(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, "
-                 f"time scale {time_scale:g}) and a simulated {sim_info['sensor']} sensor on loopback …")
-            cell = stack.enter_context(simulated_cell(sensor=sim_info["sensor"], model=sim_info["model"],
-                                                     mount=sim_info["mount"], time_scale=time_scale))
-            config = config.replace_section("robot", host=cell.robot_host)
-            config = config.replace_section("sensor", url=cell.sensor_url)
+            cell, config = enter_calibration_cell(stack, config, sim_info, time_scale)
         settings = config.plan_settings() if plan is None else plan.settings
         robot = start_robot(config.robot.host, settings, stack)
         start_q = robot.joint_positions()

@@ -228,14 +228,9 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
     with contextlib.ExitStack() as stack:
         cell = None
         if args.sim:
-            from ftacq.app.simcell import simulated_cell
+            from ftacq.app.simcell import enter_calibration_cell
 
-            _err(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, real time) "
-                 f"and a simulated {sim_info['sensor']} sensor on loopback …")
-            cell = stack.enter_context(simulated_cell(sensor=sim_info["sensor"], model=sim_info["model"],
-                                                     mount=sim_info["mount"], time_scale=1.0))
-            config = config.replace_section("robot", host=cell.robot_host)
-            config = config.replace_section("sensor", url=cell.sensor_url)
+            cell, config = enter_calibration_cell(stack, config, sim_info, time_scale=1.0)
         settings = config.plan_settings()
         robot = start_robot(config.robot.host, settings, stack)
         reported = getattr(getattr(robot, "info", None), "model", None)
