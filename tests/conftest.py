@@ -14,6 +14,7 @@ wrong test, so the whole run fails at its end instead, naming the files.
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 from typing import Callable, TypeVar
@@ -35,6 +36,18 @@ def checkout_files(root: Path = CHECKOUT) -> set[str]:
         found.update(os.path.normpath(os.path.join(base, name)) for name in (*dirs, *files)
                      if not name.endswith((".py", ".md")))
     return found
+
+
+def _sigint_reaches_children() -> None:
+    """A suite started in the background by a shell without job control (``cmd &``, nohup) inherits SIGINT
+    *ignored*, and so would every program the tests start: Python keeps an inherited SIG_IGN (no
+    KeyboardInterrupt), so the Ctrl-C tests would see a tool ignore Ctrl-C. A terminal's Ctrl-C is what they
+    stand for: SIGINT gets its default handling here (pytest-xdist's workers run this too)."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+_sigint_reaches_children()
 
 
 def _one_process(config: pytest.Config) -> bool:
