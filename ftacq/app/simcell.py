@@ -46,7 +46,7 @@ def simulated_truth(**changes: Any) -> Any:
     return _fakes_module("world").CellTruth(**changes)
 
 
-def enter_calibration_cell(stack: contextlib.ExitStack, config: Any, sim_info: dict, time_scale: float) -> tuple:
+def enter_calibration_cell(stack: contextlib.ExitStack, config: Any, sim_info: dict, time_scale: float) -> tuple[Any, Any]:
     """Start the simulated cell a ``calibrate --sim`` run moves (``sim_info``: its sensor, robot model and mount),
     say so on stderr, keep it open in ``stack``; return (the cell, ``config`` pointed at its robot and sensor)."""
     pace = "real time" if time_scale == 1.0 else f"time scale {time_scale:g}"

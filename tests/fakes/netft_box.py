@@ -22,7 +22,7 @@ power cycle (nothing sent or heard while off; on power-up both sequences start a
 start); :meth:`restart` resets both sequences mid-stream. Everything put on the wire is logged
 (:meth:`sent_records`) so a test can check that every record sent reached the client exactly once.
 
-Why one class of ~790 lines: the settings (HTTP), the calibration answers (TCP), the stream and the fault knobs
+Why one class of ~800 lines: the settings (HTTP), the calibration answers (TCP), the stream and the fault knobs
 all read and write one state under one lock (a CGI rate change moves the stream's schedule, a TCP bias changes
 the next records, a start resets the sequence the knobs act on); splitting them would only pass that state around.
 """
@@ -480,8 +480,8 @@ class NetFTBox:
                 self._target = None
             elif command in RDT_STARTS:
                 if self._target is not None and self._silent:
-                    # the old stream's records due by now went into the quiet link too (a real box sends each
-                    # as it is sampled; this fake produces them in bursts, so the tail of the last burst is here)
+                    # the old stream's records due by now went into the quiet link too: the caller's flush
+                    # (FakeNetFT) counted whole datagrams of them; a buffered stream's partial one is counted here
                     self.records_silenced += max(0, self._due_count(now) - self._stream_done)
                 self._target = embedded or address
                 self._mode = command
