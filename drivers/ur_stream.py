@@ -104,6 +104,8 @@ class URStateStream:
         self._rows = np.empty((capacity, ROW_COLUMNS))
         self._count = 0
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)
+        """Notified with every stored read (and when the stream ends): :meth:`wait_for_samples` sleeps on it."""
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -193,6 +195,8 @@ class URStateStream:
                 if not self._stop.is_set():
                     self.error = failure
                     log.warning("RTDE state stream from %s ended: %s", self.host, failure)
+                with self._arrived:
+                    self._arrived.notify_all()
                 return
             arrival = time.monotonic()
             buffer += chunk
@@ -219,6 +223,7 @@ class URStateStream:
             self._count += n
             self._last_arrival = arrival_s
             self._settle(float(values[-1, 0]) - SETTLE_AFTER_S)
+            self._arrived.notify_all()
 
     def _settle(self, before_s: float) -> None:
         """Give the rows older than ``before_s`` (controller s) and not settled yet the offset of the newest line,
@@ -266,18 +271,24 @@ class URStateStream:
         return window
 
     def wait_for_samples(self, count: int, timeout_s: float) -> bool:
-        """Wait until at least ``count`` samples were received in total; False after ``timeout_s``."""
+        """Wait until at least ``count`` samples were received in total; False after ``timeout_s`` or when the stream
+        ended. Woken by the reader as each read is stored (no polling: a waiting caller holds neither the lock nor
+        the interpreter, so the reader gets both at once)."""
         deadline = time.monotonic() + timeout_s
-        while self._count < count:
-            if time.monotonic() > deadline or self.error is not None:
-                return False
-            time.sleep(0.005)
+        with self._arrived:
+            while self._count < count:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self.error is not None or self._stop.is_set():
+                    return False
+                self._arrived.wait(remaining)
         return True
 
     # ------------------------------------------------------------------ life cycle
     def close(self) -> None:
         """Stop the reader and close the connection. Safe to call twice."""
         self._stop.set()
+        with self._arrived:
+            self._arrived.notify_all()
         sock, self._sock = self._sock, None
         if sock is not None:
             try:

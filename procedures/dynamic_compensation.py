@@ -9,6 +9,13 @@ minimum-delay line, docs/dynamics.md "How the clocks are aligned"), shifted by t
 interpolated onto the samples. The acceleration is target_qdd while the arm tracks the controller's trajectory, else
 a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new states only.
 
+A batch whose newest samples are newer than the newest robot state (the RTDE reader thread was held off, a state
+package is still on its way) waits for the states of its time, at most ``state_wait_s`` (:data:`STATE_WAIT_S` in
+the monitor, whose record may come a few ms later; 0 in the bridge, which answers the controller's cycle now and
+holds the newest prediction instead): under load the reader fell up to 50 ms behind the sensor reads, and a
+prediction held over that is wrong by dW/dt × 50 ms (issue 27). A stream that stays silent through one wait is not
+waited for again until it delivers a state.
+
 A batch the kept predictions do not cover (the reader fell behind by more than the ring, or the state stream is
 late) is compensated statically with the flange orientation *at the samples' time*, interpolated (slerp) from the state
 stream's rows by :class:`procedures.flange_orientation.FlangeOrientations`, as :mod:`procedures.static_compensation`
@@ -19,6 +26,8 @@ wrench) and counts it in :attr:`DynamicCompensator.uncompensated_batches`. Never
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
@@ -41,6 +50,10 @@ PREDICTION_WINDOW_S = 2.0
 predictions of the newest states over this span are kept (a reader that lags by up to ~1 s under load, e.g. a
 descheduled monitor, still finds the states of its samples' time; 64 rows = 128 ms was too few: beyond that the
 batches fell back to the static model). Memory, not CPU: each prediction is computed once, when its state is new."""
+STATE_WAIT_S = 0.1
+"""The monitor's longest wait for the robot states of a batch's newest samples, s: above the 50 ms the RTDE reader
+fell behind under two CPU burners (benchmarks/README.md), below the driver's buffer (the sensor keeps streaming into
+it meanwhile; the next read takes what came)."""
 TAIL_ROWS = 16
 """Newest robot states read per batch when few are new (the bridge: one per controller cycle; the monitor: about
 five per 10 ms batch)."""
@@ -53,7 +66,8 @@ class DynamicCompensator:
     its ``window(last=…)``), lag_s (the sensor's lag behind the robot stream; default the one the identification
     measured), clock (the samples' :class:`~ftacq.dynamics.clock.SampleClock`, shared with the monitor or the
     bridge so that each batch is observed once; default its own), window_s (how far back predictions are kept, s;
-    default :data:`PREDICTION_WINDOW_S`).
+    default :data:`PREDICTION_WINDOW_S`), state_wait_s (longest wait for the states of a batch's newest samples, s;
+    0: never wait, hold the newest prediction).
 
     Per batch it reads the newest :data:`TAIL_ROWS` states (all ``window_rows`` when the new ones reach
     into their first :data:`~ftacq.dynamics.acceleration.DERIVATIVE_HALF_WIDTH`: the derivative needs that many
@@ -63,7 +77,8 @@ class DynamicCompensator:
     """
 
     def __init__(self, calibration: Calibration, robot: URModel, stream, lag_s: float | None = None,
-                 clock: SampleClock | None = None, window_s: float = PREDICTION_WINDOW_S) -> None:
+                 clock: SampleClock | None = None, window_s: float = PREDICTION_WINDOW_S,
+                 state_wait_s: float = 0.0) -> None:
         if not calibration.has_dynamics:
             raise ValueError("the calibration has no inertia: use the static GravityCompensator")
         self.calibration = calibration
@@ -100,6 +115,15 @@ class DynamicCompensator:
         """The last batch's sample times on the host clock, lag taken off, s."""
         self._static_pose: np.ndarray | None = None
         self.derivative_states = 0
+        self.state_wait_s = float(state_wait_s)
+        self.waits = 0
+        """Batches that waited for the robot states of their newest samples."""
+        self.wait_timeouts = 0
+        """Waits that ended at ``state_wait_s`` without the states (those samples' prediction is then held)."""
+        self.waited_max_s = 0.0
+        """The longest wait, s."""
+        self._silent_at_count: int | None = None
+        """The stream's count when a wait last timed out: not waited for again until a state comes."""
 
     def _kept(self) -> tuple[np.ndarray, np.ndarray]:
         """(host times (K,), predicted wrenches (K, 6)) of the newest K ≤ window_rows states, oldest first."""
@@ -149,6 +173,8 @@ class DynamicCompensator:
         self._static_pose = None
         self._update_predictions()
         state_times, predicted = self._kept()
+        if self.state_wait_s > 0.0 and state_times.size and times[-1] > state_times[-1]:
+            state_times, predicted = self._wait_for_states(float(times[-1]))
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
             if times[-1] > state_times[-1]:  # the batch's newest samples are ahead of the RTDE stream
@@ -163,6 +189,29 @@ class DynamicCompensator:
         self.static_batches += 1
         self._static_pose = pose_rows(self.orientations.position_m, flange_R_base)
         return self.calibration.compensate(batch.wrench, flange_R_base)
+
+    def _wait_for_states(self, newest_sample_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Wait (at most ``state_wait_s``) until a robot state at or after ``newest_sample_s`` (host s) is kept;
+        return the kept predictions then. The stream's ``wait_for_samples`` sleeps on its reader's notification."""
+        wait = getattr(self.stream, "wait_for_samples", None)
+        count = int(getattr(self.stream, "count", 0))
+        if wait is None or count == self._silent_at_count or getattr(self.stream, "stale", False):
+            return self._kept()
+        self.waits += 1
+        start_s = time.monotonic()
+        deadline_s = start_s + self.state_wait_s
+        state_times, predicted = self._kept()
+        while state_times[-1] < newest_sample_s:
+            remaining_s = deadline_s - time.monotonic()
+            count = int(self.stream.count)
+            if remaining_s <= 0.0 or not wait(count + 1, remaining_s):
+                self.wait_timeouts += 1
+                self._silent_at_count = int(self.stream.count)
+                break
+            self._update_predictions()
+            state_times, predicted = self._kept()
+        self.waited_max_s = max(self.waited_max_s, time.monotonic() - start_s)
+        return state_times, predicted
 
     def still_over(self, window_s: float, tolerance_rad: float) -> bool:
         """:func:`procedures.flange_orientation.still_over` for the last batch's sample times."""

@@ -168,3 +168,66 @@ def test_a_reader_a_second_behind_the_states_is_still_compensated_dynamically():
     assert lagging.static_batches == 0 and lagging.uncompensated_batches == 0
     assert lagging.dynamic_batches == len(late) and prompt.static_batches <= 1
 
+
+
+class _ArrivingStates(CycleStates):
+    """A state stream whose next states arrive while the compensator waits for them (the RTDE reader thread, held
+    off, delivering once the monitor sleeps): ``wait_for_samples`` appends the pending cycles, or none (a silent
+    controller: False at once, standing for the deadline)."""
+
+    def __init__(self) -> None:
+        super().__init__(capacity=2048)
+        self.pending: list[ControllerCycle] = []
+        self.waited = 0
+        self.stale = False
+
+    @property
+    def count(self) -> int:
+        return self._count
+
+    def wait_for_samples(self, count: int, timeout_s: float) -> bool:
+        self.waited += 1
+        assert 0.0 < timeout_s <= 0.1
+        if not self.pending:
+            return False
+        self.append(self.pending.pop(0))
+        return self._count >= count
+
+
+def test_a_batch_ahead_of_the_newest_state_waits_for_the_states_of_its_time():
+    """The monitor under load: its batch's newest samples are 12 ms newer than the newest robot state (the RTDE reader
+    thread was held off). With state_wait_s it waits for those states and gives what a reader with every state in
+    hand gives (nothing held); without, the newest prediction is held over the 12 ms. A silent stream is waited for
+    once, not at every batch."""
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    all_cycles = list(cycles(400, seed=9, departs=False))
+    waiting_states, holding_states, full_states = _ArrivingStates(), CycleStates(2048), CycleStates(2048)
+    for cycle in all_cycles[:300]:
+        for states in (waiting_states, holding_states):
+            states.append(cycle)
+    for cycle in all_cycles:
+        full_states.append(cycle)
+    waiting_states.pending = all_cycles[300:310]
+    waiting = DynamicCompensator(calibration, MODEL, waiting_states, lag_s=0.0, state_wait_s=0.1)
+    holding = DynamicCompensator(calibration, MODEL, holding_states, lag_s=0.0)
+    reference = DynamicCompensator(calibration, MODEL, full_states, lag_s=0.0)
+    newest_s = float(holding_states.window(last=1).time_s[-1])
+    rng = np.random.default_rng(8)
+    batch = SimpleNamespace(time_s=newest_s - 0.008 + np.arange(140) / 7000.0, device_time_s=np.full(140, np.nan),
+                            wrench=rng.normal(size=(140, 6)))
+    assert batch.time_s[-1] - newest_s > 0.011
+    expected = reference.compensate(batch, None)
+    got, held = waiting.compensate(batch, None), holding.compensate(batch, None)
+    assert got is not None and held is not None and expected is not None
+    # (to 1 mN: the reference's newest states had their later neighbours in hand, as in the test above)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-3)
+    assert waiting.held_samples == 0 and waiting.waits == 1 and waiting.wait_timeouts == 0
+    assert 0 < waiting_states.waited <= 10 and waiting_states.pending  # it stopped once the states covered the batch
+    assert holding.held_samples > 80 and np.abs(held - expected).max() > 0.1  # held: off by dW/dt × up to 12 ms
+    # the controller falls silent: the next batch waits in vain once; later ones do not wait until a state comes
+    waiting_states.pending = []
+    for shift in (0.02, 0.03):
+        late = SimpleNamespace(time_s=batch.time_s + shift, device_time_s=batch.device_time_s, wrench=batch.wrench)
+        assert waiting.compensate(late, None) is not None  # the newest prediction held, within MAX_STATE_GAP_S
+    assert waiting.waits == 2 and waiting.wait_timeouts == 1 and waiting.held_samples > 0

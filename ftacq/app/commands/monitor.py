@@ -302,7 +302,8 @@ def _compensation_summary(live: DynamicCompensator | StaticCompensator) -> str:
     return (f"dynamic compensation: {live.static_batches} of {total} reads fell outside the kept robot states and "
             f"were compensated statically (pose at the samples' time); {uncompensated}; {live.held_samples} samples "
             f"were newer than the newest robot state (its prediction held for them; up to "
-            f"{1e3 * live.held_max_s:.1f} ms ahead)")
+            f"{1e3 * live.held_max_s:.1f} ms ahead); {live.waits} reads waited for the robot states of their time "
+            f"(longest {1e3 * live.waited_max_s:.1f} ms, {live.wait_timeouts} in vain)")
 
 
 def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.ExitStack,
@@ -324,9 +325,9 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
               "so the wrench is exact only while the arm is still (run ftacq calibrate --dynamic to identify the "
               "tool's inertia)", file=sys.stderr)
         return StaticCompensator(calibration, model, stream, clock=sample_clock)
-    from procedures.dynamic_compensation import DynamicCompensator
+    from procedures.dynamic_compensation import STATE_WAIT_S, DynamicCompensator
 
-    compensator = DynamicCompensator(calibration, model, stream, clock=sample_clock)
+    compensator = DynamicCompensator(calibration, model, stream, clock=sample_clock, state_wait_s=STATE_WAIT_S)
     print(f"ftacq monitor: dynamic compensation (tool inertia from the calibration; sensor lag "
           f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "
           "trajectory, else a filtered derivative of actual_qd", file=sys.stderr)
