@@ -16,7 +16,14 @@ holds the newest prediction instead): under load the reader fell up to 50 ms beh
 prediction held over that is wrong by dW/dt × 50 ms (issue 27). A stream that stays silent through one wait is not
 waited for again until it delivers a state.
 
-A batch the kept predictions do not cover (the reader fell behind by more than the ring, or the state stream is
+A batch older than the kept predictions (the monitor's first read, which holds the samples since the sensor
+started, seconds when the start-up was slow; a reader that fell behind by more than the ring) is predicted from the
+states of its own span, when the stream still keeps them (:meth:`DynamicCompensator._predictions_over`: the model
+once per state of the span, the ring left as it is; counted in :attr:`DynamicCompensator.catch_up_batches`). Without
+it, a first read of 2 s that began 50 ms before the oldest kept prediction was compensated statically throughout a
+jog move (1.1 N RMS of inertial wrench left in, issue 27).
+
+A batch the kept predictions and the stream's states do not cover (the reader fell behind by more than the ring, or the state stream is
 late) is compensated statically with the flange orientation *at the samples' time*, interpolated (slerp) from the state
 stream's rows by :class:`procedures.flange_orientation.FlangeOrientations`, as :mod:`procedures.static_compensation`
 does for a calibration without inertia (counted in :attr:`DynamicCompensator.static_batches`); when no robot state lies within
@@ -54,6 +61,10 @@ STATE_WAIT_S = 0.1
 """The monitor's longest wait for the robot states of a batch's newest samples, s: above the 50 ms the RTDE reader
 fell behind under two CPU burners (benchmarks/README.md), below the driver's buffer (the sensor keeps streaming into
 it meanwhile; the next read takes what came)."""
+CATCH_UP_MAX_S = 30.0
+"""Oldest a batch may be (its first sample behind the newest robot state, s) to be predicted from the stream's
+states of its span when the kept predictions do not reach it: the model once per state over at most this much
+(15 000 states at 500 Hz, ~0.5 s of CPU once); older batches fall back (static, or uncompensated)."""
 TAIL_ROWS = 16
 """Newest robot states read per batch when few are new (the bridge: one per controller cycle; the monitor: about
 five per 10 ms batch)."""
@@ -103,6 +114,8 @@ class DynamicCompensator:
         self._last_controller_time = -np.inf
         self.static_batches = 0
         """Batches compensated statically, with the flange orientation at the samples' time."""
+        self.catch_up_batches = 0
+        """Batches older than the kept predictions, predicted from the stream's states of their own span."""
         self.uncompensated_batches = 0
         """Batches with no robot state within MAX_STATE_GAP_S of their samples: compensate() returned None."""
         self.dynamic_batches = 0
@@ -175,6 +188,9 @@ class DynamicCompensator:
         state_times, predicted = self._kept()
         if self.state_wait_s > 0.0 and state_times.size and times[-1] > state_times[-1]:
             state_times, predicted = self._wait_for_states(float(times[-1]))
+        if (state_times.size >= 2 and times[0] < state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S
+                and state_times[-1] - times[0] <= CATCH_UP_MAX_S):
+            state_times, predicted = self._predictions_over(times, state_times, predicted)
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
             if times[-1] > state_times[-1]:  # the batch's newest samples are ahead of the RTDE stream
@@ -189,6 +205,31 @@ class DynamicCompensator:
         self.static_batches += 1
         self._static_pose = pose_rows(self.orientations.position_m, flange_R_base)
         return self.calibration.compensate(batch.wrench, flange_R_base)
+
+    def _predictions_over(self, times: np.ndarray, state_times: np.ndarray,
+                          predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The kept predictions preceded by the model over the older states the stream still keeps around the
+        sample ``times`` (host s, oldest first): from the state before the first sample to the one after the last
+        (q̈ over them with their neighbours, as for new states; the ring is left as it is). Returns the kept ones
+        unchanged when the stream has none older."""
+        rate_hz = float(getattr(self.stream, "frequency_hz", None) or DEFAULT_STATE_RATE_HZ)
+        wanted = int((float(state_times[-1]) - float(times[0])) * rate_hz * 1.25) + 4 * DERIVATIVE_HALF_WIDTH + 8
+        window = self.stream.window(last=wanted)
+        # (half a period below the oldest kept one: its own row, mapped again with a newer line, is not taken twice)
+        older = window.time_s < state_times[0] - 0.5 / rate_hz
+        first = int(np.searchsorted(window.time_s, times[0], side="right")) - 1  # the state before the first sample
+        last = int(np.searchsorted(window.time_s, times[-1], side="left"))  # the state after the last one
+        if first < 0 or not older[first]:
+            return state_times, predicted
+        rows = np.arange(first, min(last + 1, len(window)))
+        rows = rows[older[rows]]
+        low, high = max(first - DERIVATIVE_HALF_WIDTH, 0), min(int(rows[-1]) + DERIVATIVE_HALF_WIDTH + 1, len(window))
+        qdd, _ = joint_acceleration(window.time_s[low:high], window.qd[low:high], window.target_qd[low:high],
+                                    window.qdd[low:high])
+        self.catch_up_batches += 1
+        earlier = self.predictor(window.q[rows], window.qd[rows], qdd[rows - low])
+        return np.concatenate([window.time_s[rows], state_times]), np.vstack([earlier, predicted])
+
 
     def _wait_for_states(self, newest_sample_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Wait (at most ``state_wait_s``) until a robot state at or after ``newest_sample_s`` (host s) is kept;

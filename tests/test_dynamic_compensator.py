@@ -102,7 +102,11 @@ def test_dynamic_compensator_gives_the_whole_window_evaluation():
 
 
 
-def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_samples_time():
+def test_a_batch_older_than_the_predictions_is_predicted_from_the_states_of_its_time():
+    """A batch older than the kept predictions (the monitor's first read after a slow start; a reader that fell
+    behind) is predicted from the stream's states of its own span, not compensated statically with the newest or
+    its own pose: on issue 27's live run a 2 s first read that began 50 ms before the oldest kept prediction was
+    compensated statically throughout a jog move (1.1 N RMS of inertial wrench left in)."""
     truth = CellTruth()
     calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
     states = CycleStates()  # 0.5 s of controller cycles kept
@@ -118,13 +122,16 @@ def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_sam
     at = np.sort(window.time_s[40] + np.random.default_rng(2).uniform(0.0, 0.003, 14))
     batch = SimpleNamespace(time_s=at, device_time_s=np.full(14, np.nan), wrench=wrench)
     got = compensator.compensate(batch, None)
-    assert got is not None and compensator.static_batches == 1 and compensator.dynamic_batches == 0
-    # the expected: each sample's flange orientation interpolated (slerp) between the states around it
+    assert got is not None and compensator.catch_up_batches == 1 and compensator.dynamic_batches == 1
+    assert compensator.static_batches == 0
+    # the expected: the model over every state, interpolated at the samples (the whole-window evaluation)
+    qdd, _ = joint_acceleration(window.time_s, window.qd, window.target_qd, window.qdd)
+    expected = wrench - interpolate_rows(at, window.time_s, compensator.predictor(window.q, window.qd, qdd))
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    # what the static fallback gave: the pose at the samples' time (slerp), without the inertial wrench
     slerp = Slerp(window.time_s, Rotation.from_matrix(np.array([flange(q) for q in window.q])))
-    at_samples = slerp(at).as_matrix()
-    expected = calibration.compensate(wrench, at_samples.transpose(0, 2, 1))
-    # (entry-wise between states closer than SLERP_ABOVE_RAD: at most θ²/8 of the weight, < 2 mN here)
-    np.testing.assert_allclose(got, expected, rtol=0, atol=2e-3)
+    static = calibration.compensate(wrench, slerp(at).as_matrix().transpose(0, 2, 1))
+    assert np.abs(static - expected).max() > 0.05
     newest = calibration.compensate(wrench, flange(window.q[-1]).T)
     assert np.abs(newest - expected).max() > 1.0  # the newest pose would have been wrong by more than a newton
     # the state stream is late (no state within MAX_STATE_GAP_S of the samples): uncompensated, said by None
@@ -134,6 +141,25 @@ def test_a_batch_outside_the_predictions_is_compensated_with_the_pose_at_its_sam
     # a gap in the stream inside the batch's span counts too
     assert compensator.compensate(SimpleNamespace(time_s=window.time_s[0] - 0.2 + np.arange(3) * 0.1,
                                                   device_time_s=np.full(3, np.nan), wrench=wrench[:3]), None) is None
+
+
+def test_a_batch_straddling_the_first_robot_state_is_compensated_statically_where_states_are():
+    """Samples from before the state stream's first package (the sensor started first): the static fallback with
+    the pose at the samples' time when states are near them all, else uncompensated; never a pose from another
+    time."""
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    states = CycleStates()
+    compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0, window_s=0.128)
+    for cycle in cycles(100, seed=3):
+        states.append(cycle)
+    window = states.window(last=100)
+    wrench = np.random.default_rng(1).normal(size=(14, 6))
+    at = window.time_s[0] - 0.004 + np.arange(14) / 7000.0  # 4 ms before the first state, to 2 ms after it
+    got = compensator.compensate(SimpleNamespace(time_s=at, device_time_s=np.full(14, np.nan), wrench=wrench), None)
+    assert compensator.catch_up_batches == 0 and compensator.dynamic_batches == 0
+    assert (got is None) == (compensator.uncompensated_batches == 1) and compensator.static_batches + \
+        compensator.uncompensated_batches == 1
 
 
 def test_a_reader_a_second_behind_the_states_is_still_compensated_dynamically():

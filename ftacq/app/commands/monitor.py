@@ -284,7 +284,8 @@ def run(args: argparse.Namespace) -> int:
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
     if live is not None and (live.uncompensated_batches or getattr(live, "static_batches", 0)
-                             or getattr(live, "held_samples", 0)):
+                             or getattr(live, "held_samples", 0) or getattr(live, "catch_up_batches", 0)
+                             or getattr(live, "waits", 0)):
         print(_compensation_summary(live))
     return 0
 
@@ -299,8 +300,9 @@ def _compensation_summary(live: DynamicCompensator | StaticCompensator) -> str:
         total = live.compensated_batches + live.uncompensated_batches
         return f"static compensation: of {total} reads, {uncompensated}"
     total = live.static_batches + live.uncompensated_batches + live.dynamic_batches
-    return (f"dynamic compensation: {live.static_batches} of {total} reads fell outside the kept robot states and "
-            f"were compensated statically (pose at the samples' time); {uncompensated}; {live.held_samples} samples "
+    return (f"dynamic compensation: {live.catch_up_batches} of {total} reads were older than the kept predictions "
+            f"and were predicted from the robot states of their time; {live.static_batches} fell outside the robot "
+            f"states and were compensated statically (pose at the samples' time); {uncompensated}; {live.held_samples} samples "
             f"were newer than the newest robot state (its prediction held for them; up to "
             f"{1e3 * live.held_max_s:.1f} ms ahead); {live.waits} reads waited for the robot states of their time "
             f"(longest {1e3 * live.waited_max_s:.1f} ms, {live.wait_timeouts} in vain)")
