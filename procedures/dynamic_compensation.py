@@ -23,8 +23,8 @@ once per state of the span, the ring left as it is; counted in :attr:`DynamicCom
 it, a first read of 2 s that began 50 ms before the oldest kept prediction was compensated statically throughout a
 jog move (1.1 N RMS of inertial wrench left in, issue 27).
 
-A batch the kept predictions and the stream's states do not cover (the reader fell behind by more than the ring, or the state stream is
-late) is compensated statically with the flange orientation *at the samples' time*, interpolated (slerp) from the state
+A batch neither the kept predictions nor a catch-up covers (the reader fell behind by more than
+:data:`CATCH_UP_MAX_S`, or the state stream is late) is compensated statically with the flange orientation *at the samples' time*, interpolated (slerp) from the state
 stream's rows by :class:`procedures.flange_orientation.FlangeOrientations`, as :mod:`procedures.static_compensation`
 does for a calibration without inertia (counted in :attr:`DynamicCompensator.static_batches`); when no robot state lies within
 :data:`MAX_STATE_GAP_S` of the samples (the stream is lost or far behind) the batch is left uncompensated:
@@ -229,7 +229,6 @@ class DynamicCompensator:
         self.catch_up_batches += 1
         earlier = self.predictor(window.q[rows], window.qd[rows], qdd[rows - low])
         return np.concatenate([window.time_s[rows], state_times]), np.vstack([earlier, predicted])
-
 
     def _wait_for_states(self, newest_sample_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Wait (at most ``state_wait_s``) until a robot state at or after ``newest_sample_s`` (host s) is kept;

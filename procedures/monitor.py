@@ -72,12 +72,12 @@ ROBOT_RATE_HZ = 30.0
 STATUS_RATE_HZ = 2.0
 """SensorStatus events per second (health plots, the live readout)."""
 THREAD_JOIN_TIMEOUT_S = 10.0
+"""How long the end of a run waits for the listeners to finish their queue."""
 SWITCH_INTERVAL_S = 0.001
 """The interpreter's thread switch interval while streaming, s (given back at the end): the RTDE state reader and
 the sensor's receive thread get the interpreter within this when their data arrive. At Python's default 5 ms the
-RTDE reader was 5.6 ms late at the median and 11.8 ms at p90 beside the monitor's loop (
-measured beside the monitor in issue 27; 1.1 ms at the median with 1 ms), so the newest robot state lagged the sensor samples it should cover."""
-"""How long the end of a run waits for the listeners to finish their queue."""
+RTDE reader was 5.6 ms late at the median and 11.8 ms at p90 beside the monitor's loop, 1.1 ms at the median with
+1 ms (measured in issue 27), so the newest robot state lagged the sensor samples it should cover."""
 
 
 def flange_R_base_from_pose(flange_pose: np.ndarray) -> np.ndarray:
