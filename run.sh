@@ -23,7 +23,7 @@ setup() {
   stamp=.venv/.ftacq-installed
   if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
-    .venv/bin/python -m pip install --quiet -e '.[test]'
+    .venv/bin/python -m pip install --quiet -e '.[test,ros2]'
     touch "$stamp"
   fi
 }

@@ -26,6 +26,7 @@ import numpy as np
 from ftacq.errors import ConfigError
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
 from ftacq.mounts import MOUNT_FORMS, check_mount
+from ftacq.ros2_names import FRAME_FORMS, NAMESPACE_FORMS, check_frame_id, check_namespace
 from ftacq.validation import shown
 
 KINDS = ("float", "int", "bool", "str", "vec3", "poses")
@@ -302,6 +303,10 @@ class SensorConfig:
 
     url: str = setting("netft://192.168.1.1", "netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N] or "
                        "can://INTERFACE/CHANNEL[?base=0x20]", edit=True)
+    frame: str = setting("ft_sensor", "name of the sensor frame (header.frame_id of the ROS 2 wrench topics and "
+                         "the MCAP record: docs/ros2.md)", parse=check_frame_id, forms=FRAME_FORMS)
+    ros2_namespace: str = setting("/ftacq", "ROS 2 namespace of ftacq monitor --ros2's topics and service (and of "
+                                  "the MCAP record's topics)", parse=check_namespace, forms=NAMESPACE_FORMS)
 
 
 @cell_section("tool")

@@ -11,6 +11,11 @@ listeners it wraps.
 - The thread waits ``period_s`` after the first queued event, then takes everything queued and joins consecutive
   WrenchSamples into one (fewer, larger sends to the viewer: each send is one chunk of the recording).
 - A listener that raises is logged, kept in ``errors`` and gets nothing more; the others go on.
+
+A listener whose ``direct`` attribute is true is called by the publisher itself, not from the shared thread:
+the live monitor (:class:`Fanout`) calls it in its acquisition thread, as soon as a read is compensated. Such a
+listener only hands the event over: a ``BackgroundListener(..., direct=True)`` of its own (an unbounded one for a
+consumer that must get every sample, period 0 for one that must get them at once: ROS 2 topics, an MCAP record).
 """
 
 from __future__ import annotations
@@ -70,11 +75,13 @@ class BackgroundListener:
         max_queued: WrenchSamples events that may wait before new ones are dropped.
         period_s: delivery period, s (0: deliver as soon as possible).
         name: the thread's name.
+        direct: ask the publisher to call this listener itself (module docstring).
     """
 
     def __init__(self, listeners: Sequence[Listener], *, max_queued: int = DEFAULT_MAX_QUEUED,
-                 period_s: float = DEFAULT_PERIOD_S, name: str = "ftacq-listeners") -> None:
+                 period_s: float = DEFAULT_PERIOD_S, name: str = "ftacq-listeners", direct: bool = False) -> None:
         self.listeners: list[Listener] = list(listeners)
+        self.direct = direct
         self.max_queued = int(max_queued)
         self.period_s = float(period_s)
         self.errors: list[tuple[Listener, Exception]] = []
@@ -170,3 +177,34 @@ class BackgroundListener:
 
 
 __all__ = ["BackgroundListener", "coalesce"]
+
+
+class Fanout:
+    """A publisher's listeners: the ``direct`` ones (module docstring) called at once, the others through one
+    :class:`BackgroundListener` (``background``). A direct listener that raises is logged, kept in ``errors`` and
+    gets nothing more."""
+
+    def __init__(self, listeners: Sequence[Listener], **background_options) -> None:
+        self.direct = [listener for listener in listeners if getattr(listener, "direct", False)]
+        self.background = BackgroundListener([listener for listener in listeners if listener not in self.direct],
+                                             **background_options)
+        self.errors: list[tuple[Listener, Exception]] = []
+
+    def __call__(self, event: Event) -> None:
+        self.background(event)
+        for listener in self.direct:
+            try:
+                listener(event)
+            except Exception as error:  # noqa: BLE001 - one failing consumer must not stop the others
+                log.exception("listener %r failed; it gets no more events", listener)
+                self.errors.append((listener, error))
+                self.direct = [other for other in self.direct if other is not listener]
+
+    @property
+    def dropped_samples(self) -> int:
+        return self.background.dropped_samples
+
+    @property
+    def first_error(self) -> Exception | None:
+        errors = self.errors + self.background.errors
+        return errors[0][1] if errors else None

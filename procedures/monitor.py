@@ -56,7 +56,7 @@ from ftacq.dynamics.clock import SampleClock
 from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
 from procedures import events
-from procedures.delivery import DEFAULT_MAX_QUEUED, DEFAULT_PERIOD_S, BackgroundListener
+from procedures.delivery import DEFAULT_MAX_QUEUED, DEFAULT_PERIOD_S, Fanout
 
 if TYPE_CHECKING:
     from ftacq.calibration import Calibration
@@ -298,7 +298,8 @@ class LiveMonitor:
         robot: the robot's latest state (:class:`drivers.robot.RobotStateSource`), or None (no compensation that
             needs the arm, no RobotState events).
         compensator: a :class:`Compensator` (e.g. :class:`GravityCompensator`), or None (raw only).
-        listeners: called with every event, from the "ftacq-listeners" thread (never from acquisition).
+        listeners: called with every event, from the "ftacq-listeners" thread (never from acquisition); those with
+            ``direct = True`` from the acquisition thread (they only queue: :class:`procedures.delivery.Fanout`).
         checks: :class:`HealthCheck` objects, called in the acquisition thread with every read.
         record_path: write every sample to this CSV (see :data:`RECORD_COLUMNS`), or None.
         strict: re-raise a listener's failure at the end of :meth:`run` (tests); live, it is only reported.
@@ -333,11 +334,12 @@ class LiveMonitor:
         stop = stop or threading.Event()
         interrupted = threading.Event()
         summary = MonitorSummary(record_path=self.record_path)
-        publisher = BackgroundListener(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
+        fanout = Fanout(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
+        publisher = fanout.background
         recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
         if recorder is not None:
             recorder.start()
-        self._publisher = publisher
+        self._publisher = fanout
         self._last_robot_s = self._last_status_s = -np.inf
         self._robot_connected = True
         start_s = time.monotonic()
@@ -365,9 +367,9 @@ class LiveMonitor:
                 if len(batch) == 0:
                     continue
                 sample_time_s = self.sample_clock.host_times(batch.time_s, batch.device_time_s)
-                samples = self._process(batch)
+                samples = self._process(batch, sample_time_s)
                 self._count(summary, samples)
-                publisher(samples)
+                fanout(samples)
                 if recorder is not None:
                     recorder.put(samples, sample_time_s, self.sample_clock.uncertainty_s)
                 self._run_checks(samples, summary)
@@ -387,17 +389,17 @@ class LiveMonitor:
                 summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
                 summary.socket_drops, summary.ring_overflows = int(health.socket_drops), int(health.ring_overflows)
                 if summary.last_sample_s is not None:
-                    publisher(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
+                    fanout(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
             except FtacqError:
                 log.warning("could not read the sensor's health at the end of the run", exc_info=True)
             publisher.close(THREAD_JOIN_TIMEOUT_S)
             summary.dropped_batches, summary.dropped_samples = publisher.dropped_batches, publisher.dropped_samples
-            if publisher.first_error is not None:
-                summary.listener_error = f"{type(publisher.first_error).__name__}: {publisher.first_error}"
+            if fanout.first_error is not None:
+                summary.listener_error = f"{type(fanout.first_error).__name__}: {fanout.first_error}"
             if recorder is not None:
                 recorder.close()
-        if publisher.first_error is not None and self.strict:
-            raise publisher.first_error
+        if fanout.first_error is not None and self.strict:
+            raise fanout.first_error
         return summary
 
     # -- steps of the acquisition loop ------------------------------------------------------------------------
@@ -409,7 +411,7 @@ class LiveMonitor:
                                  joint_positions_rad=np.asarray(self.robot.joint_positions(), dtype=float),
                                  flange_pose=np.asarray(self.robot.flange_pose(), dtype=float))
 
-    def _process(self, batch: WrenchBatch) -> events.WrenchSamples:
+    def _process(self, batch: WrenchBatch, sample_time_s: np.ndarray | None = None) -> events.WrenchSamples:
         robot = self._robot_state(float(batch.time_s[-1]))
         compensated = None if self.compensator is None else self.compensator.compensate(batch, robot)
         pose_at_samples = getattr(self.compensator, "sample_flange_pose", None)
@@ -419,7 +421,7 @@ class LiveMonitor:
                                     sample_flange_pose=pose_at_samples() if (
                                         pose_at_samples is not None and self.record_path is not None) else None,
                                     uncompensated=self.compensator is not None and robot is not None
-                                    and compensated is None)
+                                    and compensated is None, sample_time_s=sample_time_s)
 
     @staticmethod
     def _count(summary: MonitorSummary, samples: events.WrenchSamples) -> None:

@@ -1,6 +1,7 @@
 """``ftacq monitor``: stream raw and gravity-compensated wrenches, the arm and sensor health to Rerun.
 
-    ftacq monitor --config CELL.toml --calibration CALIBRATION.json [viewer flags] [--seconds S] [--record FILE.csv]
+    ftacq monitor --config CELL.toml --calibration CALIBRATION.json [viewer flags] [--seconds S]
+                  [--record FILE.csv|FILE.mcap] [--ros2 [--ros2-namespace NS] [--ros2-domain-id N] …]
     ftacq monitor --sim [viewer flags] [--seconds S] [--sim-drift N_PER_H] [--sim-warmup N_PER_H]
                   [--sim-swap-tool S] [--auto-tare]
 
@@ -131,6 +132,7 @@ def jog_duration_s(q_from: np.ndarray, q_to: np.ndarray) -> float:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``monitor`` sub-command."""
     from ftacq.app.dashboard.sinks import add_sink_args
+    from ftacq.app.ros2_outputs import add_ros2_args
 
     parser = subparsers.add_parser(
         "monitor",
@@ -171,8 +173,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="monitor even when the calibration was made with another sensor (serial, units or "
                              "counts per unit differ)")
     parser.add_argument("--record", type=Path, metavar="FILE.csv",
-                        help="also write every sample (raw, flange pose, compensated) to this CSV")
+                        help="also write every sample (raw, flange pose, compensated) to this CSV; FILE.mcap: a ROS "
+                             "2 bag of the --ros2 messages, the joint states and the calibration (docs/ros2.md)")
     add_sink_args(parser)
+    add_ros2_args(parser)
     parser.set_defaults(func=run)
 
 
@@ -183,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq import __version__
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.app.readout import LiveReadout, format_summary
+    from ftacq.app.ros2_outputs import check_ros2_args, is_bag, ros2_listeners
     from ftacq.dynamics.clock import SampleClock
     from ftacq.kinematics import ur_model
     from procedures.monitor import LiveMonitor
@@ -196,8 +201,9 @@ def run(args: argparse.Namespace) -> int:
         check_output_file(args.record, "--record")
     if getattr(args, "save", None) is not None:
         check_output_file(args.save, "--save")
+    check_ros2_args(args)
     with contextlib.ExitStack() as stack:
-        calibration = None
+        calibration = config = None
         if args.calibration is not None:
             from ftacq.calfile import load_calibration
 
@@ -271,9 +277,16 @@ def run(args: argparse.Namespace) -> int:
         stack.callback(readout.close)
         if compensator is not None:  # (the drift compensator: built above with the calibration)
             compensator.moving = live  # the drift tracker's compensation, with the robot's state at the samples' time
+        tare = None
+        if args.ros2 and compensator is not None:  # the ROS 2 tare service zeroes the compensated stream
+            from procedures.ros2_stream import LiveTare
+
+            tare = LiveTare(compensator)
+        ros2 = ros2_listeners(args, stack, config, calibration, tare, {"header": "\n".join(header)})
         monitor = LiveMonitor(sensor, robot=robot,
-                              compensator=compensator, checks=checks,
-                              listeners=[dashboard, readout], record_path=args.record, record_header=header,
+                              compensator=tare or compensator, checks=checks,
+                              listeners=[dashboard, readout, *ros2],
+                              record_path=None if is_bag(args.record) else args.record, record_header=header,
                               sample_clock=sample_clock)
         summary = monitor.run(duration_s=args.seconds)
         readout.close()

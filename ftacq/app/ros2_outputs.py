@@ -1,0 +1,135 @@
+"""``ftacq monitor``'s ROS 2 outputs: the options (``--ros2``, ``--ros2-*``, ``--record X.mcap``) and their listeners.
+
+The listeners are :mod:`procedures.ros2_stream`'s, each behind a direct ``BackgroundListener`` of its own
+(:mod:`procedures.delivery`); this module only turns options and CELL.toml keys into them. Needs the ``ros2`` extra
+(``pip install 'ftacq[ros2]'``: Cyclone DDS, mcap); without it, asking for either output says so (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+from pathlib import Path
+from typing import Any
+
+from ftacq.errors import ConfigError
+
+DOMAIN_ID_MAX = 232
+"""The largest DDS domain id with Cyclone DDS's default port mapping (ROS 2: 0-101 and 215-232 are safe on Linux)."""
+LISTENER_QUEUE_BATCHES = 1_000_000
+"""The ROS 2 listeners' queues hold this many reads before dropping (never, in practice: nothing is lost)."""
+
+
+def add_ros2_args(parser: argparse.ArgumentParser) -> None:
+    """Add ``--ros2`` and its options (the record's ``.mcap`` form is ``--record``'s)."""
+    group = parser.add_argument_group("ROS 2 (docs/ros2.md; needs pip install 'ftacq[ros2]')")
+    group.add_argument("--ros2", action="store_true",
+                       help="publish the wrenches, the calibration and the drift tracker's bias as ROS 2 topics over "
+                            "DDS, and serve the tare service (no ROS install needed)")
+    group.add_argument("--ros2-namespace", metavar="NS",
+                       help="namespace of the topics and the service (default: CELL.toml sensor.ros2_namespace, "
+                            "/ftacq)")
+    group.add_argument("--ros2-domain-id", type=int, metavar="N",
+                       help="DDS domain (default: $ROS_DOMAIN_ID, else 0)")
+    group.add_argument("--ros2-rate", type=float, metavar="HZ",
+                       help="wrench messages per second, each the mean of its window (default 1000; 0: every sample)")
+    group.add_argument("--ros2-reliable", action="store_true",
+                       help="reliable wrench topics (default: ROS 2's sensor-data QoS, best effort, keep last 5)")
+    group.add_argument("--ros2-frame-id", metavar="FRAME",
+                       help="header.frame_id of the wrenches: the sensor frame's name (default: CELL.toml "
+                            "sensor.frame, ft_sensor)")
+
+
+def is_bag(path: Path | None) -> bool:
+    """Whether ``--record`` asks for an MCAP bag (by its suffix) rather than the CSV."""
+    return path is not None and Path(path).suffix.lower() == ".mcap"
+
+
+def check_ros2_args(args: argparse.Namespace) -> None:
+    """Check the options before any device opens (ConfigError: one line, exit 2)."""
+    from ftacq.ros2_names import check_frame_id, normalize_namespace
+    from ftacq.validation import check_number
+
+    if args.ros2_namespace is not None:
+        try:
+            normalize_namespace(args.ros2_namespace)
+        except ValueError as error:
+            raise ConfigError(f"--ros2-namespace: {error}") from None
+    if args.ros2_frame_id is not None:
+        try:
+            check_frame_id(args.ros2_frame_id)
+        except ValueError as error:
+            raise ConfigError(f"--ros2-frame-id: {error}") from None
+    if args.ros2_domain_id is not None:
+        check_number(args.ros2_domain_id, "--ros2-domain-id", low=0, high=DOMAIN_ID_MAX)
+    if args.ros2_rate is not None:
+        check_number(args.ros2_rate, "--ros2-rate", low=0.0, high=1e5)
+    if args.ros2 or is_bag(args.record):
+        try:
+            import cyclonedds  # noqa: F401
+            import mcap  # noqa: F401
+        except ImportError as error:
+            raise ConfigError(f"--ros2 / --record .mcap need the ros2 extra ({error.name} is missing): "
+                              "pip install 'ftacq[ros2]'") from None
+
+
+def _domain_id(args: argparse.Namespace) -> int:
+    if args.ros2_domain_id is not None:
+        return int(args.ros2_domain_id)
+    value = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    if not value:
+        return 0
+    if not value.isdigit() or int(value) > DOMAIN_ID_MAX:
+        raise ConfigError(f"ROS_DOMAIN_ID = {value!r}: must be an integer in [0, {DOMAIN_ID_MAX}]")
+    return int(value)
+
+
+def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config: Any, calibration: Any,
+                   tare: Any, metadata: dict[str, str]) -> list:
+    """The listeners for ``--ros2`` and ``--record X.mcap`` (none without either), closed by ``stack``: the bag
+    finished after the stream, the node closed. ``config`` the CellConfig or None (--sim); ``tare`` the stream's
+    :class:`procedures.ros2_stream.LiveTare` or None (no calibration)."""
+    if not (args.ros2 or is_bag(args.record)):
+        return []
+    import numpy as np
+
+    from ftacq.settings import SensorConfig
+    from procedures.delivery import BackgroundListener
+    from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher, StampClock
+
+    sensor = config.sensor if config is not None else SensorConfig()
+    namespace = args.ros2_namespace if args.ros2_namespace is not None else sensor.ros2_namespace
+    frame_id = args.ros2_frame_id or sensor.frame
+    rate_hz = DEFAULT_RATE_HZ if args.ros2_rate is None else args.ros2_rate
+    calibration_json = reference_bias = None
+    if calibration is not None:
+        from ftacq.calfile import calibration_json_text
+
+        calibration_json = calibration_json_text(calibration)
+        reference_bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+    listeners = []
+    clock = StampClock()  # one for both: the bag holds the very messages the topics carry
+    if is_bag(args.record):
+        recorder = BagRecorder(args.record, namespace, frame_id, rate_hz, calibration_json, reference_bias,
+                               metadata=metadata, clock=clock)
+        queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
+                                   name="ftacq-mcap", direct=True)
+        stack.callback(recorder.close)  # after the queue is drained (callbacks run last first)
+        stack.callback(queue.close)
+        listeners.append(queue)
+    if args.ros2:
+        from drivers.ros2.node import Ros2Node
+
+        node = Ros2Node(namespace, _domain_id(args))
+        stack.callback(node.close)
+        publisher = Ros2Publisher(node, frame_id, rate_hz, args.ros2_reliable, calibration_json, reference_bias,
+                                  tare=None if tare is None else tare.tare, clock=clock)
+        queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
+                                   name="ftacq-ros2", direct=True)
+        stack.callback(queue.close)
+        listeners.append(queue)
+    return listeners
+
+
+__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag"]

@@ -1,0 +1,295 @@
+"""ROS 2 over DDS and MCAP bags, checked against implementations that are not ftacq's.
+
+- the CDR bytes: rosbags' own ROS 2 typestore and CDR deserializer (Humble and Jazzy definitions);
+- the topics and the tare service: a subscriber and client in another process (tests/ros2_subscriber.py: Cyclone
+  DDS with ROS 2's type names, its types written there from ROS 2's definitions, the service request as
+  rmw_cyclonedds_cpp sends it), against ``ftacq monitor --sim --ros2``;
+- the bag: mcap-ros2-support's reader and rosbags' rosbag2 reader.
+
+Each end-to-end test has its own DDS domain and namespace (parallel workers never see each other), and discovery on
+loopback without multicast (``CYCLONEDDS_URI`` = :data:`drivers.ros2.node.LOCALHOST_CONFIG`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import select
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cyclonedds")
+pytest.importorskip("mcap_ros2")
+pytest.importorskip("rosbags")
+
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+
+from drivers.ros2.cdr import WrenchStampedEncoder  # noqa: E402
+from drivers.ros2.messages import DEFINITIONS, Header, Time, Vector3, Wrench, WrenchStamped  # noqa: E402
+from procedures.ros2_stream import LiveTare, WindowMean  # noqa: E402
+
+SUBSCRIBER = Path(__file__).with_name("ros2_subscriber.py")
+TYPESTORES = (Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY)
+
+
+@pytest.mark.parametrize("frame_id", ["", "f", "ft_sensor", "tool0_ft_sensor_long_name"])
+@pytest.mark.parametrize("store", TYPESTORES)
+def test_wrench_batches_decode_with_rosbags(frame_id, store):
+    """Every alignment case of the string's padding: the batch encoder's bytes are what Cyclone DDS's serializer
+    writes, and rosbags' CDR deserializer reads back the stamps, the frame and the values exactly."""
+    rng = np.random.default_rng(len(frame_id))
+    stamp_ns = np.array([0, 1, 1_796_000_000_123_456_789, 2**31 * 10**9 - 1])
+    wrench = rng.normal(scale=50.0, size=(len(stamp_ns), 6))
+    data = WrenchStampedEncoder(frame_id).encode(stamp_ns, wrench)
+    typestore = get_typestore(store)
+    for message, ns, row in zip(data, stamp_ns, wrench):
+        decoded = typestore.deserialize_cdr(message, "geometry_msgs/msg/WrenchStamped")
+        assert decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec == ns
+        assert decoded.header.frame_id == frame_id
+        force, torque = decoded.wrench.force, decoded.wrench.torque
+        assert [force.x, force.y, force.z, torque.x, torque.y, torque.z] == row.tolist()
+        reference = WrenchStamped(Header(Time(int(ns // 10**9), int(ns % 10**9)), frame_id),
+                                  Wrench(Vector3(*row[:3]), Vector3(*row[3:])))
+        assert reference.serialize() == message
+
+
+@pytest.mark.parametrize("ros_type", sorted(DEFINITIONS))
+def test_message_definitions_are_ros2s(ros_type):
+    """The MCAP schemas' definitions parse, with rosbags, to the same fields as rosbags' own ROS 2 types."""
+    from rosbags.typesys import get_types_from_msg
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    parts = DEFINITIONS[ros_type].split("=" * 80 + "\n")
+    types = get_types_from_msg(parts[0], ros_type)
+    for part in parts[1:]:
+        header, _, text = part.partition("\n")
+        name = header.removeprefix("MSG: ")
+        package, short = name.split("/")
+        types.update(get_types_from_msg(text, f"{package}/msg/{short}"))
+    for name, (_, fields) in types.items():
+        own_fields = typestore.fielddefs[name][1]
+        assert [field[0] for field in fields] == [field[0] for field in own_fields], name
+
+
+def test_window_means_span_batches():
+    """1 kHz means of 7 kHz samples fed in uneven batches equal the means computed over all samples at once."""
+    time_s = 10.0 + np.arange(7000) / 7000.0
+    values = np.random.default_rng(1).normal(size=(7000, 6))
+    window = WindowMean(1e-3)
+    times, means = [], []
+    for part in np.array_split(np.arange(7000), 37):
+        t, m = window.feed(time_s[part], values[part])
+        times.append(t)
+        means.append(m)
+    times, means = np.concatenate(times), np.concatenate(means)
+    index = np.floor(time_s / 1e-3).astype(int)
+    expected = [values[index == k].mean(axis=0) for k in np.unique(index)[:-1]]  # the last window stays open
+    assert len(means) == len(expected) == 999
+    np.testing.assert_allclose(means, expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(times, [time_s[index == k].mean() for k in np.unique(index)[:-1]], rtol=1e-15)
+
+
+def test_window_stamps_never_go_back():
+    """A batch dated 0.4 ms before what was already sent (the sensor clock's mapping moved back) is counted at the
+    earliest open time: the stamps keep increasing, and no sample is lost from the means."""
+    for period_s in (1e-3, 0.0):
+        window = WindowMean(period_s)
+        first = 1.0 + np.arange(70) / 7000.0
+        late = first[-1] - 4e-4 + np.arange(1, 71) / 7000.0
+        t1, m1 = window.feed(first, np.ones((70, 6)))
+        t2, m2 = window.feed(late, np.ones((70, 6)))
+        stamps = np.concatenate([t1, t2])
+        assert np.all(np.diff(stamps) > 0) if period_s else np.all(np.diff(stamps) >= 0)
+        np.testing.assert_allclose(np.concatenate([m1, m2]), 1.0)
+
+
+def test_live_tare_zeroes_the_recent_mean_and_keeps_it():
+    class Constant:
+        def compensate(self, batch, robot):
+            return batch.wrench.copy()
+
+    class Batch:
+        def __init__(self, t, wrench):
+            self.time_s, self.wrench = t, wrench
+
+    tare = LiveTare(Constant(), window_s=0.1)
+    with pytest.raises(ValueError):
+        tare.tare()
+    for k in range(30):  # 3 s of 10 ms batches; the wrench steps from 1 to 3 N at 2.9 s
+        t = k * 0.1 + np.arange(10) * 0.01
+        tare.compensate(Batch(t, np.where(t[:, None] >= 2.9, 3.0, 1.0) * np.ones((10, 6))), None)
+    offset = tare.tare()
+    np.testing.assert_allclose(offset, 3.0)  # the last 0.1 s only
+    out = tare.compensate(Batch(np.array([3.0, 3.01]), np.full((2, 6), 3.5)), None)
+    np.testing.assert_allclose(out, 0.5)
+
+
+# ------------------------------------------------------------------------------------------------ end to end
+
+
+def _env() -> dict[str, str]:
+    from drivers.ros2.node import LOCALHOST_CONFIG
+
+    env = dict(os.environ, CYCLONEDDS_URI=LOCALHOST_CONFIG, PYTHONPATH=str(Path(__file__).parents[1]))
+    env.pop("ROS_DOMAIN_ID", None)
+    return env
+
+
+def _unique() -> tuple[int, str]:
+    """A domain id and a namespace no other test (or worker) uses at the same time."""
+    token = uuid.uuid4()
+    return 1 + token.int % 200, f"/t{token.hex[:12]}"
+
+
+def _start_subscriber(domain_id: int, namespace: str, out: Path, *options: str) -> subprocess.Popen:
+    process = subprocess.Popen([sys.executable, str(SUBSCRIBER), str(domain_id), namespace, "120", str(out),
+                                *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    ready, _, _ = select.select([process.stdout], [], [], 60.0)
+    assert ready and process.stdout.readline().strip() == "ready", process.stderr.read() if not ready else ""
+    return process
+
+
+def _finish(process: subprocess.Popen, out: Path) -> dict:
+    try:
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 0, stderr
+    return json.loads(out.read_text())
+
+
+def _run_monitor(monkeypatch, *args: str) -> None:
+    from drivers.ros2.node import LOCALHOST_CONFIG
+    from ftacq.app.cli import main as ftacq_main
+
+    monkeypatch.setenv("CYCLONEDDS_URI", LOCALHOST_CONFIG)
+    assert ftacq_main(["monitor", "--sim", *args]) == 0
+
+
+def _stamp_ns(entry: dict) -> int:
+    return entry["stamp"][0] * 10**9 + entry["stamp"][1]
+
+
+@pytest.mark.slow
+def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_path, monkeypatch):
+    """``ftacq monitor --sim --ros2 --seconds 5 --record X.mcap``: a subscriber in another process receives every
+    topic (values decoded there and by rosbags alike), calls the tare service and gets its answer; the bag reads
+    back with mcap-ros2-support and with rosbags, and holds, byte for byte, what the subscriber received."""
+    from mcap.reader import make_reader
+    from mcap_ros2.reader import read_ros2_messages
+    from rosbags.rosbag2 import Reader
+
+    domain_id, namespace = _unique()
+    out, bag = tmp_path / "received.json", tmp_path / "monitor.mcap"
+    subscriber = _start_subscriber(domain_id, namespace, out, "--reliable", "--tare-after", "300")
+    _run_monitor(monkeypatch, "--ros2", "--ros2-reliable", "--ros2-domain-id", str(domain_id), "--ros2-namespace",
+                 namespace, "--ros2-frame-id", "ati_sensor", "--seconds", "5", "--record", str(bag),
+                 "--save", str(tmp_path / "monitor.rrd"))
+    received = _finish(subscriber, out)
+
+    # the topics, as another DDS participant received them
+    for name in ("wrench_raw", "wrench_compensated", "bias", "bias_sigma", "calibration"):
+        assert received[name], name
+    calibration = json.loads(received["calibration"][0]["data"])
+    assert "force_bias" in json.dumps(calibration)
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    for entry in received["wrench_raw"][::50] + received["wrench_compensated"][::50]:
+        decoded = typestore.deserialize_cdr(bytes.fromhex(entry["cdr"]), "geometry_msgs/msg/WrenchStamped")
+        assert decoded.header.frame_id == entry["frame_id"] == "ati_sensor"
+        force, torque = decoded.wrench.force, decoded.wrench.torque
+        assert [force.x, force.y, force.z, torque.x, torque.y, torque.z] == entry["wrench"]
+
+    # the tare service, called from the other participant as a ROS 2 (rmw_cyclonedds_cpp) client calls it
+    assert len(received["tare_replies"]) == 1
+    reply = received["tare_replies"][0]
+    assert reply["success"], reply
+    assert (reply["guid"], reply["seq"]) == (received["request_guid"], 1)
+    offset = re.fullmatch(r"tared: offset applied F \[(.*)\] N, T \[(.*)\] N·m", reply["message"])
+    assert offset is not None and len((offset[1] + ", " + offset[2]).split(", ")) == 6
+
+    # the bag: ROS 2 profile, full definitions; two independent readers agree with each other and with the wire
+    with open(bag, "rb") as handle:
+        reader = make_reader(handle)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        schemas = {schema.name: schema for schema in summary.schemas.values()}
+        assert {schema.encoding for schema in schemas.values()} == {"ros2msg"}
+        assert schemas["geometry_msgs/msg/WrenchStamped"].data.decode() == DEFINITIONS[
+            "geometry_msgs/msg/WrenchStamped"]
+        metadata = {record.name: record.metadata for record in reader.iter_metadata()}
+        assert json.loads(metadata["ftacq_calibration"]["json"]) == calibration
+    by_mcap: dict[str, list] = {}
+    for message in read_ros2_messages(str(bag)):
+        by_mcap.setdefault(message.channel.topic, []).append(message)
+    by_rosbags: dict[str, list[bytes]] = {}
+    with Reader(bag) as rosbag:
+        for connection, _, raw in rosbag.messages():
+            by_rosbags.setdefault(connection.topic, []).append(bytes(raw))
+    topics = {f"{namespace}/{name}" for name in ("wrench_raw", "wrench_compensated", "bias", "bias_sigma",
+                                                  "calibration", "joint_states")}
+    assert set(by_mcap) == set(by_rosbags) == topics
+    for topic in topics:
+        assert len(by_mcap[topic]) == len(by_rosbags[topic])
+    joint_state = by_mcap[f"{namespace}/joint_states"][-1].ros_msg
+    assert list(joint_state.name)[0] == "shoulder_pan_joint" and len(joint_state.position) == 6
+    for name in ("wrench_raw", "wrench_compensated"):
+        in_bag = set(by_rosbags[f"{namespace}/{name}"])
+        wire = [bytes.fromhex(entry["cdr"]) for entry in received[name]]
+        assert all(message in in_bag for message in wire), name  # identical values, stamps and frames
+        assert len(wire) >= 0.9 * len(in_bag), (name, len(wire), len(in_bag))  # reliable: all but discovery's start
+        stamps = [_stamp_ns(entry) for entry in received[name]]
+        assert stamps == sorted(stamps)
+
+
+@pytest.mark.slow
+def test_every_sample_on_the_wire_equals_the_monitor_record(tmp_path, monkeypatch):
+    """``--ros2-rate 0``: one message per sample; each raw and compensated message the subscriber receives equals
+    the row of the monitor's own CSV record with the same sample time (the stamp is that time + one offset)."""
+    from tests.scripted import read_record
+
+    domain_id, namespace = _unique()
+    out, record = tmp_path / "received.json", tmp_path / "monitor.csv"
+    subscriber = _start_subscriber(domain_id, namespace, out, "--reliable")
+    _run_monitor(monkeypatch, "--sim-still", "--ros2", "--ros2-reliable", "--ros2-rate", "0", "--ros2-domain-id",
+                 str(domain_id), "--ros2-namespace", namespace, "--seconds", "3", "--record", str(record),
+                 "--save", str(tmp_path / "monitor.rrd"))
+    received = _finish(subscriber, out)
+    table = read_record(record)
+    sample_ns = np.rint(table["sample_time_s"] * 1e9).astype(np.int64)
+    for name, columns in (("wrench_raw", ("fx", "fy", "fz", "tx", "ty", "tz")),
+                          ("wrench_compensated", tuple("contact_" + c for c in ("fx", "fy", "fz", "tx", "ty", "tz")))):
+        entries = received[name]
+        assert len(entries) > 1000, name
+        stamps = np.array([_stamp_ns(entry) for entry in entries])
+        values = np.column_stack([table[c] for c in columns])
+        first = np.flatnonzero(np.all(np.isclose(values, entries[0]["wrench"], rtol=1e-8, atol=1e-12), axis=1))
+        assert len(first) == 1, name  # noisy samples: one row has these values
+        offset_ns = stamps[0] - sample_ns[first[0]]  # the stamp clock's (UNIX − monotonic), one for the run
+        rows = np.clip(np.searchsorted(sample_ns, stamps - offset_ns), 1, len(sample_ns) - 1)
+        rows -= (stamps - offset_ns - sample_ns[rows - 1]) < (sample_ns[rows] - (stamps - offset_ns))  # nearest
+        apart_ns = np.abs(sample_ns[rows] - (stamps - offset_ns))
+        # < 1 µs apart: the same sample (float seconds), except where the sensor clock's mapping stepped back and
+        # the stamps were held from going back (WindowMean): rarely, and less than a millisecond
+        assert np.mean(apart_ns <= 1000) > 0.99 and apart_ns.max() < 1e6, (name, np.sort(apart_ns)[-10:])
+        expected = values[rows]
+        held = apart_ns > 1000
+        np.testing.assert_allclose(np.array([entry["wrench"] for entry in entries])[~held], expected[~held],
+                                   rtol=1e-8, atol=1e-12)
+
+
+def test_bad_ros2_options_are_one_line_and_exit_2(tmp_path, capsys):
+    from ftacq.app.cli import main as ftacq_main
+
+    for options, text in ((["--ros2-namespace", "/9cell"], "--ros2-namespace"),
+                          (["--ros2-domain-id", "300"], "--ros2-domain-id"),
+                          (["--ros2-frame-id", "/ft"], "--ros2-frame-id")):
+        assert ftacq_main(["monitor", "--sim", "--ros2", *options, "--seconds", "1"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert text in err and "Traceback" not in err and len(err.splitlines()) == 1
