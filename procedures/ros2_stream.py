@@ -7,7 +7,7 @@ every batch (the bag: an unbounded queue) and at once (the topics: period 0), ne
 What they send (ROS names under the node's namespace, docs/ros2.md):
 
 - ``wrench_raw``, ``wrench_compensated`` (``geometry_msgs/msg/WrenchStamped``): the sensor-frame wrench [N, N·m] as
-  read, and the contact wrench after compensation (and the tare, :class:`LiveTare`); ``header.frame_id`` the sensor
+  read, and the contact wrench after compensation (and the tare, :class:`OffsetTare`); ``header.frame_id`` the sensor
   frame's name; ``header.stamp`` the sample's time: its time on the host monotonic clock (the record's
   ``sample_time_s``) + (UNIX − monotonic) taken once at the start (:class:`StampClock`), i.e. ROS time on this host.
   At ``rate_hz`` (default 1 kHz) each message is the mean of the samples in one window [k/rate, (k+1)/rate) of
@@ -88,7 +88,7 @@ class WindowMean:
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
 
 
-class LiveTare:
+class OffsetTare:
     """The compensated stream's tare (the monitor's Compensator seam, wrapping the live compensator).
 
     :meth:`tare` (from any thread) takes the mean compensated wrench over the last :data:`TARE_WINDOW_S` of samples
@@ -281,5 +281,5 @@ class BagRecorder:
         self.bag.close()
 
 
-__all__ = ["Ros2Publisher", "BagRecorder", "LiveTare", "WindowMean", "StampClock", "DEFAULT_RATE_HZ",
+__all__ = ["Ros2Publisher", "BagRecorder", "OffsetTare", "WindowMean", "StampClock", "DEFAULT_RATE_HZ",
            "UR_JOINT_NAMES", "TARE_WINDOW_S"]

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import cyclonedds.idl as idl
 import cyclonedds.idl.annotations as annotate
 import cyclonedds.idl.types as types
-from cyclonedds.core import Policy, Qos
+from cyclonedds.core import InstanceState, Policy, Qos, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
@@ -91,7 +91,6 @@ CDR = Policy.DataRepresentation(use_cdrv0_representation=True)
 def take_raw(reader: DataReader) -> list:
     """The samples as the wire brought them: (serialized bytes with their encapsulation header, sample info)."""
     from cyclonedds._clayer import ddspy_take
-    from cyclonedds.core import InstanceState, SampleState, ViewState
 
     taken = ddspy_take(reader._ref, SampleState.Any | ViewState.Any | InstanceState.Any, 1000)
     return [] if isinstance(taken, int) else taken
@@ -124,41 +123,49 @@ def main() -> None:
                                                    qos=service_qos), qos=client_qos)
     reply_reader = DataReader(participant, Topic(participant, f"rr{namespace}/tareReply", Trigger_Response_,
                                                  qos=service_qos), qos=client_qos)
+    waitset = WaitSet(participant)
+    for reader in readers.values():
+        waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    waitset.attach(ReadCondition(reply_reader, SampleState.Any | ViewState.Any | InstanceState.Any))
     print("ready", flush=True)
-    got: dict = {name: [] for name in readers}
+    raw: dict = {name: [] for name in readers}  # (receipt time, bytes): decoded after the run, not while receiving
     replies = []
     request = None
     deadline = time.time() + seconds
     seen_data = False
     while time.time() < deadline:
+        waitset.wait(duration(milliseconds=100))  # wakes when data arrive
         for name, reader in readers.items():
-            for data, info in take_raw(reader):
-                if not info.valid_data:
-                    continue
+            taken = take_raw(reader)
+            if taken:
                 received_s = time.time()
+                raw[name].extend((received_s, data) for data, info in taken if info.valid_data)
                 seen_data = True
-                sample = reader.topic.data_type.deserialize(data)
-                entry = {"received_s": received_s, "cdr": bytes(data).hex()}
-                if isinstance(sample, WrenchStamped_):
-                    w = sample.wrench
-                    entry.update(stamp=[sample.header.stamp.sec, sample.header.stamp.nanosec],
-                                 frame_id=sample.header.frame_id,
-                                 wrench=[w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z])
-                else:
-                    entry["data"] = sample.data
-                got[name].append(entry)
-        if (tare_after is not None and request is None and len(got["wrench_compensated"]) >= tare_after
+        if (tare_after is not None and request is None and len(raw["wrench_compensated"]) >= tare_after
                 and request_writer.get_matched_subscriptions()):
             request = Trigger_Request_(guid=request_writer.instance_handle & 0xFFFFFFFFFFFFFFFF, seq=1)
             request_writer.write(request)
-            got["tare_requested_after"] = len(got["wrench_compensated"])
         for reply in reply_reader.take(N=10):
             if getattr(reply.sample_info, "valid_data", False):
                 replies.append({"guid": reply.guid, "seq": reply.seq, "success": reply.success,
-                                "message": reply.message, "after": len(got["wrench_compensated"])})
+                                "message": reply.message})
         if seen_data and not readers["wrench_raw"].get_matched_publications():
             break  # the publisher is gone
-        time.sleep(0.002)
+    got: dict = {}
+    for name, entries in raw.items():
+        data_type = readers[name].topic.data_type
+        got[name] = []
+        for received_s, data in entries:
+            sample = data_type.deserialize(data)
+            entry = {"received_s": received_s, "cdr": bytes(data).hex()}
+            if isinstance(sample, WrenchStamped_):
+                w = sample.wrench
+                entry.update(stamp=[sample.header.stamp.sec, sample.header.stamp.nanosec],
+                             frame_id=sample.header.frame_id,
+                             wrench=[w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z])
+            else:
+                entry["data"] = sample.data
+            got[name].append(entry)
     got["tare_replies"] = replies
     got["request_guid"] = None if request is None else request.guid
     with open(out, "w") as handle:

@@ -179,8 +179,11 @@ class Ros2Node:
 
 def _user_data_key(qos: Qos | None, key: str) -> str | None:
     """A ``key=value;`` entry of an endpoint's user data (rmw_cyclonedds_cpp puts ``clientid=…;`` there)."""
-    policy = None if qos is None else qos.get(Policy.Userdata)
-    if policy is None:
+    try:
+        policy = qos[Policy.Userdata]  # type: ignore[index]
+    except (KeyError, TypeError):  # no QoS
+        return None
+    if policy is None:  # no user data
         return None
     for entry in bytes(policy.data).decode("utf-8", "replace").split(";"):
         name, _, value = entry.partition("=")

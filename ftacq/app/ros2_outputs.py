@@ -17,6 +17,9 @@ from ftacq.errors import ConfigError
 
 DOMAIN_ID_MAX = 232
 """The largest DDS domain id with Cyclone DDS's default port mapping (ROS 2: 0-101 and 215-232 are safe on Linux)."""
+ROS2_READ_PERIOD_S = 0.002
+"""With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S): a
+sample waits for the next read before it is published (benchmarks/ros2.py: latency against CPU)."""
 LISTENER_QUEUE_BATCHES = 1_000_000
 """The ROS 2 listeners' queues hold this many reads before dropping (never, in practice: nothing is lost)."""
 
@@ -89,7 +92,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config
                    tare: Any, metadata: dict[str, str]) -> list:
     """The listeners for ``--ros2`` and ``--record X.mcap`` (none without either), closed by ``stack``: the bag
     finished after the stream, the node closed. ``config`` the CellConfig or None (--sim); ``tare`` the stream's
-    :class:`procedures.ros2_stream.LiveTare` or None (no calibration)."""
+    :class:`procedures.ros2_stream.OffsetTare` or None (no calibration)."""
     if not (args.ros2 or is_bag(args.record)):
         return []
     import numpy as np

@@ -187,10 +187,11 @@ def run(args: argparse.Namespace) -> int:
     from ftacq import __version__
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.app.readout import LiveReadout, format_summary
+    from ftacq.app import ros2_outputs
     from ftacq.app.ros2_outputs import check_ros2_args, is_bag, ros2_listeners
     from ftacq.dynamics.clock import SampleClock
     from ftacq.kinematics import ur_model
-    from procedures.monitor import LiveMonitor
+    from procedures.monitor import BATCH_PERIOD_S, LiveMonitor
 
     from ftacq.validation import check_number, check_output_file
 
@@ -279,15 +280,16 @@ def run(args: argparse.Namespace) -> int:
             compensator.moving = live  # the drift tracker's compensation, with the robot's state at the samples' time
         tare = None
         if args.ros2 and compensator is not None:  # the ROS 2 tare service zeroes the compensated stream
-            from procedures.ros2_stream import LiveTare
+            from procedures.ros2_stream import OffsetTare
 
-            tare = LiveTare(compensator)
+            tare = OffsetTare(compensator)
         ros2 = ros2_listeners(args, stack, config, calibration, tare, {"header": "\n".join(header)})
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=tare or compensator, checks=checks,
                               listeners=[dashboard, readout, *ros2],
                               record_path=None if is_bag(args.record) else args.record, record_header=header,
-                              sample_clock=sample_clock)
+                              sample_clock=sample_clock,
+                              batch_period_s=ros2_outputs.ROS2_READ_PERIOD_S if args.ros2 else BATCH_PERIOD_S)
         summary = monitor.run(duration_s=args.seconds)
         readout.close()
         dashboard.flush()
