@@ -89,12 +89,14 @@ def _domain_id(args: argparse.Namespace) -> int:
 
 
 def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config: Any, calibration: Any,
-                   tare: Any, metadata: dict[str, str]) -> list:
+                   tare: Any, metadata: dict[str, str]) -> tuple[list, list[str]]:
     """The listeners for ``--ros2`` and ``--record X.mcap`` (none without either), closed by ``stack``: the bag
     finished after the stream, the node closed. ``config`` the CellConfig or None (--sim); ``tare`` the stream's
-    :class:`procedures.ros2_stream.OffsetTare` or None (no calibration)."""
+    :class:`procedures.ros2_stream.OffsetTare` or None (no calibration). Also returns a list that the run's last
+    lines are appended to once ``stack`` has closed (what was published and recorded)."""
+    report: list[str] = []
     if not (args.ros2 or is_bag(args.record)):
-        return []
+        return [], report
     import numpy as np
 
     from ftacq.settings import SensorConfig
@@ -118,6 +120,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config
                                metadata=metadata, clock=clock)
         queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
                                    name="ftacq-mcap", direct=True)
+        stack.callback(lambda: report.append(f"ROS 2 bag: {recorder.bag.messages} messages recorded in {args.record}"))
         stack.callback(recorder.close)  # after the queue is drained (callbacks run last first)
         stack.callback(queue.close)
         listeners.append(queue)
@@ -128,11 +131,15 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config
         stack.callback(node.close)
         publisher = Ros2Publisher(node, frame_id, rate_hz, args.ros2_reliable, calibration_json, reference_bias,
                                   tare=None if tare is None else tare.tare, clock=clock)
+        stack.callback(lambda: report.append(
+            f"ROS 2: published under {node.namespace or '/'} on domain {node.domain_id}: "
+            + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
+            + (f"; {tare.tares} tares" if tare is not None else "")))
         queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
                                    name="ftacq-ros2", direct=True)
         stack.callback(queue.close)
         listeners.append(queue)
-    return listeners
+    return listeners, report
 
 
 __all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag"]

@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
             from procedures.ros2_stream import OffsetTare
 
             tare = OffsetTare(compensator)
-        ros2 = ros2_listeners(args, stack, config, calibration, tare, {"header": "\n".join(header)})
+        ros2, ros2_report = ros2_listeners(args, stack, config, calibration, tare, {"header": "\n".join(header)})
         monitor = LiveMonitor(sensor, robot=robot,
                               compensator=tare or compensator, checks=checks,
                               listeners=[dashboard, readout, *ros2],
@@ -296,6 +296,8 @@ def run(args: argparse.Namespace) -> int:
         dashboard.dashboard.log_text(f"monitor stopped: {summary.samples} samples, {summary.lost} lost, "
                                      f"{summary.dropped_samples} dropped for the viewer")
     print(format_summary(summary))
+    for line in ros2_report:
+        print(line)
     if compensator is not None and hasattr(compensator, "health"):
         print(format_drift(compensator))
     if live is not None and (live.uncompensated_batches or getattr(live, "static_batches", 0)
