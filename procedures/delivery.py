@@ -112,6 +112,11 @@ class BackgroundListener:
             if len(self._queue) == 1:
                 self._condition.notify()
 
+    def add(self, listener: Listener) -> None:
+        """Add a listener: it receives the events delivered from now on (any thread)."""
+        with self._condition:
+            self.listeners.append(listener)
+
     @property
     def first_error(self) -> Exception | None:
         """The first exception a listener raised, or None."""
@@ -199,6 +204,13 @@ class Fanout:
                 log.exception("listener %r failed; it gets no more events", listener)
                 self.errors.append((listener, error))
                 self.direct = [other for other in self.direct if other is not listener]
+
+    def add(self, listener: Listener) -> None:
+        """Add a listener (a direct one, or one for the background thread): it gets the events from now on."""
+        if getattr(listener, "direct", False):
+            self.direct = [*self.direct, listener]
+        else:
+            self.background.add(listener)
 
     @property
     def dropped_samples(self) -> int:

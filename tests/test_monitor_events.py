@@ -219,3 +219,28 @@ def test_ftacq_monitor_prints_a_live_readout_and_a_consistent_last_line(tmp_path
     count, seconds, rate = int(match[1]), float(match[2]), int(match[3])
     assert abs(count / seconds - rate) <= printing_tolerance_hz(count, seconds)
     assert 0.5 * 7000 < rate < 1.5 * 7000  # the simulated sensor's 7 kHz (loosely: the machine may be loaded)
+
+
+def test_fanout_hands_direct_listeners_each_event_in_the_publishers_thread():
+    """A ``direct`` listener is called at once by the publisher (the monitor's acquisition thread), the others from
+    the background thread; a direct listener that raises gets nothing more and the others go on."""
+    from procedures.delivery import Fanout
+
+    seen: dict[str, list] = {"direct": [], "background": []}
+
+    def direct(event):
+        seen["direct"].append((event, threading.current_thread().name))
+
+    def broken(event):
+        raise RuntimeError("a consumer failed")
+
+    direct.direct = True  # type: ignore[attr-defined]
+    broken.direct = True  # type: ignore[attr-defined]
+    fanout = Fanout([direct, broken, lambda event: seen["background"].append(event)], period_s=0.0)
+    notices = [events.Notice(f"n{k}") for k in range(3)]
+    for notice in notices:
+        fanout(notice)
+        assert seen["direct"][-1] == (notice, threading.current_thread().name)  # delivered before the call returned
+    fanout.background.close()
+    assert seen["background"] == notices
+    assert isinstance(fanout.first_error, RuntimeError) and len(fanout.errors) == 1  # called once, then dropped

@@ -178,7 +178,7 @@ def _stamp_ns(entry: dict) -> int:
 
 
 @pytest.mark.slow
-def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_path, monkeypatch):
+def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_path, monkeypatch, capsys):
     """``ftacq monitor --sim --ros2 --seconds 5 --record X.mcap``: a subscriber in another process receives every
     topic (values decoded there and by rosbags alike), calls the tare service and gets its answer; the bag reads
     back with mcap-ros2-support and with rosbags, and holds, byte for byte, what the subscriber received."""
@@ -194,6 +194,7 @@ def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_pat
                  "--ros2-namespace", namespace, "--ros2-frame-id", "ati_sensor", "--seconds", "5", "--record", str(bag),
                  "--save", str(tmp_path / "monitor.rrd"))
     received = _finish(subscriber, out)
+    last_lines = capsys.readouterr().out
 
     # the topics, as another DDS participant received them
     for name in ("wrench_raw", "wrench_compensated", "calibration"):
@@ -238,6 +239,8 @@ def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_pat
     by_rosbags.setdefault(f"{namespace}/bias", [])
     for topic in topics:
         assert len(by_mcap[topic]) == len(by_rosbags[topic])
+    assert f"ROS 2 bag: {sum(map(len, by_rosbags.values()))} messages recorded in {bag}" in last_lines
+    assert "; 1 tares" in last_lines
     joint_state = by_mcap[f"{namespace}/joint_states"][-1].ros_msg
     assert list(joint_state.name)[0] == "shoulder_pan_joint" and len(joint_state.position) == 6
     # the drift tracker's bias: once it has seen the arm at rest (a second or two of sample time; under heavy load

@@ -68,6 +68,8 @@ def check_ros2_args(args: argparse.Namespace) -> None:
         check_number(args.ros2_domain_id, "--ros2-domain-id", low=0, high=DOMAIN_ID_MAX)
     if args.ros2_rate is not None:
         check_number(args.ros2_rate, "--ros2-rate", low=0.0, high=1e5)
+    if args.ros2:
+        _domain_id(args)  # $ROS_DOMAIN_ID checked now, before any device opens
     if args.ros2 or is_bag(args.record):
         try:
             import cyclonedds  # noqa: F401
@@ -75,6 +77,12 @@ def check_ros2_args(args: argparse.Namespace) -> None:
         except ImportError as error:
             raise ConfigError(f"--ros2 / --record .mcap need the ros2 extra ({error.name} is missing): "
                               "pip install 'ftacq[ros2]'") from None
+
+
+def _failed(what: str, queue: Any) -> str:
+    """A last line for a ROS 2 listener that failed (it got no more events after its error), else ""."""
+    error = queue.first_error
+    return f"{what}: FAILED, stopped at {type(error).__name__}: {error}" if error is not None else ""
 
 
 def _domain_id(args: argparse.Namespace) -> int:
@@ -118,12 +126,13 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config
     if is_bag(args.record):
         recorder = BagRecorder(args.record, namespace, frame_id, rate_hz, calibration_json, reference_bias,
                                metadata=metadata, clock=clock)
-        queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
-                                   name="ftacq-mcap", direct=True)
-        stack.callback(lambda: report.append(f"ROS 2 bag: {recorder.bag.messages} messages recorded in {args.record}"))
+        bag_queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
+                                       name="ftacq-mcap", direct=True)
+        stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or
+                                             f"ROS 2 bag: {recorder.bag.messages} messages recorded in {args.record}"))
         stack.callback(recorder.close)  # after the queue is drained (callbacks run last first)
-        stack.callback(queue.close)
-        listeners.append(queue)
+        stack.callback(bag_queue.close)
+        listeners.append(bag_queue)
     if args.ros2:
         from drivers.ros2.node import Ros2Node
 
@@ -131,14 +140,15 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config
         stack.callback(node.close)
         publisher = Ros2Publisher(node, frame_id, rate_hz, args.ros2_reliable, calibration_json, reference_bias,
                                   tare=None if tare is None else tare.tare, clock=clock)
+        dds_queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
+                                       name="ftacq-ros2", direct=True)
         stack.callback(lambda: report.append(
-            f"ROS 2: published under {node.namespace or '/'} on domain {node.domain_id}: "
+            _failed("ROS 2", dds_queue)
+            or f"ROS 2: published under {node.namespace or '/'} on domain {node.domain_id}: "
             + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
             + (f"; {tare.tares} tares" if tare is not None else "")))
-        queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
-                                   name="ftacq-ros2", direct=True)
-        stack.callback(queue.close)
-        listeners.append(queue)
+        stack.callback(dds_queue.close)
+        listeners.append(dds_queue)
     return listeners, report
 
 
