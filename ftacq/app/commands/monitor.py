@@ -140,7 +140,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Stream the sensor at full rate, compensate gravity with the robot's latest orientation and "
                     "show raw and compensated wrenches, the arm in 3-D and sensor health in Rerun. Reads the "
                     "robot, never moves it. Stop with Ctrl-C or --seconds.",
-        **examples("ftacq monitor --sim --seconds 20",
+        **examples("ftacq monitor --sim --seconds 20 --ros2 --record monitor.mcap",
                    "ftacq monitor --config CELL.toml --calibration runs/20260101-120000/calibration.json",
                    "ftacq monitor --config CELL.toml --calibration calibration.json --record monitor.csv --seconds 60"),
     )
