@@ -36,6 +36,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from drivers.ros2.messages import TriggerRequest, TriggerResponse
+from ftacq.errors import DeviceConnectionError
 from ftacq.ros2_names import normalize_namespace
 
 try:  # writes bytes already serialized (drivers/ros2/cdr.py) without one Python object per message
@@ -119,8 +120,12 @@ class Ros2Node:
         self.domain_id = int(domain_id)
         if config is None and localhost_only():
             config = LOCALHOST_CONFIG
-        self._domain = Domain(self.domain_id, config) if config is not None else None
-        self.participant = DomainParticipant(self.domain_id)
+        try:
+            self._domain = Domain(self.domain_id, config) if config is not None else None
+            self.participant = DomainParticipant(self.domain_id)
+        except Exception as error:  # DDSException: a bad CYCLONEDDS_URI, no usable network interface, …
+            raise DeviceConnectionError(f"ROS 2: no DDS participant on domain {self.domain_id} ({error}); check "
+                                        "CYCLONEDDS_URI and the network interfaces") from None
         self._publisher = Publisher(self.participant)
         self._subscriber = Subscriber(self.participant)
         self._topics: dict[str, Topic] = {}
