@@ -46,6 +46,12 @@ EXIT_STATUS: tuple[tuple[type[FtacqError], int], ...] = (
     (FtacqError, EXIT_FAILURE),
 )
 """Exception type → exit status, first match wins (subclasses before their bases)."""
+EXIT_STATUS_TEXT = (
+    "Exit status: 0 done, 1 a device or run fault (data kept), 2 bad input (one line: file, field, value, why; "
+    "nothing half written), 130 interrupted by Ctrl-C or SIGTERM (the robot stopped, data kept), 141 standard "
+    "output closed by its reader. An output file's folder must exist; a run folder (`calibrate --out`) is created."
+)
+"""The exit statuses in words, as the reference pages and the README say them."""
 
 
 class CommandModuleError(Exception):
