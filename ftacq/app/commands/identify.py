@@ -10,6 +10,19 @@ from ftacq.app.helptext import examples
 from ftacq.mounts import MOUNT_FORMS
 
 
+def add_unit_options(parser: argparse.ArgumentParser, what: str) -> argparse._ArgumentGroup:
+    """Add ``--force-unit`` and ``--torque-unit`` (the units of ``what``'s wrench columns); return their group."""
+    from ftacq.units import FORCE_UNITS, TORQUE_UNITS
+
+    units = parser.add_argument_group(f"units of {what} (docs/formats.md; default N and N·m)")
+    units.add_argument("--force-unit", metavar="UNIT",
+                       help=f"unit of the force columns when the file does not say: {', '.join(FORCE_UNITS)}")
+    units.add_argument("--torque-unit", metavar="UNIT",
+                       help=f"unit of the torque columns when the file does not say: {', '.join(TORQUE_UNITS)} "
+                            "(an ATI box set to N-mm records N-mm)")
+    return units
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``identify`` sub-command."""
     parser = subparsers.add_parser(
@@ -40,12 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--gravity-direction", metavar="X,Y,Z",
         help="the mount as the direction of gravity in the robot base frame (any length), e.g. 0.539,0.699,-0.470",
     )
-    units = parser.add_argument_group("units of the pose record (docs/formats.md; default N and N·m)")
-    units.add_argument("--force-unit", metavar="UNIT",
-                       help="unit of the force columns when the file does not say: N, kN, lbf, kgf, gf, klbf")
-    units.add_argument("--torque-unit", metavar="UNIT",
-                       help="unit of the torque columns when the file does not say: N-m, N-mm, lbf-in, lbf-ft, "
-                            "kgf-cm, kN-m (an ATI box set to N-mm records N-mm)")
+    units = add_unit_options(parser, "the pose record")
     units.add_argument("--wrench-frame", choices=("sensor", "base"), default="sensor",
                        help="frame of the wrench columns: the sensor's (default; the pose record's) or the robot "
                             "base frame (rotated into the flange frame before the fit); the verdict names a wrong one")
@@ -183,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = with_provenance(  # a pose file does not say which sensor measured it
         result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
-                           has_count=record.count is not None))
+                           has_count=record.count is not None, units=record.units))
     report = format_identification_report(result, validation=validation)
     if args.motion:
         calibration, motion_report = _dynamic(args, calibration)

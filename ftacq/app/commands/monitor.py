@@ -264,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
                   f"robot: {robot_host} ({model.name})",
                   f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange",
+                  "force_unit: N", "torque_unit: N-m",  # read by ftacq compensate (docs/formats.md)
                   "times: time_s = receive time; sample_time_s = the sensor's own clock (device_time_s) on the host "
                   "monotonic clock through the minimum-delay line, clock_uncertainty_s its uncertainty "
                   "(docs/dynamics.md, How the clocks are aligned)"]
