@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.posefile import read_pose_csv
     from ftacq.posesets import is_identified_on
     from ftacq.provenance import input_record, with_provenance
-    from ftacq.report import format_identification_report, validation_errors
+    from ftacq.report import SUMMARY_ROWS, format_identification_report, validation_errors
     from ftacq.verdict import FAIL, format_verdict
 
     from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
@@ -193,11 +193,20 @@ def run(args: argparse.Namespace) -> int:
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
                            has_count=record.count is not None, units=record.units))
     report = format_identification_report(result, validation=validation)
+    summary = format_identification_report(result, validation=validation, limit=SUMMARY_ROWS)
     if args.motion:
         calibration, motion_report = _dynamic(args, calibration)
         report += motion_report
+        summary += motion_report
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
-    sys.stdout.write(report)
+    if summary != report:  # a long record: the console gets the worst poses, the file every one
+        from ftacq.fileio import atomic_write
+
+        full = Path(args.output).with_suffix(".report.txt")
+        with atomic_write(full) as handle:
+            handle.write(report)
+        summary += f"(the console shows the worst {SUMMARY_ROWS} poses per list; every pose: {full})\n"
+    sys.stdout.write(summary)
     converted = {kind: unit for kind, unit in record.units.items() if unit not in ("N", "N-m")}
     if converted:
         print("units read: " + ", ".join(f"{kind} in {unit}" for kind, unit in converted.items())
