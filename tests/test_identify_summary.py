@@ -31,3 +31,31 @@ def test_a_long_disturbed_record_gets_a_summary_and_the_full_list_in_a_file(tmp_
     assert f"every pose: {full}" in text
     report = full.read_text()
     assert report.count("looks disturbed") == DISTURBED and "… and" not in report
+
+
+def test_hold_out_lets_a_recording_without_sets_pass(tmp_path, capsys):
+    """Issue 38, item 5: an imported recording has no V poses; --hold-out FRACTION holds some out, spread over the
+    record, so the verdict can check (and pass) the calibration on poses it was not fitted to."""
+    from dataclasses import replace
+
+    from ftacq.calfile import load_calibration
+    from tests.fakes.pose_records import example_record
+
+    record = example_record(seed=4)
+    record = replace(record, sets=("",) * len(record))  # as imported: no sets
+    path = tmp_path / "imported.csv"
+    write_pose_csv(path, record)
+    out = tmp_path / "cal.json"
+    assert main(["identify", str(path), "-o", str(out)]) == 0
+    assert "no held-out poses" in capsys.readouterr().out
+    assert load_calibration(out).metadata["verdict"]["status"] == "WARN"  # never PASS without --hold-out
+    assert main(["identify", str(path), "-o", str(out), "--hold-out", "0.25"]) == 0
+    text = capsys.readouterr().out
+    calibration = load_calibration(out)
+    verdict = calibration.metadata["verdict"]
+    assert verdict["status"] == "PASS", text
+    held = calibration.metadata["validation"]["labels"]
+    assert len(held) == 12 and held[0] != record.labels[0] and held[-1] != record.labels[-1]
+    assert calibration.metadata["input"]["sets"]["V"] == 12
+    assert main(["identify", str(path), "-o", str(out), "--hold-out", "0.9"]) == 2
+    assert "--hold-out" in capsys.readouterr().err

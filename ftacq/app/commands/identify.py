@@ -90,6 +90,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
     )
+    parser.add_argument("--hold-out", type=float, metavar="FRACTION",
+                        help="for a record without V poses (an imported recording): hold out this fraction of the "
+                             "poses, spread evenly over the record, as set V, to judge the calibration on poses it "
+                             "was not fitted to (e.g. 0.2; docs/formats.md, column set)")
     dynamics = parser.add_argument_group("motion (docs/dynamics.md)")
     dynamics.add_argument("--motion", metavar="MOTION.csv",
                           help="a recorded motion (ftacq calibrate --dynamic writes RUN_DIR/motion.csv): also "
@@ -150,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.drift == "linear" and args.no_refine:
         raise InputError("--drift linear is fitted by the refinement: drop --no-refine")
+    if args.hold_out is not None:
+        check_number(args.hold_out, "--hold-out", low=0.0, high=0.5, low_exclusive=True)
     check_output_file(args.output, "-o/--output")
     mount = mount_option(args.mount, args.gravity_direction)
     path = Path(args.poses)
@@ -165,6 +171,16 @@ def run(args: argparse.Namespace) -> int:
 
         record = replace(record, extra={**record.extra, ROW_INDEX_COLUMN: np.arange(len(record), dtype=float)})
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
+    if args.hold_out is not None:
+        from dataclasses import replace
+
+        from ftacq.posesets import VALIDATION_SET, spread_hold_out
+
+        if held_out.any():
+            raise InputError(f"{path}: --hold-out {args.hold_out:g}: the record already holds out "
+                             f"{int(held_out.sum())} poses (sets V, D): drop --hold-out, or clear their set column")
+        held_out = spread_hold_out(len(record), args.hold_out)
+        record = replace(record, sets=tuple(VALIDATION_SET if h else name for h, name in zip(held_out, record.sets)))
     validation = None
     fit_record = record
     if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
