@@ -114,7 +114,9 @@ def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
         truth = cell.truth
         offset = np.asarray(getattr(truth, "sensor_offset_m", (0.0, 0.0, 0.0)), dtype=float)
         if calibration is None:  # the ground truth, tool inertia included: the jogging arm is compensated dynamically
-            calibration = replace(truth.calibration(), sensor_offset=offset, inertia=truth.inertia)
+            from ftacq.app.simcell import true_calibration
+
+            calibration = true_calibration(truth)
         return cell.robot_host, cell.model_name, cell.sensor_url, calibration, offset, 0.0, cell
     from ftacq.app.config import load_config
 
