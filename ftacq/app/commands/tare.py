@@ -79,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --config CELL.toml (and --calibration CAL.json), or --sim")
     if args.poses < 0:
         raise InputError(f"--poses {args.poses}: must be ≥ 0 (0 = at the current pose)")
+    if args.poses and not args.dry_run:
+        from ftacq.app.signals import warn_if_sigint_ignored
+
+        warn_if_sigint_ignored("ftacq tare")
     if not args.sim and args.calibration is None:
         raise InputError("--calibration CAL.json is required (the calibration whose biases are re-estimated)")
     if args.output is None and not (args.sim or args.dry_run):
