@@ -377,6 +377,11 @@ def _quick_parameters(cal, sigma: dict) -> list[str]:
     return _table(["parameter", "value", "1σ"], rows) + ["", "```", *matrix, "```", ""]
 
 
+def _matrix_text(matrix) -> str:
+    """A matrix on one line: [[a, b, c], [d, e, f], …] with five decimals."""
+    return "[" + ", ".join("[" + ", ".join(f"{x:+.5f}" for x in row) + "]" for row in np.asarray(matrix)) + "]"
+
+
 def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None, *, motion=None, robot=None,
                        saved: bool | None = None) -> Path:
     """Write ``report.md`` and its PNGs for a quick run (:class:`ftacq.dynamics.joint.JointResult` ``result``)
@@ -404,8 +409,8 @@ def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=
               "## Identified parameters (value ± 1σ)", ""] + _quick_parameters(cal, sigma)
     if truth is not None:
         lines += ["## Against the simulation's ground truth", "", "```", format_truth_comparison(cal, truth),
-                  f"inertia (kg·m²): identified {np.array2string(cal.inertia, precision=5)}, true "
-                  f"{np.array2string(truth.inertia, precision=5)}", "```", ""]
+                  f"inertia (kg·m²): identified {_matrix_text(cal.inertia)}, true {_matrix_text(truth.inertia)}",
+                  "```", ""]
     finding = verdict.finding("validation")
     figures = {} if finding is None else finding.figures
     if figures.get("errors"):
