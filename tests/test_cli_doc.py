@@ -1,4 +1,4 @@
-"""docs/cli.md and docs/cli-live.md are what the parsers say (regenerate with ``python -m ftacq.app.clidoc``)."""
+"""docs/cli*.md are what the parsers say (regenerate with ``python -m ftacq.app.clidoc``)."""
 
 from __future__ import annotations
 
@@ -35,5 +35,5 @@ def test_a_changed_help_text_makes_the_page_stale() -> None:
     parser = build_parser()
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
     commands["identify"].add_argument("--a-new-option", help="something new")
-    assert "--a-new-option" in render_pages(parser)["cli.md"]
-    assert render_pages(parser)["cli.md"] != (DOCS / "cli.md").read_text(encoding="utf-8")
+    assert "--a-new-option" in render_pages(parser)["cli-files.md"]
+    assert render_pages(parser)["cli-files.md"] != (DOCS / "cli-files.md").read_text(encoding="utf-8")

@@ -1,6 +1,6 @@
-"""The CLI reference pages (docs/cli.md, docs/cli-live.md), generated from the parsers so they cannot drift.
+"""The CLI reference pages (docs/cli*.md), generated from the parsers so they cannot drift.
 
-``python -m ftacq.app.clidoc`` rewrites both pages; ``tests/test_cli_doc.py`` fails when a page differs from
+``python -m ftacq.app.clidoc`` rewrites them; ``tests/test_cli_doc.py`` fails when a page differs from
 what the parsers say. Each command's description, usage, options (with their help, defaults and choices) and
 examples come from its ``add_parser`` call: to change the reference, change the parser.
 """
@@ -15,13 +15,20 @@ from ftacq.app.cli import EXIT_STATUS_TEXT, build_parser
 from ftacq.fileio import atomic_write
 
 PAGES: dict[str, tuple[str, str, tuple[str, ...]]] = {
-    "cli.md": ("CLI reference: calibrate and files",
-               "The commands that plan, move, identify and write files. Live use (sensor, robot, monitor, tare, "
-               "bridge): [cli-live.md](cli-live.md).",
-               ("calibrate", "config", "import", "identify", "compensate", "export")),
-    "cli-live.md": ("CLI reference: devices and live use",
-                    "The commands that talk to the devices and stream. Calibration and files: [cli.md](cli.md).",
-                    ("sensor", "robot", "monitor", "tare", "bridge")),
+    "cli.md": ("CLI reference: calibrate",
+               "Calibrating a cell. The other commands: files ([cli-files.md](cli-files.md): import, identify, "
+               "compensate, export), live use ([cli-live.md](cli-live.md): monitor, tare) and the devices "
+               "([cli-devices.md](cli-devices.md): sensor, robot, bridge).",
+               ("calibrate", "config")),
+    "cli-files.md": ("CLI reference: files",
+                     "The commands that read and write pose records and calibrations. Calibrating: [cli.md](cli.md).",
+                     ("import", "identify", "compensate", "export")),
+    "cli-live.md": ("CLI reference: live use",
+                    "The compensated stream, live. Calibrating: [cli.md](cli.md).",
+                    ("monitor", "tare")),
+    "cli-devices.md": ("CLI reference: the devices",
+                       "Inspecting the sensor and the robot, and feeding the controller. Calibrating: [cli.md](cli.md).",
+                       ("sensor", "robot", "bridge")),
 }
 """Page file name → (title, lead paragraph, commands in order)."""
 
