@@ -121,6 +121,7 @@ def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folde
     with err_path.open("w", encoding="utf-8") as err:
         monitor = subprocess.Popen([sys.executable, "-m", "ftacq.app.cli", "monitor", "--config", str(cell_toml),
                                     "--calibration", str(calibration_path), "--record", str(record_path),
+                                    "--record-rate", "0",  # every sample: the noise figures need them all
                                     "--seconds", str(minutes * 60.0 + 120.0)],
                                    stdout=subprocess.PIPE, stderr=err, text=True, env=env, cwd=folder)
     try:

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class PoseSetKind:
@@ -48,6 +50,16 @@ PLANNED_SETS: tuple[str, ...] = (SPECIAL_SET, RANDOM_SET, VALIDATION_SET)
 """Sets a plan contains, in the order the plan summary lists them."""
 
 
+def spread_hold_out(count: int, fraction: float) -> np.ndarray:
+    """Return a boolean mask over ``count`` poses that holds out round(``fraction`` × count) of them (at least
+    one), spread evenly over the record's order, so that they span its orientations and its time (a recording
+    imported without sets: ``ftacq identify --hold-out``)."""
+    held = max(1, int(round(fraction * count)))
+    mask = np.zeros(count, dtype=bool)
+    mask[np.unique(np.floor((np.arange(held) + 0.5) * count / held).astype(int))] = True
+    return mask
+
+
 def is_identified_on(set_name: str) -> bool:
     """True when poses of ``set_name`` are identified on (an unknown or empty set name counts as identified on:
     a pose record without sets is all identification data). Case and surrounding spaces are ignored."""
@@ -63,4 +75,4 @@ def set_colour_rgb(set_name: str) -> tuple[int, int, int]:
 
 __all__ = ["PoseSetKind", "POSE_SETS", "IDENTIFICATION_SETS", "HELD_OUT_SETS", "PLANNED_SETS", "SPECIAL_SET",
            "RANDOM_SET", "VALIDATION_SET", "DRIFT_SET", "UNKNOWN_SET_COLOUR_RGB", "is_identified_on",
-           "set_colour_rgb"]
+           "set_colour_rgb", "spread_hold_out"]

@@ -108,9 +108,11 @@ def last_tare(calibration: Any) -> dict[str, Any] | None:
 
 
 def input_record(poses_file: str | os.PathLike, sets: Sequence[str], identified_on: Sequence[str], *,
-                 has_std: bool, has_count: bool) -> dict[str, Any]:
+                 has_std: bool, has_count: bool, units: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Return the ``input`` record: the pose record identified (path, SHA-256 taken now, pose count), the count of
-    poses per set, the sets the fit used, and whether the record had standard deviations and sample counts."""
+    poses per set, the sets the fit used, whether the record had standard deviations and sample counts, and the
+    ``units`` its wrench columns were in (``{"force": "N", "torque": "N-mm"}``; default SI), so that
+    ``ftacq compensate`` reads the same file in the same units."""
     path = Path(poses_file)
     return {
         "file": str(path),
@@ -120,6 +122,7 @@ def input_record(poses_file: str | os.PathLike, sets: Sequence[str], identified_
         "identified_on": list(identified_on),
         "has_std": bool(has_std),
         "has_count": bool(has_count),
+        "units": dict(units or {"force": "N", "torque": "N-m"}),
     }
 
 

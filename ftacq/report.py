@@ -9,6 +9,13 @@ from ftacq.mounts import MOUNTS
 
 MAX_RESIDUAL_ROWS = 100
 """Longer records list only the poses with the largest residuals (outliers always included)."""
+SUMMARY_ROWS = 10
+"""The console summary (``limit``) lists at most this many poses per list (outliers, disturbed poses, and the
+residuals of a record longer than :data:`SUMMARY_ALL_RESIDUALS`): the worst; the full report has the rest."""
+SUMMARY_ALL_RESIDUALS = 64
+"""The summary still lists every pose's residual up to this many poses (a full calibration run)."""
+DISTURBED = "looks disturbed"
+"""The words of a per-pose outlier warning (ftacq.identification), grouped in the summary."""
 
 
 def _vector(values, sigmas, scale: float = 1.0, digits: int = 4) -> str:
@@ -43,10 +50,13 @@ def validation_errors(calibration, record) -> dict:
     }
 
 
-def format_identification_report(result, validation: dict | None = None) -> str:
+def format_identification_report(result, validation: dict | None = None, limit: int | None = None) -> str:
     """Return a plain-text report of an :class:`ftacq.identification.IdentificationResult`.
 
-    ``validation`` (from :func:`validation_errors`) adds the compensation error on held-out poses.
+    ``validation`` (from :func:`validation_errors`) adds the compensation error on held-out poses. ``limit``
+    (the console's summary, e.g. :data:`SUMMARY_ROWS`): each per-pose list (outliers, disturbed-pose warnings,
+    the residuals beyond :data:`SUMMARY_ALL_RESIDUALS` poses) shows its ``limit`` worst poses and counts the rest,
+    which the full report (no limit) lists.
     """
     cal = result.calibration
     unc = cal.uncertainty
@@ -135,10 +145,12 @@ def format_identification_report(result, validation: dict | None = None) -> str:
     torque_norm = np.linalg.norm(residual[:, 3:], axis=1)
     order = np.arange(n)
     outlier_set = set(result.outliers)
-    if n > MAX_RESIDUAL_ROWS:
-        worst = np.argsort(-np.asarray(result.pose_statistic))[:MAX_RESIDUAL_ROWS]
+    rows = limit if limit is not None and n > SUMMARY_ALL_RESIDUALS else MAX_RESIDUAL_ROWS
+    statistic = np.asarray(result.pose_statistic, dtype=float)
+    if n > rows:
+        worst = np.argsort(-statistic)[:rows]
         order = np.sort(worst)
-        add(f"  (the {MAX_RESIDUAL_ROWS} poses with the largest residuals of {n})")
+        add(f"  (the {rows} poses with the largest residuals of {n})")
     add(f"  {'label':<10} {'set':<4} {'fx':>9} {'fy':>9} {'fz':>9} {'tx':>9} {'ty':>9} {'tz':>9} {'|F|':>8} {'|T|':>8} {'weight':>6}")
     for i in order:
         label = result.labels[i]
@@ -159,10 +171,25 @@ def format_identification_report(result, validation: dict | None = None) -> str:
             + ", ".join(f"{v:.5f}" for v in validation["rms"][3:]) + " N·m")
         add(f"  max |F| {validation['max_force_norm']:.4f} N, max |T| {validation['max_torque_norm']:.5f} N·m")
     add("")
-    add("Outliers: " + (", ".join(result.outliers) if result.outliers else "none"))
-    if result.warnings:
+    rank = {label: -statistic[i] for i, label in enumerate(result.labels)}
+    outliers = list(result.outliers)
+    if limit is not None and len(outliers) > limit:
+        shown_outliers = sorted(outliers, key=lambda label: rank.get(label, 0.0))[:limit]
+        add(f"Outliers: {len(outliers)} of {n} poses; the {limit} worst: {', '.join(shown_outliers)}")
+    else:
+        add("Outliers: " + (", ".join(outliers) if outliers else "none"))
+    warnings = list(result.warnings)
+    disturbed = [w for w in warnings if DISTURBED in w]
+    if limit is not None and len(disturbed) > limit:
+        def pose_rank(warning: str) -> float:
+            return rank.get(warning.split()[1], 0.0)
+
+        kept = set(sorted(disturbed, key=pose_rank)[:limit])
+        warnings = [w for w in warnings if DISTURBED not in w or w in kept]
+        warnings.append(f"… and {len(disturbed) - limit} more poses look disturbed (the {limit} worst above)")
+    if warnings:
         add("Warnings:")
-        for warning in result.warnings:
+        for warning in warnings:
             add(f"  - {warning}")
     else:
         add("Warnings: none")

@@ -321,7 +321,7 @@ class ToolConfig:
     sensor_offset_m: tuple[float, float, float] | None = setting(
         None, "sensor origin in the flange frame [x, y, z], from the adapter drawing (compensation while the arm "
         "moves, the UR payload export, the measuring point ftacq bridge declares; absent = at the flange)",
-        kind="vec3", unit="m", low=-0.5, high=0.5, optional=True, example=[0.0, 0.0, 0.035])
+        kind="vec3", unit="m", low=-0.5, high=0.5, optional=True, example=[0.0, 0.0, 0.035], edit=True)
     sensor_body_mass_kg: float = setting(0.0, "mass between the flange and the sensor's measuring plane (adapter and "
                                          "sensor body, which the sensor cannot weigh); part of the payload ftacq "
                                          "bridge sets", unit="kg", low=0.0, high=20.0)

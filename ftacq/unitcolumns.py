@@ -57,8 +57,9 @@ def declared_units(path: Path) -> dict[str, tuple[str, str]]:
 
 
 def _resolve_units(path: Path, header: list[str], header_line: int, options: dict[str, str | None]
-                   ) -> tuple[list[str], dict[str, float], dict[str, str]]:
-    """Strip the unit suffixes of the header; return (header, SI factor per wrench column, unit per kind).
+                   ) -> tuple[list[str], dict[str, float], dict[str, str], set[str]]:
+    """Strip the unit suffixes of the header; return (header, SI factor per wrench column, unit per kind, the
+    kinds whose unit was declared).
 
     Per kind (force, torque) the unit is the columns' suffix, else the option, else the header comment, else
     SI; two of them that disagree, or columns of one kind in different units, are refused.
@@ -75,6 +76,7 @@ def _resolve_units(path: Path, header: list[str], header_line: int, options: dic
             name = (match.group(1) or "") + match.group(2)
         renamed.append(name)
     units: dict[str, str] = {}
+    declared_kinds: set[str] = set()
     for kind in ("force", "torque"):
         sources: list[tuple[str, str]] = []
         if suffix_units[kind]:
@@ -99,11 +101,13 @@ def _resolve_units(path: Path, header: list[str], header_line: int, options: dic
             raise InputError(f"{path}: the {kind} unit is declared twice and differently: "
                              + "; ".join(f"{unit} ({where})" for unit, where in sources))
         units[kind] = sources[0][0] if sources else SI_UNITS[kind]
+        if sources:
+            declared_kinds.add(kind)
     factor = {}
     for channel in WRENCH_COLUMNS:
         kind = _kind(channel)
         factor[channel] = (FORCE_UNITS if kind == "force" else TORQUE_UNITS)[units[kind]]
-    return renamed, factor, units
+    return renamed, factor, units, declared_kinds
 
 
 def unit_header_map(path: Path, force_unit: str | None, torque_unit: str | None,
@@ -111,17 +115,50 @@ def unit_header_map(path: Path, force_unit: str | None, torque_unit: str | None,
                     ) -> tuple[Callable[[list[str], int], list[str]], dict]:
     """Return a ``header_map`` for :func:`read_csv_table` that strips the wrench columns' unit suffixes (after
     ``rename``), and the dict it fills once the header is read: ``factor`` (SI per file unit of each wrench column
-    fx … tz) and ``units`` (kind → unit name)."""
+    fx … tz), ``units`` (kind → unit name) and ``declared`` (the kinds whose unit the file or an option named;
+    the others are SI by default)."""
     resolved: dict = {}
 
     def strip_units(header: list[str], line: int) -> list[str]:
         if rename is not None:
             header = rename(header)
-        renamed, resolved["factor"], resolved["units"] = _resolve_units(
+        renamed, resolved["factor"], resolved["units"], resolved["declared"] = _resolve_units(
             path, header, line, {"force": force_unit, "torque": torque_unit})
         return renamed
 
     return strip_units, resolved
 
 
-__all__ = ["SI_UNITS", "WRENCH_COLUMNS", "declared_units", "unit_header_map"]
+def adopt_identified_units(path: Path, resolved: dict, identified: dict | None) -> str:
+    """Check a file's wrench units (``resolved`` by :func:`unit_header_map`, updated in place) against the units
+    the calibration was identified in (``identified``: its ``input`` record, whose ``units`` say what the pose
+    record was in), for a kind the file and the options leave undeclared: the very file identified (same SHA-256)
+    is read in the recorded unit (the returned note says so); another file is refused (InputError, one line), since
+    SI is then a guess. Return '' when nothing needed saying."""
+    import hashlib
+
+    recorded = (identified or {}).get("units") or {}
+    undeclared = {kind: str(recorded[kind]) for kind in ("force", "torque")
+                  if kind not in resolved["declared"] and recorded.get(kind, SI_UNITS[kind]) != SI_UNITS[kind]}
+    if not undeclared:
+        return ""
+    said = ", ".join(f"{kind} in {unit}" for kind, unit in undeclared.items())
+    source = (identified or {}).get("file", "its pose record")
+    try:
+        same = hashlib.sha256(path.read_bytes()).hexdigest() == (identified or {}).get("sha256")
+    except OSError:
+        same = False
+    if not same:
+        options = " ".join(f"--{kind}-unit {unit}" for kind, unit in undeclared.items())
+        raise InputError(f"{path}: declares no unit for {' and '.join(undeclared)}, but the calibration was identified "
+                         f"from {said} ({source}): pass {options} (or --{next(iter(undeclared))}-unit "
+                         f"{SI_UNITS[next(iter(undeclared))]} if this file is in SI)")
+    for kind, unit in undeclared.items():
+        resolved["units"][kind] = canonical_unit(unit, kind)
+        for channel in WRENCH_COLUMNS:
+            if _kind(channel) == kind:
+                resolved["factor"][channel] = (FORCE_UNITS if kind == "force" else TORQUE_UNITS)[resolved["units"][kind]]
+    return f"{path} is the file the calibration was identified from: read with {said}, as identify read it"
+
+
+__all__ = ["SI_UNITS", "WRENCH_COLUMNS", "adopt_identified_units", "declared_units", "unit_header_map"]

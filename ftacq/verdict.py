@@ -182,7 +182,7 @@ def validation_finding(errors: np.ndarray, covariance: np.ndarray, labels: Seque
     beyond = [str(labels[int(i)]) for i in np.flatnonzero(d2 > pose_limit)]
     figures = {
         "poses": m, "chi2": total, "dof": dof, "p_value": p, "error_ratio": ratio, "pose_d2": d2.tolist(),
-        "pose_d2_limit": pose_limit, "labels": [str(x) for x in labels],
+        "pose_d2_limit": pose_limit, "labels": [str(x) for x in labels], "errors": errors.tolist(),
         "band_sigmas": ACCEPTANCE_BAND_SIGMAS, "expected_sigma": sigma.tolist(),
         "max_force_error_n": float(force.max()), "max_torque_error_nm": float(torque.max()),
         "max_expected_force_sigma_n": float(np.max(np.linalg.norm(sigma[:, :3], axis=1))),

@@ -76,7 +76,7 @@ from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import FlangeRotation, URModel
 from procedures.dynamic_compensation import DynamicCompensator
 from procedures.events import Event, FedWrenches, Listener, Notice
-from procedures.realtime import ask_realtime
+from procedures.realtime import REALTIME_PRIORITY, ask_realtime  # (declared there: the CLI's help reads it)
 
 log = logging.getLogger(__name__)
 
@@ -88,9 +88,6 @@ MAX_STALENESS_S = 0.05
 JUMP_FORCE_N, JUMP_TORQUE_NM = 50.0, 5.0
 """Largest change of the fed force (norm, N) / torque (norm, N·m) from one controller cycle to the next."""
 CYCLE_TIMEOUT_S = 0.1
-REALTIME_PRIORITY = 80
-"""SCHED_FIFO priority asked for the feed thread (1-99; 0 keeps normal scheduling). The thread blocks on the
-controller's socket between cycles, so it takes a core only for its ~0.3 ms of work per cycle."""
 SWITCH_INTERVAL_S = 0.0002
 """The interpreter's thread switch interval while feeding, s (Python's default 5 ms is longer than a cycle)."""
 SENSOR_HOLD_S = 0.0003

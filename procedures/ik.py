@@ -254,8 +254,9 @@ def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
     """
     q_ref = np.asarray(q_reference_rad, dtype=float)
     lower, upper = planning_limits_rad(model)
+    target = _as_transform(pose_or_transform)  # once for the eight branches' refinements
     out: dict[Branch, IKResult] = {}
-    for branch, q, reason in analytic_ik(model, pose_or_transform):
+    for branch, q, reason in analytic_ik(model, target):
         if q is None:
             out[branch] = IKResult(None, None, reason)
             continue
@@ -268,7 +269,7 @@ def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
         if singular:
             out[branch] = IKResult(None, None, singular)
             continue
-        refined, error = refine_ik(model, pose_or_transform, wrapped)
+        refined, error = refine_ik(model, target, wrapped)
         if error > IK_TOLERANCE:
             out[branch] = IKResult(None, None, f"IK did not converge (error {error:.1e})")
         elif np.any(refined < lower - 1e-9) or np.any(refined > upper + 1e-9):

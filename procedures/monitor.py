@@ -225,8 +225,11 @@ def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event) -> bool
 class _Recorder:
     """Owns the "ftacq-record" thread: writes every batch to a CSV (atomically renamed into place at the end)."""
 
-    def __init__(self, path: Path, header_lines: list[str]) -> None:
+    def __init__(self, path: Path, header_lines: list[str], every: int = 1) -> None:
+        from ftacq.decimation import Decimator
+
         self.path = Path(path)
+        self._decimator = Decimator(every)
         self.rows = 0
         self.error: BaseException | None = None
         self._header = header_lines
@@ -237,7 +240,7 @@ class _Recorder:
         self._thread.start()
 
     def put(self, samples: events.WrenchSamples, sample_time_s: np.ndarray, uncertainty_s: float) -> None:
-        self._queue.put((samples, sample_time_s, uncertainty_s))
+        self._queue.put((samples, sample_time_s, uncertainty_s, self._decimator.keep(len(samples.batch))))
 
     def close(self) -> None:
         """Write what is queued, finish the file and join the thread; re-raise its error."""
@@ -256,27 +259,30 @@ class _Recorder:
                 handle.write(",".join(RECORD_COLUMNS) + "\n")
                 while (item := self._queue.get()) is not _STOP:
                     handle.write(self._format(*item))
-                    self.rows += len(item[0])
+                    self.rows += len(item[3])
         except BaseException as error:  # noqa: BLE001 - re-raised by close()
             self.error = error
 
     @staticmethod
-    def _format(samples: events.WrenchSamples, sample_time_s: np.ndarray, uncertainty_s: float) -> str:
+    def _format(samples: events.WrenchSamples, sample_time_s: np.ndarray, uncertainty_s: float,
+                rows: np.ndarray) -> str:
         """The batch's CSV rows: one ``%`` format per row (:data:`_ROW_FORMAT`), unknown values as empty cells.
 
         Per row, not per cell: ``np.char.mod`` over the (N, 25) cells cost 0.11 s of CPU per second of 7 kHz data
         (issue 27; the recorder thread then trails acquisition on a loaded machine and the queue, unbounded, holds
-        the difference until Ctrl-C), this 0.03 s, with the same text."""
+        the difference until Ctrl-C), this 0.03 s, with the same text. ``rows``: the samples kept."""
         batch = samples.batch
         n = len(batch)
+        if not len(rows):
+            return ""
         pose = samples.sample_flange_pose  # the pose of each sample's time, when the compensator knows it
         if pose is None:
             pose = np.full((n, 6), np.nan) if samples.flange_pose is None else np.broadcast_to(samples.flange_pose, (n, 6))
         contact = np.full((n, 6), np.nan) if samples.compensated is None else samples.compensated
         uncertainty = uncertainty_s if np.isfinite(uncertainty_s) else np.nan
         reals = np.column_stack([batch.time_s, pose, batch.wrench, contact, sample_time_s, batch.device_time_s,
-                                 np.full(n, uncertainty)]).tolist()
-        integers = np.column_stack([batch.sequence, batch.status, batch.saturated.astype(np.int64)]).tolist()
+                                 np.full(n, uncertainty)])[rows].tolist()
+        integers = np.column_stack([batch.sequence, batch.status, batch.saturated.astype(np.int64)])[rows].tolist()
         text = "\n".join([_ROW_FORMAT % (*r[:19], *i, *r[19:]) for r, i in zip(reals, integers)]) + "\n"
         return text.replace("nan", "")  # not known (no robot, no calibration): only NaN prints as "nan"
 
@@ -302,6 +308,7 @@ class LiveMonitor:
             ``direct = True`` from the acquisition thread (they only queue: :class:`procedures.delivery.Fanout`).
         checks: :class:`HealthCheck` objects, called in the acquisition thread with every read.
         record_path: write every sample to this CSV (see :data:`RECORD_COLUMNS`), or None.
+        record_every: write only every k-th sample to it (:class:`ftacq.decimation.Decimator`; 1 = every one).
         strict: re-raise a listener's failure at the end of :meth:`run` (tests); live, it is only reported.
         queue_batches, listener_period_s: the BackgroundListener's queue bound and delivery period.
         sample_clock: the samples' :class:`~ftacq.dynamics.clock.SampleClock` (their times on the host clock, for
@@ -322,6 +329,7 @@ class LiveMonitor:
     robot_rate_hz: float = ROBOT_RATE_HZ
     status_rate_hz: float = STATUS_RATE_HZ
     record_header: list[str] = field(default_factory=list)
+    record_every: int = 1
     sample_clock: SampleClock = field(default_factory=SampleClock)
     switch_interval_s: float = SWITCH_INTERVAL_S
 
@@ -336,7 +344,8 @@ class LiveMonitor:
         summary = MonitorSummary(record_path=self.record_path)
         fanout = Fanout(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
         publisher = fanout.background
-        recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
+        recorder = (_Recorder(self.record_path, self.record_header, self.record_every)
+                    if self.record_path is not None else None)
         if recorder is not None:
             recorder.start()
         self._publisher = fanout

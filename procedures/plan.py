@@ -33,7 +33,14 @@ from functools import lru_cache
 import numpy as np
 
 from ftacq.errors import PlanError
-from ftacq.kinematics import JOINT_LIMIT_MARGIN_RAD, MEASURED_ANGLE_TOLERANCE_RAD, UR_MODELS, URModel, ur_model
+from ftacq.kinematics import (
+    JOINT_LIMIT_MARGIN_RAD,
+    MEASURED_ANGLE_TOLERANCE_RAD,
+    UR_MODELS,
+    URModel,
+    planning_limits_rad,
+    ur_model,
+)
 from ftacq.mounts import mount_of
 from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
@@ -323,12 +330,14 @@ def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -
     checker = collision_checker(settings, planning=True)
     poses = build_pose_set(settings, center)
     per_branch: dict[Branch, tuple[list, list]] = {b: ([], []) for b in Branch.all()}
-    for pose in poses.poses:
-        results = solve_ik_branches(model, pose, start_q)
-        for b, result in results.items():
-            q, reason = _static_check(checker, result)
-            per_branch[b][0].append(q)
-            per_branch[b][1].append(reason)
+    results = [solve_ik_branches(model, pose, start_q) for pose in poses.poses]
+    solved = [r.q_rad for by_branch in results for r in by_branch.values() if r.ok]
+    clear = iter(_clear_at(checker, np.array(solved).reshape(-1, 6)))  # one batched check of every solution
+    for by_branch in results:
+        for b, result in by_branch.items():
+            known_clear = next(clear) if result.ok else False
+            per_branch[b][0].append(result.q_rad if known_clear else None)
+            per_branch[b][1].append(result if result.ok and not known_clear else result.reason)
     start_branch = branch_of(model, start_q)
     weights = joint_weights(model)
 
@@ -338,7 +347,9 @@ def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -
         return (-len(qs), b != start_branch, travel)
 
     best = min(Branch.all(), key=score)
-    qs, reasons = per_branch[best]
+    qs = per_branch[best][0]
+    # the collision messages only for the branch kept (most of a cramped cell's solutions collide)
+    reasons = [_collision_reason(checker, r) if isinstance(r, IKResult) else r for r in per_branch[best][1]]
     for i, q in enumerate(qs):  # say when another branch would have reached a rejected pose
         if q is None:
             others = [b for b in Branch.all() if per_branch[b][0][i] is not None]
@@ -347,14 +358,22 @@ def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -
     return _Candidate(center, poses, best, qs, reasons)
 
 
-def _static_check(checker: CollisionChecker, result: IKResult) -> tuple[np.ndarray | None, str]:
-    if not result.ok:
-        return None, result.reason
-    assert result.q_rad is not None  # ok implies a solution
-    problems = checker.problems_at(result.q_rad)
-    if problems:
-        return None, "collision: " + "; ".join(problems)
-    return result.q_rad, ""
+def _clear_at(checker: CollisionChecker, q_rad: np.ndarray) -> np.ndarray:
+    """Return, per configuration (S, 6), whether it is certainly clear (S,) bool: every clearance ≥ 0 and every
+    joint inside its limits less the planning margin, from one vectorised evaluation (the messages of the others
+    come from :meth:`CollisionChecker.problems_at`, one configuration at a time)."""
+    if not len(q_rad):
+        return np.zeros(0, dtype=bool)
+    lower, upper = planning_limits_rad(checker.model)
+    inside = np.all((q_rad >= lower) & (q_rad <= upper), axis=1)
+    return inside & np.all(checker.clearances(q_rad) >= 0.0, axis=1)
+
+
+def _collision_reason(checker: CollisionChecker, result: IKResult) -> str:
+    """Why a solution the batched check found in collision or at a limit is rejected (problems, one line)."""
+    assert result.q_rad is not None  # only solutions are checked
+    problems = checker.problems_at(result.q_rad) or ["a clearance within rounding of its limit"]
+    return "collision: " + "; ".join(problems)
 
 
 def _minimum_problems(settings: PlanSettings, candidate: _Candidate, keep: list[bool]) -> list[str]:

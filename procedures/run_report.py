@@ -8,7 +8,12 @@ drift check, and the plots:
 - ``residuals.png``: identification residual norms |F|, |T| per pose, outliers marked;
 - ``validation.png``: compensation error per V pose and axis, and each pose's d² against the verdict's one-pose
   limit (the verdict's own test, :func:`ftacq.verdict.validation_finding`: a pose above the line is a WARN), so
-  the plot and the verdict cannot disagree.
+  the plot and the verdict cannot disagree;
+- ``wrench_over_motion.png`` (quick run): raw and compensated wrench over the whole motion.
+
+The quick run's report (:func:`write_quick_report`) has the same sections: verdict first (and "not saved" above
+it when the calibration was not saved), parameters with 1σ (the rotation as Z-Y-X angles and the matrix),
+validation and the plots.
 
 Every text is at least :data:`MIN_FONT_PT` at the saved size (figures are saved at :data:`FIGURE_DPI` without
 rescaling; the residual plot widens with the number of poses so that one label per pose stays readable).
@@ -325,5 +330,114 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
     return path
 
 
-__all__ = ["write_report", "format_truth_comparison", "validation_dict", "plot_wrench_per_pose", "plot_residuals",
-           "plot_validation"]
+def plot_wrench_over_motion(path: Path, time_s: np.ndarray, raw: np.ndarray, compensated: np.ndarray) -> None:
+    """Write raw and compensated wrench (N, 6) over time (s) as a 6-panel PNG (the quick run's motion)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(6, 1, figsize=(12, 12), sharex=True)
+    for k, ax in enumerate(axes):
+        ax.plot(time_s, raw[:, k], lw=0.6, color="tab:gray", label="raw")
+        ax.plot(time_s, compensated[:, k], lw=0.6, color="tab:blue", label="compensated")
+        ax.axhline(0.0, color="black", lw=0.5)
+        ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
+    axes[0].legend(loc="upper right")
+    axes[0].set_title("raw and compensated (gravity and inertia) wrench over the motion; compensated ≈ 0 "
+                      "without contact")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+MOTION_PLOT_POINTS = 6000
+"""The motion plot draws at most this many samples per channel (every k-th)."""
+
+
+def _quick_parameters(cal, sigma: dict) -> list[str]:
+    """The quick run's parameters with 1σ: a Markdown table, then sensor_R_flange as a matrix."""
+    from ftacq.report import _zyx_deg
+
+    def g(values) -> str:
+        return "[" + ", ".join(f"{v:.2g}" for v in np.ravel(values)) + "]"
+
+    def v(values, digits: int, scale: float = 1.0) -> str:
+        return "[" + ", ".join(f"{x * scale:+.{digits}f}" for x in np.ravel(values)) + "]"
+
+    rows = [("sensor rotation Z-Y-X (deg)", v(_zyx_deg(cal.sensor_rotation), 3),
+             g(np.degrees(sigma["sensor_rotation_rad"])) + " about x, y, z"),
+            ("force bias (N)", v(cal.force_bias, 4), g(sigma["force_bias"])),
+            ("torque bias (N·m)", v(cal.torque_bias, 5), g(sigma["torque_bias"])),
+            ("mass (kg)", f"{cal.mass_kg:.4f}", f"{sigma['mass_kg']:.2g}"),
+            ("centre of mass (mm, sensor frame)", v(cal.center_of_mass, 3, 1000.0),
+             g(1000.0 * np.asarray(sigma["center_of_mass_m"]))),
+            ("base tilt α, β (deg)", v(cal.base_tilt_deg, 3), g(sigma["base_tilt_deg"])),
+            ("inertia diagonal (kg·m², about the centre of mass)", v(np.diag(cal.inertia), 5),
+             g(np.diag(np.array(sigma["inertia_kg_m2"]))))]
+    matrix = ["sensor_R_flange (flange-frame vectors into the sensor frame):"]
+    matrix += ["  [" + ", ".join(f"{x:+.6f}" for x in row) + "]" for row in cal.sensor_rotation]
+    return _table(["parameter", "value", "1σ"], rows) + ["", "```", *matrix, "```", ""]
+
+
+def _matrix_text(matrix) -> str:
+    """A matrix on one line: [[a, b, c], [d, e, f], …] with five decimals."""
+    return "[" + ", ".join("[" + ", ".join(f"{x:+.5f}" for x in row) + "]" for row in np.asarray(matrix)) + "]"
+
+
+def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None, *, motion=None, robot=None,
+                       saved: bool | None = None) -> Path:
+    """Write ``report.md`` and its PNGs for a quick run (:class:`ftacq.dynamics.joint.JointResult` ``result``)
+    with the full run's sections: the verdict first (``saved`` False: "not saved" above it; None: not decided
+    yet), parameters with 1σ (the rotation included), the truth beside them on the simulated cell, validation on
+    the still holds (the verdict's errors and test), and raw vs compensated over the motion (``motion``: the
+    :class:`ftacq.dynamics.motionfile.MotionRecord`, ``robot``: its :class:`ftacq.kinematics.URModel`)."""
+    folder = Path(folder)
+    cal, sigma = result.calibration, result.sigma
+    lines = ["# ftacq quick calibration" + (" (simulated cell)" if truth is not None else ""), ""]
+    if saved is False:
+        lines += [f"**Not saved** (verdict {verdict.status}): calibration.json was not written; nothing here is in "
+                  "use.", ""]
+    elif saved is None:
+        lines += ["**Not saved yet**: calibration.json is written only when the calibration is accepted.", ""]
+    lines += _verdict_section(verdict)
+    lines += [f"- created: {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='seconds')} (ftacq {__version__})",
+              f"- one continuous motion ({plan.estimated_duration_s:.1f} s planned) through {len(plan.labels)} "
+              "waypoints; every parameter identified from it (docs/quick.md)",
+              f"- fit: {result.rows} robot rows, lag {1e3 * result.lag_s:.2f} ms, condition number "
+              f"{result.condition_number:.3g}, residual RMS " + " ".join(f"{x:.3g}" for x in result.residual_rms)
+              + " (N, N·m)",
+              "- wall time (s): " + ", ".join(f"{k} {x:.1f}" for k, x in wall_s.items()),
+              "- calibration: " + ("calibration.json" if saved else "not written"), "",
+              "## Identified parameters (value ± 1σ)", ""] + _quick_parameters(cal, sigma)
+    if truth is not None:
+        lines += ["## Against the simulation's ground truth", "", "```", format_truth_comparison(cal, truth),
+                  f"inertia (kg·m²): identified {_matrix_text(cal.inertia)}, true {_matrix_text(truth.inertia)}",
+                  "```", ""]
+    finding = verdict.finding("validation")
+    figures = {} if finding is None else finding.figures
+    if figures.get("errors"):
+        errors = np.asarray(figures["errors"], dtype=float).reshape(-1, 6)
+        labels = [str(label) for label in figures["labels"]]
+        lines += ["## Validation on the still holds (never fitted)", "",
+                  f"{len(labels)} holds compensated with the calibration (static model: the arm is still):", ""]
+        lines += _table(["axis", "max |error|", "RMS error", "unit"],
+                        [(CHANNELS[k], f"{np.abs(errors[:, k]).max():.5f}",
+                          f"{np.sqrt(np.mean(errors[:, k] ** 2)):.5f}", UNITS[k]) for k in range(6)])
+        plot_validation(folder / "validation.png", labels, errors, figures)
+        lines += ["", "![validation](validation.png)", ""]
+    if motion is not None and robot is not None and len(motion.sensor_time_s):
+        from ftacq.dynamics import compensate_moving
+
+        every = max(len(motion.sensor_time_s) // MOTION_PLOT_POINTS, 1)
+        times, raw = motion.sensor_time_s[::every], motion.wrench[::every]
+        compensated = compensate_moving(cal, raw, motion.q, motion.qd, motion.qdd, robot=robot,
+                                        sensor_time_s=times - result.lag_s, robot_time_s=motion.robot_time_s)
+        plot_wrench_over_motion(folder / "wrench_over_motion.png", times - times[0], raw, compensated)
+        lines += ["## Raw and compensated wrench over the motion", "",
+                  "![raw and compensated over the motion](wrench_over_motion.png)", ""]
+    path = folder / "report.md"
+    with atomic_write(path) as handle:
+        handle.write("\n".join(lines) + "\n")
+    return path
+
+
+__all__ = ["write_report", "write_quick_report", "format_truth_comparison", "validation_dict", "plot_wrench_per_pose", "plot_residuals",
+           "plot_validation", "plot_wrench_over_motion"]

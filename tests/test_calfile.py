@@ -151,7 +151,7 @@ def test_provenance_names_the_input_and_what_was_identified_on(tmp_path, identif
     record = input_record(poses, ["A", "A", "E", "V"], ["A", "E"], has_std=True, has_count=False)
     assert record == {"file": str(poses), "sha256": hashlib.sha256(poses.read_bytes()).hexdigest(), "poses": 4,
                       "sets": {"A": 2, "E": 1, "V": 1}, "identified_on": ["A", "E"], "has_std": True,
-                      "has_count": False}
+                      "has_count": False, "units": {"force": "N", "torque": "N-m"}}
     calibration = with_provenance(identified, None, None, input=record, run_folder="runs/x", validation=None)
     assert calibration.metadata["input"] == record and calibration.metadata["run_folder"] == "runs/x"
     assert "validation" not in calibration.metadata and calibration.metadata["bias_history"]

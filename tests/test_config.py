@@ -87,7 +87,8 @@ def test_template_writes_the_ranges_the_checker_enforces():
 def test_template_marks_the_keys_a_user_must_edit():
     entries = _template_entries(example_config_text())
     marked = {key for key, (comment, _) in entries.items() if comment.startswith(f"# {EDIT_MARK}: ")}
-    assert marked == {"robot.host", "robot.model", "robot.mount", "sensor.url", "tool.radius_m", "tool.length_m"}
+    assert marked == {"robot.host", "robot.model", "robot.mount", "sensor.url", "tool.radius_m", "tool.length_m",
+                      "tool.sensor_offset_m"}
 
 
 def test_every_consumer_takes_the_declared_defaults():
@@ -199,3 +200,21 @@ def test_config_check_reports_a_bad_key_with_exit_2(tmp_path, capsys):
     bad = write(tmp_path, "[robot]\njoint_speed_rad_s = 9")
     assert main(["config", "check", str(bad)]) == EXIT_BAD_INPUT
     assert "robot.joint_speed_rad_s = 9" in capsys.readouterr().err
+
+
+def test_config_check_warns_about_the_unedited_template_and_strict_fails(tmp_path, capsys):
+    """Issue 38, item 3: the template as written passes no longer: every key marked EDIT left at its value, and
+    the sensor offset not set, are named (WARN, exit 0; --strict: FAIL, exit 1)."""
+    path = tmp_path / "CELL.toml"
+    assert main(["config", "init", str(path)]) == 0
+    assert "tool.sensor_offset_m" in capsys.readouterr().err  # asked for up front
+    assert main(["config", "check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert f"{path}: WARN: robot.host = \"192.168.1.10\" is still the template's value" in err
+    assert f"{path}: WARN: tool.sensor_offset_m is not set" in err and f"{path}: OK" not in err
+    assert main(["config", "check", "--strict", str(path)]) == 1
+    assert f"{path}: FAIL (7 keys marked {EDIT_MARK}" in capsys.readouterr().err
+    edited = write(tmp_path, '[robot]\nhost = "10.0.0.5"\nmodel = "UR10e"\nmount = "wall"\n[sensor]\n'
+                   'url = "netft://10.0.0.6"\n[tool]\nradius_m = 0.07\nlength_m = 0.2\nsensor_offset_m = [0, 0, 0.03]\n')
+    assert main(["config", "check", "--strict", str(edited)]) == 0
+    assert capsys.readouterr().err.strip() == f"{edited}: OK"

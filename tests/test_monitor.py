@@ -319,7 +319,7 @@ def test_ftacq_monitor_sim_saves_a_recording(tmp_path, capsys):
     from ftacq.app.cli import main as ftacq_main
 
     rrd_path = tmp_path / "sim.rrd"
-    assert ftacq_main(["monitor", "--sim", "--seconds", "1", "--save", str(rrd_path)]) == 0
+    assert ftacq_main(["monitor", "--sim", "--seconds", "1", "--save", str(rrd_path), "--save-rate", "0"]) == 0
     assert "samples" in capsys.readouterr().out
     paths = entity_paths(rrd_path)
     assert {layout.RAW_FORCE, layout.COMPENSATED_FORCE, layout.LINK_FRAMES[5], layout.MONITOR_LOG} <= paths
@@ -377,7 +377,7 @@ def test_ctrl_c_stops_ftacq_monitor_cleanly(tmp_path):
     rrd_path, record_path = tmp_path / "live.rrd", tmp_path / "live.csv"
     process = subprocess.Popen(
         [sys.executable, "-c", CLI_WITH_DEFAULT_SIGINT, "monitor", "--sim", "--sim-still", "--save", str(rrd_path),
-         "--record", str(record_path)],
+         "--record", str(record_path), "--record-rate", "0", "--save-rate", "0"],  # every sample in both, compared
         cwd=Path(__file__).resolve().parents[1], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines: list[str] = []

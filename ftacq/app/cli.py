@@ -46,6 +46,12 @@ EXIT_STATUS: tuple[tuple[type[FtacqError], int], ...] = (
     (FtacqError, EXIT_FAILURE),
 )
 """Exception type → exit status, first match wins (subclasses before their bases)."""
+EXIT_STATUS_TEXT = (
+    "Exit status: 0 done, 1 a device or run fault (data kept), 2 bad input (one line: file, field, value, why; "
+    "nothing half written), 130 interrupted by Ctrl-C or SIGTERM (the robot stopped, data kept), 141 standard "
+    "output closed by its reader. An output file's folder must exist; a run folder (`calibrate --out`) is created."
+)
+"""The exit statuses in words, as the reference pages and the README say them."""
 
 
 class CommandModuleError(Exception):
@@ -76,7 +82,19 @@ def build_parser() -> argparse.ArgumentParser:
             raise CommandModuleError(f"cannot load the command module {module_name} ({type(error).__name__}: "
                                      f"{error}); the installation is broken: reinstall ftacq") from error
         module.register(subparsers)
+    _own_parser_on_error(parser)
     return parser
+
+
+def _own_parser_on_error(parser: argparse.ArgumentParser) -> None:
+    """Give every sub-command's namespace its own parser (``_parser``), so that an option it does not know is
+    reported with its usage (``ftacq calibrate --foo``), not the top level's: argparse hands a sub-parser's
+    unknown options back to the top-level parser."""
+    parser.set_defaults(_parser=parser)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _own_parser_on_error(sub)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -86,7 +104,9 @@ def main(argv: list[str] | None = None) -> int:
     except CommandModuleError as error:
         print(f"ftacq: error: {error}", file=sys.stderr)
         return EXIT_FAILURE
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # exit 2 with the usage of the (sub-)command whose options they were meant for
+        args._parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(levelname)s %(name)s: %(message)s",

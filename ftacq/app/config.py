@@ -162,6 +162,22 @@ def load_config(path: str | Path) -> CellConfig:
     return config
 
 
+def unedited_keys(config: CellConfig) -> list[str]:
+    """Return, one line each, the keys marked ``edit`` (:mod:`ftacq.settings`) that ``config`` leaves at the
+    template's value or, for an optional one, does not set: what ``ftacq config check`` warns about."""
+    lines = []
+    for section, keys in SCHEMA.items():
+        for name, key in keys.items():
+            if not key.edit:
+                continue
+            value = _plain(getattr(getattr(config, section), name))
+            if key.optional and value is None:
+                lines.append(f"{key.key} is not set ({key.help})")
+            elif not key.optional and value == _plain(key.default):
+                lines.append(f"{key.key} = {_toml_value(value)} is still the template's value")
+    return lines
+
+
 def _toml_value(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -207,4 +223,5 @@ def example_config_text() -> str:
 
 
 __all__ = ["CellConfig", "RobotConfig", "SensorConfig", "ToolConfig", "PosesConfig", "SamplingConfig",
-           "OutputConfig", "SCHEMA", "EDIT_MARK", "load_config", "config_from_dict", "example_config_text"]
+           "OutputConfig", "SCHEMA", "EDIT_MARK", "load_config", "config_from_dict", "example_config_text",
+           "unedited_keys"]

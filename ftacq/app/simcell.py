@@ -46,6 +46,18 @@ def simulated_truth(**changes: Any) -> Any:
     return _fakes_module("world").CellTruth(**changes)
 
 
+def true_calibration(truth: Any) -> Any:
+    """The simulated tool's true calibration (:class:`tests.fakes.world.CellTruth`): rotation, biases, weight,
+    centre of mass, and the inertia and sensor offset the simulated sensor feels while the arm moves, so that a
+    ``--sim`` command without ``--calibration`` compensates as a good dynamic calibration would."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    return replace(truth.calibration(), inertia=truth.inertia,
+                   sensor_offset=np.asarray(truth.sensor_offset_m, dtype=float))
+
+
 def enter_calibration_cell(stack: contextlib.ExitStack, config: Any, sim_info: dict, time_scale: float) -> tuple[Any, Any]:
     """Start the simulated cell a ``calibrate --sim`` run moves (``sim_info``: its sensor, robot model and mount),
     say so on stderr, keep it open in ``stack``; return (the cell, ``config`` pointed at its robot and sensor)."""

@@ -76,10 +76,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "default) or program (your PolyScope program runs the printed URScript lines; ftacq "
                              "only feeds)")
     parser.add_argument("--seconds", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    from procedures.realtime import REALTIME_PRIORITY
+
     parser.add_argument("--realtime-priority", type=_priority, default=None, metavar="N",
-                        help="SCHED_FIFO priority of the feed thread, 1-99, 0 = normal scheduling (default: "
-                             "procedures.bridge.REALTIME_PRIORITY, docs/bridge.md \"Timing\"; needs CAP_SYS_NICE or "
-                             "an rtprio limit, else the feed runs at normal priority and says so)")
+                        help=f"real-time (SCHED_FIFO) priority of the feed thread, 1-99, 0 = normal scheduling "
+                             f"(default {REALTIME_PRIORITY}; docs/bridge.md \"Timing\"; needs CAP_SYS_NICE or an "
+                             "rtprio limit, else the feed runs at normal priority and says so)")
     parser.add_argument("--check", action="store_true",
                         help="with the arm still: feed known wrenches, read back actual_TCP_force and say whether "
                              "frame, signs and payload handling match the convention")
@@ -114,7 +116,9 @@ def _load(args: argparse.Namespace, stack: contextlib.ExitStack):
         truth = cell.truth
         offset = np.asarray(getattr(truth, "sensor_offset_m", (0.0, 0.0, 0.0)), dtype=float)
         if calibration is None:  # the ground truth, tool inertia included: the jogging arm is compensated dynamically
-            calibration = replace(truth.calibration(), sensor_offset=offset, inertia=truth.inertia)
+            from ftacq.app.simcell import true_calibration
+
+            calibration = true_calibration(truth)
         return cell.robot_host, cell.model_name, cell.sensor_url, calibration, offset, 0.0, cell
     from ftacq.app.config import load_config
 

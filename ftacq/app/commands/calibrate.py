@@ -149,6 +149,9 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.config or args.sim or args.resume):
         raise InputError("give --config CELL.toml, --sim, or --resume RUN_DIR")
+    from ftacq.app.signals import warn_if_sigint_ignored
+
+    warn_if_sigint_ignored("ftacq calibrate", moves_the_arm=not args.dry_run)
     time_scale = DEFAULT_SIM_TIME_SCALE if args.time_scale is None else args.time_scale
     check_number(time_scale, "--time-scale", low=0.0)
     if getattr(args, "save", None) is not None:
@@ -172,11 +175,11 @@ def run(args: argparse.Namespace) -> int:
         sim_info = dict(folder.document.get("sim") or {})
         if args.config:
             _err(f"note: --resume uses the configuration stored in {folder.path}/run.json; {args.config} is ignored")
-        if sim_info and not args.sim:
-            from ftacq.app.hints import ftacq_command
-
-            raise InputError(f"{args.resume}: this run was made with --sim; resume it with: "
-                             + ftacq_command("calibrate", "--sim", "--resume", Path(args.resume)))
+        if sim_info and not args.sim:  # run.json knows: resumed on the simulated cell, at its time scale
+            _err(f"note: {args.resume} was made with --sim (run.json): resuming it on the simulated cell")
+            args.sim = True
+            if args.time_scale is None:
+                time_scale = float(sim_info.get("time_scale", time_scale))
     elif args.sim:
         config = load_config(args.config) if args.config else _sim_config(args)
         plan = None

@@ -1,7 +1,8 @@
 """``ftacq config``: write a commented example CELL.toml, or check one.
 
     ftacq config init [PATH] [--force]     write the example (default CELL.toml; refuses to overwrite)
-    ftacq config check PATH                validate a file and print the plan settings it gives
+    ftacq config check PATH [--strict]     validate a file and print the plan settings it gives; WARN for keys
+                                           marked EDIT still at the template's value (FAIL, exit 1, --strict)
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ DEFAULT_CONFIG_PATH = Path("CELL.toml")
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``config`` sub-command with its ``init`` and ``check`` actions."""
+    from ftacq.app.config import EDIT_MARK
+
     parser = subparsers.add_parser(
         "config", help="write or check a cell configuration (CELL.toml)",
         description="Write a commented example CELL.toml (robot, sensor, tool, poses, sampling, output; SI units), "
@@ -34,9 +37,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     init.add_argument("--force", action="store_true", help="overwrite an existing file")
     init.set_defaults(func=run_init)
     check = actions.add_parser("check", help="validate a CELL.toml and print its values",
-                               description="Validate every key (type, range, unknown keys); exit 2 on a bad value.",
-                               **examples("ftacq config check CELL.toml"))
+                               description="Validate every key (type, range, unknown keys); exit 2 on a bad value. "
+                                           f"Warn about the keys marked {EDIT_MARK} (the robot, the sensor, the tool "
+                                           "and the sensor offset) still at the template's value or not set.",
+                               **examples("ftacq config check CELL.toml", "ftacq config check --strict CELL.toml"))
     check.add_argument("path", type=Path, help="the configuration file")
+    check.add_argument("--strict", action="store_true",
+                       help=f"fail (exit 1) when a key marked {EDIT_MARK} is still at the template's value or not set")
     check.set_defaults(func=run_check)
 
 
@@ -65,9 +72,15 @@ def run_check(args: argparse.Namespace) -> int:
     """Validate a configuration and print it as the procedure will use it."""
     import json
 
-    from ftacq.app.config import load_config
+    from ftacq.app.config import EDIT_MARK, load_config, unedited_keys
 
     config = load_config(args.path)
     print(json.dumps(config.to_dict(), indent=2))
-    print(f"{args.path}: OK", file=sys.stderr)
-    return 0
+    unedited = unedited_keys(config)
+    status = "FAIL" if unedited and args.strict else "WARN" if unedited else "OK"
+    for line in unedited:
+        print(f"{args.path}: {status}: {line}", file=sys.stderr)
+    print(f"{args.path}: {status}" + (f" ({len(unedited)} keys marked {EDIT_MARK} to set for your cell"
+                                      + ("" if args.strict else "; --strict fails on them") + ")" if unedited else ""),
+          file=sys.stderr)
+    return 1 if status == "FAIL" else 0

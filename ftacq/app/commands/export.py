@@ -31,7 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "ftacq export calibration.json --format ur --sensor-offset-m 0 0 0.012 -o payload.json"))
     parser.add_argument("calibration", type=Path, metavar="CAL.json", help="calibration from calibrate or identify")
     parser.add_argument("--format", "-f", required=True, metavar="FORMAT",
-                        help="ur, ros2 or json (the writer table of ftacq/calfile.py; an unknown name lists them)")
+                        help="ur (the UR payload), ros2 (ROS 2 parameters YAML) or json (a calibration file); "
+                             "docs/exports.md")
     parser.add_argument("-o", "--output", type=Path, metavar="FILE", help="write here (atomically, mode 0644) "
                         "instead of standard output")
     parser.add_argument("--sensor-offset-m", type=float, nargs=3, metavar=("X", "Y", "Z"),

@@ -10,6 +10,19 @@ from ftacq.app.helptext import examples
 from ftacq.mounts import MOUNT_FORMS
 
 
+def add_unit_options(parser: argparse.ArgumentParser, what: str) -> argparse._ArgumentGroup:
+    """Add ``--force-unit`` and ``--torque-unit`` (the units of ``what``'s wrench columns); return their group."""
+    from ftacq.units import FORCE_UNITS, TORQUE_UNITS
+
+    units = parser.add_argument_group(f"units of {what} (docs/formats.md; default N and N·m)")
+    units.add_argument("--force-unit", metavar="UNIT",
+                       help=f"unit of the force columns when the file does not say: {', '.join(FORCE_UNITS)}")
+    units.add_argument("--torque-unit", metavar="UNIT",
+                       help=f"unit of the torque columns when the file does not say: {', '.join(TORQUE_UNITS)} "
+                            "(an ATI box set to N-mm records N-mm)")
+    return units
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``identify`` sub-command."""
     parser = subparsers.add_parser(
@@ -40,12 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--gravity-direction", metavar="X,Y,Z",
         help="the mount as the direction of gravity in the robot base frame (any length), e.g. 0.539,0.699,-0.470",
     )
-    units = parser.add_argument_group("units of the pose record (docs/formats.md; default N and N·m)")
-    units.add_argument("--force-unit", metavar="UNIT",
-                       help="unit of the force columns when the file does not say: N, kN, lbf, kgf, gf, klbf")
-    units.add_argument("--torque-unit", metavar="UNIT",
-                       help="unit of the torque columns when the file does not say: N-m, N-mm, lbf-in, lbf-ft, "
-                            "kgf-cm, kN-m (an ATI box set to N-mm records N-mm)")
+    units = add_unit_options(parser, "the pose record")
     units.add_argument("--wrench-frame", choices=("sensor", "base"), default="sensor",
                        help="frame of the wrench columns: the sensor's (default; the pose record's) or the robot "
                             "base frame (rotated into the flange frame before the fit); the verdict names a wrong one")
@@ -82,6 +90,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also fit the poses of sets V and D (by default they are held out and their compensation error is reported)",
     )
+    parser.add_argument("--hold-out", type=float, metavar="FRACTION",
+                        help="for a record without V poses (an imported recording): hold out this fraction of the "
+                             "poses, spread evenly over the record, as set V, to judge the calibration on poses it "
+                             "was not fitted to (e.g. 0.2; docs/formats.md, column set)")
     dynamics = parser.add_argument_group("motion (docs/dynamics.md)")
     dynamics.add_argument("--motion", metavar="MOTION.csv",
                           help="a recorded motion (ftacq calibrate --dynamic writes RUN_DIR/motion.csv): also "
@@ -123,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.posefile import read_pose_csv
     from ftacq.posesets import is_identified_on
     from ftacq.provenance import input_record, with_provenance
-    from ftacq.report import format_identification_report, validation_errors
+    from ftacq.report import SUMMARY_ROWS, format_identification_report, validation_errors
     from ftacq.verdict import FAIL, format_verdict
 
     from ftacq.identification.diagnostics import MAX_SPECIAL_TOLERANCE_DEG
@@ -142,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.drift == "linear" and args.no_refine:
         raise InputError("--drift linear is fitted by the refinement: drop --no-refine")
+    if args.hold_out is not None:
+        check_number(args.hold_out, "--hold-out", low=0.0, high=0.5, low_exclusive=True)
     check_output_file(args.output, "-o/--output")
     mount = mount_option(args.mount, args.gravity_direction)
     path = Path(args.poses)
@@ -157,6 +171,16 @@ def run(args: argparse.Namespace) -> int:
 
         record = replace(record, extra={**record.extra, ROW_INDEX_COLUMN: np.arange(len(record), dtype=float)})
     held_out = np.array([not is_identified_on(name) for name in record.sets])  # V and D (ftacq.posesets)
+    if args.hold_out is not None:
+        from dataclasses import replace
+
+        from ftacq.posesets import VALIDATION_SET, spread_hold_out
+
+        if held_out.any():
+            raise InputError(f"{path}: --hold-out {args.hold_out:g}: the record already holds out "
+                             f"{int(held_out.sum())} poses (sets V, D): drop --hold-out, or clear their set column")
+        held_out = spread_hold_out(len(record), args.hold_out)
+        record = replace(record, sets=tuple(VALIDATION_SET if h else name for h, name in zip(held_out, record.sets)))
     validation = None
     fit_record = record
     if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
@@ -183,13 +207,22 @@ def run(args: argparse.Namespace) -> int:
     calibration = with_provenance(  # a pose file does not say which sensor measured it
         result.calibration, None, None, validation=validation, verdict=verdict.to_dict(),
         input=input_record(path, record.sets, sorted(set(fit_record.sets)), has_std=record.std is not None,
-                           has_count=record.count is not None))
+                           has_count=record.count is not None, units=record.units))
     report = format_identification_report(result, validation=validation)
+    summary = format_identification_report(result, validation=validation, limit=SUMMARY_ROWS)
     if args.motion:
         calibration, motion_report = _dynamic(args, calibration)
         report += motion_report
+        summary += motion_report
     save_calibration(args.output, calibration)  # first: the file must not depend on anyone reading the report
-    sys.stdout.write(report)
+    if summary != report:  # a long record: the console gets the worst poses, the file every one
+        from ftacq.fileio import atomic_write
+
+        full = Path(args.output).with_suffix(".report.txt")
+        with atomic_write(full) as handle:
+            handle.write(report)
+        summary += f"(the console shows the worst {SUMMARY_ROWS} poses per list; every pose: {full})\n"
+    sys.stdout.write(summary)
     converted = {kind: unit for kind, unit in record.units.items() if unit not in ("N", "N-m")}
     if converted:
         print("units read: " + ", ".join(f"{kind} in {unit}" for kind, unit in converted.items())

@@ -173,9 +173,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="monitor even when the calibration was made with another sensor (serial, units or "
                              "counts per unit differ)")
     parser.add_argument("--record", type=Path, metavar="FILE.csv",
-                        help="also write every sample (raw, flange pose, compensated) to this CSV; FILE.mcap: a ROS "
-                             "2 bag of the --ros2 messages, the joint states and the calibration (docs/ros2.md)")
+                        help="also write the samples (raw, flange pose, compensated) to this CSV (thinned to fit "
+                             "1 GB/h: --record-rate); FILE.mcap: a ROS 2 bag of the --ros2 messages, the joint states "
+                             "and the calibration (docs/ros2.md)")
     add_sink_args(parser)
+    from ftacq.app.file_budget import add_budget_args
+
+    add_budget_args(parser)
     add_ros2_args(parser)
     parser.set_defaults(func=run)
 
@@ -224,8 +228,10 @@ def run(args: argparse.Namespace) -> int:
             cell = stack.enter_context(simulated_cell(truth=truth, sensor="netft", rate_hz=SIM_SENSOR_RATE_HZ))
             robot_host, sensor_url = cell.robot_host, cell.sensor_url
             model_name = getattr(cell, "model_name", DEFAULT_SIM_MODEL)
-            if calibration is None:
-                calibration = cell.truth.calibration()
+            if calibration is None:  # the simulated tool's true one, inertia included: compensated while jogging
+                from ftacq.app.simcell import true_calibration
+
+                calibration = true_calibration(cell.truth)
             source = "simulated cell"
         else:
             from ftacq.app.config import load_config
@@ -255,6 +261,14 @@ def run(args: argparse.Namespace) -> int:
             live = _choose_compensator(calibration, model, robot_host, stack, sample_clock)
         dashboard.dashboard.start_clock()  # the time axis starts with the sensor's stream
         sensor.start()
+        from ftacq.app.dashboard.sinks import is_saved
+        from ftacq.app.file_budget import apply_budget
+
+        record_every, budget_lines = apply_budget(  # a bag's size is its --ros2-rate's (docs/ros2.md), not thinned
+            argparse.Namespace(**{**vars(args), "record": None}) if is_bag(args.record) else args,
+            sensor.info.rate_hz or SIM_SENSOR_RATE_HZ, dashboard.dashboard, is_saved(recording))
+        for line in budget_lines:
+            print(f"ftacq monitor: {line}", file=sys.stderr)
         compensator: DriftCompensator | None = None
         checks: list[HealthCheck] = []
         if calibration is not None:
@@ -271,6 +285,8 @@ def run(args: argparse.Namespace) -> int:
                   f"robot: {robot_host} ({model.name})",
                   f"calibration: {args.calibration or ('simulated cell ground truth' if args.sim else 'none')}",
                   "units: s, N, N·m, m, rad; wrenches in the sensor frame, pose = base_T_flange",
+                  "force_unit: N", "torque_unit: N-m",  # read by ftacq compensate (docs/formats.md)
+                  *([f"rows: every {record_every}th sample (--record-rate)"] if record_every > 1 else []),
                   "times: time_s = receive time; sample_time_s = the sensor's own clock (device_time_s) on the host "
                   "monotonic clock through the minimum-delay line, clock_uncertainty_s its uncertainty "
                   "(docs/dynamics.md, How the clocks are aligned)"]
@@ -288,7 +304,7 @@ def run(args: argparse.Namespace) -> int:
                               compensator=tare or compensator, checks=checks,
                               listeners=[dashboard, readout, *ros2],
                               record_path=None if is_bag(args.record) else args.record, record_header=header,
-                              sample_clock=sample_clock,
+                              record_every=record_every, sample_clock=sample_clock,
                               batch_period_s=ros2_outputs.ROS2_READ_PERIOD_S if args.ros2 else BATCH_PERIOD_S)
         summary = monitor.run(duration_s=args.seconds)
         readout.close()
@@ -362,7 +378,8 @@ def _drift_health(calibration, sensor_info,
     from ftacq.provenance import age_s, biases_measured_utc, require_same_sensor
     from procedures.bias_health import DriftCheck, DriftCompensator
 
-    note = require_same_sensor(calibration, sensor_info, args.force, "ftacq monitor")
+    simulated_truth = args.sim and args.calibration is None  # the simulated sensor's own: nothing to check
+    note = "" if simulated_truth else require_same_sensor(calibration, sensor_info, args.force, "ftacq monitor")
     if note:
         print(f"ftacq monitor: {note}", file=sys.stderr)
     measured = biases_measured_utc(calibration)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
+from procedures.run_report import write_quick_report  # the report with the full run's sections and plots
 
 log = logging.getLogger(__name__)
 
@@ -106,48 +107,6 @@ def quick_verdict(result, recording, plan, robot_model, completed: bool):
 def _g(values) -> str:
     """1σ values, two significant digits each."""
     return "[" + ", ".join(f"{v:.2g}" for v in np.ravel(values)) + "]"
-
-
-def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None) -> Path:
-    """report.md of a quick run (atomically): parameters with 1σ, the truth beside them on the simulated cell,
-    the fit's figures, the verdict."""
-    from ftacq.fileio import atomic_write
-    from ftacq.verdict import format_verdict
-
-    cal, sigma = result.calibration, result.sigma
-    alpha, beta = cal.base_tilt_deg
-    lines = ["# ftacq quick calibration" + (" (simulated cell)" if truth is not None else ""), "",
-             f"One continuous motion ({plan.estimated_duration_s:.1f} s planned) through {len(plan.labels)} "
-             f"waypoints; every parameter identified from it (docs/quick.md).", "",
-             "| parameter | value | 1σ |", "|---|---|---|",
-             f"| force bias (N) | {np.array2string(cal.force_bias, precision=4)} | "
-             f"{_g(sigma['force_bias'])} |",
-             f"| torque bias (N·m) | {np.array2string(cal.torque_bias, precision=5)} | "
-             f"{_g(sigma['torque_bias'])} |",
-             f"| mass (kg) | {cal.mass_kg:.4f} | {sigma['mass_kg']:.2g} |",
-             f"| centre of mass (m) | {np.array2string(cal.center_of_mass, precision=5)} | "
-             f"{_g(sigma['center_of_mass_m'])} |",
-             f"| base tilt (deg) | ({alpha:+.3f}, {beta:+.3f}) | "
-             f"{_g(sigma['base_tilt_deg'])} |",
-             f"| sensor rotation (rad, 1σ per axis) | see calibration.json | "
-             f"{_g(sigma['sensor_rotation_rad'])} |",
-             f"| inertia diag (kg·m²) | {np.array2string(np.diag(cal.inertia), precision=5)} | "
-             f"{_g(np.diag(np.array(sigma['inertia_kg_m2'])))} |", "",
-             f"Fit: {result.rows} robot rows, lag {1e3 * result.lag_s:.2f} ms, condition number "
-             f"{result.condition_number:.3g}, residual RMS "
-             + " ".join(f"{v:.3g}" for v in result.residual_rms) + " (N, N·m).", "",
-             "Wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in wall_s.items()), ""]
-    if truth is not None:
-        from procedures.run_report import format_truth_comparison
-
-        lines += ["## Beside the simulation's truth", "", "```", format_truth_comparison(cal, truth),
-                  f"inertia (kg·m², about the centre of mass, sensor frame): identified {_g(cal.inertia)}, true "
-                  f"{_g(truth.inertia)}, 1σ {_g(sigma['inertia_kg_m2'])}", "```", ""]
-    lines += ["## Verdict", "", "```", format_verdict(verdict), "```", ""]
-    path = folder / "report.md"
-    with atomic_write(path) as handle:
-        handle.write("\n".join(lines))
-    return path
 
 
 def replay(args: argparse.Namespace, recording, calibration, model_name: str) -> None:
@@ -313,7 +272,6 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         metadata["verdict"] = verdict.to_dict()
         calibration = replace(calibration, metadata=metadata)
         truth = None if cell is None else replace(cell.truth.calibration(), inertia=cell.truth.inertia)
-        report = write_quick_report(folder.path, result, verdict, plan, wall, truth)
         print("", flush=True)
         print(f"motion recorded in {wall['motion']:.1f} s ({len(recording.record.sensor_time_s)} sensor samples, "
               f"{len(recording.record.robot_time_s)} robot states) -> {motion_path}", flush=True)
@@ -332,7 +290,10 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         if getattr(args, "rerun", False) or getattr(args, "save", None) is not None or getattr(args, "spawn", False) \
                 or getattr(args, "connect", None) or getattr(args, "serve", False):
             replay(args, recording, calibration, settings.model)
-        if _save_or_discard(args, verdict):
+        saved = _save_or_discard(args, verdict)
+        report = write_quick_report(folder.path, result, verdict, plan, wall, truth, motion=recording.record,
+                                    robot=settings.ur, saved=saved)
+        if saved:
             save_calibration(folder.path / "calibration.json", calibration)
             folder.set_status("done", f"quick calibration saved (verdict {verdict.status})",
                               verdict=verdict.to_dict())

@@ -36,8 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     info = actions.add_parser("info", help="model, software, serial number, joints, flange pose, modes",
                               description="Print the controller's model, software version, serial number, joint "
                                           "angles, flange pose and modes. Never moves the arm.",
-                              **examples("ftacq robot info 192.168.1.10", "ftacq robot info ur5e.local --json"))
-    info.add_argument("host", help="controller IP address or host name, e.g. 192.168.1.10")
+                              **examples("ftacq robot info 192.168.1.10", "ftacq robot info ur5e.local --json",
+                                         "ftacq robot info --sim"))
+    info.add_argument("host", nargs="?", help="controller IP address or host name, e.g. 192.168.1.10")
+    info.add_argument("--sim", action="store_true", help="look at the simulated cell's UR controller instead")
     info.add_argument("--model", default=None, help="UR model (e.g. UR5e) when the UR Dashboard Server cannot tell")
     info.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     info.set_defaults(func=run_info)
@@ -100,11 +102,23 @@ def _fmt(values, digits: int = 4) -> str:
 
 
 def run_info(args: argparse.Namespace) -> int:
-    """Print the controller's identity and state."""
-    from drivers.ur_connection import controller_host
+    """Print the controller's identity and state (``--sim``: the simulated cell's controller)."""
+    import contextlib
 
-    args.host = controller_host(args.host)  # an IP address or host name (a ':30004' dropped), before any socket
-    data = collect_info(args.host, args.model)
+    from drivers.ur_connection import controller_host
+    from ftacq.errors import InputError
+
+    if args.sim and args.host:
+        raise InputError(f"give a controller host or --sim, not both (got {args.host!r} and --sim)")
+    if not args.sim and not args.host:
+        raise InputError("give the controller's IP address or host name (e.g. 192.168.1.10), or --sim")
+    with contextlib.ExitStack() as stack:
+        if args.sim:
+            from ftacq.app.simcell import simulated_cell
+
+            args.host = stack.enter_context(simulated_cell(sensor="netft")).robot_host
+        args.host = controller_host(args.host)  # an IP address or host name (a ':30004' dropped), before any socket
+        data = collect_info(args.host, args.model)
     if args.json:
         print(json.dumps(data, indent=2))
         return 0

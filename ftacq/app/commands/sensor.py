@@ -16,8 +16,11 @@ Sensors come from :func:`drivers.sensor.open_sensor` (``netft://…`` or ``can:/
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from ftacq.app.helptext import examples
@@ -63,14 +66,16 @@ def register(subparsers) -> None:
     info = commands.add_parser("info", help="serial, units, counts per unit, rate, status",
                                **examples("ftacq sensor info netft://192.168.1.1",
                                           "ftacq sensor info can://socketcan/can0 --seconds 5"))
-    info.add_argument("url", help=url_help)
+    info.add_argument("url", nargs="?", help=url_help)
+    info.add_argument("--sim", action="store_true", help=SIM_HELP)
     info.add_argument("--seconds", type=float, default=INFO_WINDOW_S, metavar="S",
                       help="measure rate and mean wrench over S seconds (default %(default)s)")
     info.set_defaults(func=run_info)
 
     record = commands.add_parser("record", help="record samples to CSV (s, N, N·m)",
                                  **examples("ftacq sensor record netft://192.168.1.1 --seconds 10 -o still.csv"))
-    record.add_argument("url", help=url_help)
+    record.add_argument("url", nargs="?", help=url_help)
+    record.add_argument("--sim", action="store_true", help=SIM_HELP)
     record.add_argument("--seconds", type=float, required=True, metavar="S", help="record for S seconds")
     record.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.csv", help="CSV file to write")
     record.add_argument("--max-lost-fraction", type=float, default=MAX_LOST_FRACTION, metavar="F",
@@ -89,6 +94,36 @@ def register(subparsers) -> None:
     bias.set_defaults(func=run_bias)
 
     parser.set_defaults(func=lambda args: (parser.print_help(), 2)[1])
+
+
+SIM_HELP = "use the simulated cell's Net F/T sensor (7 kHz on loopback) instead of URL"
+
+
+@contextlib.contextmanager
+def sensor_url(args: argparse.Namespace) -> Iterator[str]:
+    """The URL to open: ``args.url``, or with ``--sim`` the simulated cell's sensor (started and stopped here)."""
+    if args.sim:
+        if args.url:
+            raise InputError(f"give a sensor URL or --sim, not both (got {args.url!r} and --sim)")
+        from ftacq.app.simcell import simulated_cell
+
+        with simulated_cell(sensor="netft") as cell:
+            yield cell.sensor_url
+    else:
+        if not args.url:
+            raise InputError("give the sensor URL (e.g. netft://192.168.1.1), or --sim for the simulated sensor")
+        yield args.url
+
+
+def _with_sim_url(command: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """Run ``command`` with ``args.url`` set by :func:`sensor_url` (the simulated sensor's with ``--sim``)."""
+    @functools.wraps(command)
+    def run(args: argparse.Namespace) -> int:
+        with sensor_url(args) as url:
+            args.url = url
+            return command(args)
+
+    return run
 
 
 def _open(url: str):
@@ -115,6 +150,7 @@ def health_line(health) -> str:
     return ", ".join(f"{name} {getattr(health, name)}" for name in HEALTH_FIELDS)
 
 
+@_with_sim_url
 def run_info(args: argparse.Namespace) -> int:
     """Print what the sensor says about itself and a short look at its stream."""
     from drivers.sensor import WrenchBatch
@@ -157,6 +193,7 @@ def run_info(args: argparse.Namespace) -> int:
     return 0
 
 
+@_with_sim_url
 def run_record(args: argparse.Namespace) -> int:
     """Record ``--seconds`` of samples to a CSV; keep what was recorded on Ctrl-C."""
     import numpy as np

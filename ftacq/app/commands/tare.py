@@ -79,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give --config CELL.toml (and --calibration CAL.json), or --sim")
     if args.poses < 0:
         raise InputError(f"--poses {args.poses}: must be ≥ 0 (0 = at the current pose)")
+    if args.poses and not args.dry_run:
+        from ftacq.app.signals import warn_if_sigint_ignored
+
+        warn_if_sigint_ignored("ftacq tare")
     if not args.sim and args.calibration is None:
         raise InputError("--calibration CAL.json is required (the calibration whose biases are re-estimated)")
     if args.output is None and not (args.sim or args.dry_run):
@@ -92,12 +96,12 @@ def run(args: argparse.Namespace) -> int:
         cell = None
         if args.sim:
             from ftacq.app.commands.calibrate import DEFAULT_SIM_TIME_SCALE
-            from ftacq.app.simcell import simulated_cell, simulated_truth
+            from ftacq.app.simcell import simulated_cell, simulated_truth, true_calibration
 
             time_scale = DEFAULT_SIM_TIME_SCALE
             base = simulated_truth()
             if calibration is None:
-                calibration = base.calibration()
+                calibration = true_calibration(base)
             shifted = simulated_truth(
                 force_bias_n=tuple(float(v) for v in calibration.force_bias + np.array(SIM_BIAS_SHIFT[:3])),
                 torque_bias_nm=tuple(float(v) for v in calibration.torque_bias + np.array(SIM_BIAS_SHIFT[3:])))
@@ -140,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
         sensor.start()
-        note = require_same_sensor(calibration, sensor.info, args.force, "ftacq tare")
+        simulated_truth_used = args.sim and args.calibration is None  # the simulated sensor's own: nothing to check
+        note = "" if simulated_truth_used else require_same_sensor(calibration, sensor.info, args.force, "ftacq tare")
         if note:
             print(note, file=sys.stderr, flush=True)
         sampled = config.replace_section("sampling", **_as_dict(sampling))

@@ -92,6 +92,9 @@ class Dashboard:
         self.send_period_s = float(send_period_s)
         self.rows_logged = 0
         """Rows of temporal data logged so far (0: the recording holds only the layout and styles)."""
+        self.wrench_every = 1
+        """:meth:`log_wrench_batch` logs every k-th sample (:meth:`thin_wrenches`; a saved file's size budget)."""
+        self._wrench_decimator: Any = None
         self._pending_scalars: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._pending_arm: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._pending_contact: list[tuple[np.ndarray, np.ndarray]] = []
@@ -243,6 +246,14 @@ class Dashboard:
 
     # -- streams ---------------------------------------------------------------------------------------------
 
+    def thin_wrenches(self, every: int) -> None:
+        """Log only every ``every``-th wrench sample from now on (:class:`ftacq.decimation.Decimator`)."""
+        from ftacq.decimation import Decimator
+
+        with self._lock:
+            self.wrench_every = max(1, int(every))
+            self._wrench_decimator = Decimator(self.wrench_every) if self.wrench_every > 1 else None
+
     def log_wrench_batch(self, batch_time_s: np.ndarray, raw: np.ndarray | None,
                          compensated: np.ndarray | None) -> None:
         """Log N samples: ``batch_time_s`` (N,) s on the host monotonic clock, ``raw`` and ``compensated`` (N, 6)
@@ -252,6 +263,13 @@ class Dashboard:
         if time_s.shape[0] == 0:
             return
         with self._lock:
+            if self._wrench_decimator is not None:
+                rows = self._wrench_decimator.keep(time_s.shape[0])
+                if not rows.size:
+                    return
+                time_s = time_s[rows]
+                raw = None if raw is None else np.asarray(raw)[rows]
+                compensated = None if compensated is None else np.asarray(compensated)[rows]
             if raw is not None:
                 raw = np.asarray(raw, dtype=np.float64)
                 self._hold_scalars(WRENCH_PATHS[0], time_s, raw[:, :3])
