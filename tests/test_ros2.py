@@ -266,7 +266,7 @@ def test_every_sample_on_the_wire_equals_the_monitor_record(tmp_path, monkeypatc
     out, record = tmp_path / "received.json", tmp_path / "monitor.csv"
     subscriber = _start_subscriber(domain_id, namespace, out, "--reliable")
     _run_monitor(monkeypatch, "--sim-still", "--ros2", "--ros2-reliable", "--ros2-rate", "0", "--ros2-domain-id",
-                 str(domain_id), "--ros2-namespace", namespace, "--seconds", "3", "--record", str(record),
+                 str(domain_id), "--ros2-namespace", namespace, "--seconds", "3", "--record", str(record), "--record-rate", "0",
                  "--save", str(tmp_path / "monitor.rrd"))
     received = _finish(subscriber, out)
     table = read_record(record)
