@@ -301,3 +301,27 @@ def test_bad_ros2_options_are_one_line_and_exit_2(tmp_path, capsys):
         assert ftacq_main(["monitor", "--sim", "--ros2", *options, "--seconds", "1"]) == 2
         err = capsys.readouterr().err.strip()
         assert text in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_names_and_discovery_range(monkeypatch):
+    """Namespaces and frames as ROS 2 accepts them; ROS 2's localhost-only variables keep discovery on this host
+    unless CYCLONEDDS_URI decides."""
+    from drivers.ros2.messages import dds_type_name
+    from drivers.ros2.node import localhost_only
+    from ftacq.ros2_names import check_frame_id, normalize_namespace
+
+    assert normalize_namespace("cell_3/ft/") == "/cell_3/ft" and normalize_namespace("/") == ""
+    for bad in ("/3cell", "/a-b", "/é"):
+        with pytest.raises(ValueError):
+            normalize_namespace(bad)
+    assert check_frame_id(" tool0_ft ") == "tool0_ft"
+    with pytest.raises(ValueError):
+        check_frame_id("/ft_sensor")
+    assert dds_type_name("std_srvs/srv/Trigger_Request") == "std_srvs::srv::dds_::Trigger_Request_"
+    for name in ("CYCLONEDDS_URI", "ROS_LOCALHOST_ONLY", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.delenv(name, raising=False)
+    assert not localhost_only()
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    assert localhost_only()
+    monkeypatch.setenv("CYCLONEDDS_URI", "<CycloneDDS/>")
+    assert not localhost_only()
