@@ -45,6 +45,11 @@ TIMELINE_SLACK_S, TIMELINE_GAP_S = 0.01, 1.0
 MAX_EXTRAPOLATION_S = 2.0
 """The sensor follows the controller's last published move at most this far (motion time, s): through a stall of
 the controller process (a loaded machine) the arm goes on along its profile, as a real one would."""
+BAD_SENSOR_GAIN_ERROR = ((-0.015, 0.0, 0.0, 0.0, 0.0, 0.0), (0.02, 0.0, 0.0, 0.0, 0.0, 0.0),
+                         (0.0, 0.0, 0.04, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.02, 0.0, 0.0),
+                         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+"""``CellTruth.sensor_gain_error`` of ``--sim-bad-sensor``: Fz reads 4 % high, Fx 1.5 % low, 2 % of Fx appears on
+Fy, Tx reads 2 % high: a sensor out of its certificate (1.25 %), as after an overload."""
 
 
 def gravity_base_from_tilt(mass_kg: float, alpha_deg: float, beta_deg: float) -> np.ndarray:
