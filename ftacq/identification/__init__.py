@@ -304,7 +304,7 @@ def identify(
             (default: CELL.toml ``sampling.drift_warn_force_n`` / ``drift_warn_torque_nm``).
         sensor_check: also fit the sensor's force gain/cross-talk matrix (sensor_gain.py) beside the parameters;
             it does not change the calibration, it lands in ``metadata["sensor_check"]``, and "auto" decides on a
-            drift from its residuals (a gain error is not a drift).
+            drift from a fit of the drift and the gains together (a gain error is not a drift, nor the reverse).
         reference: a known tool mass (sensor_gain.ReferenceWeight) that fixes the gains' absolute scale.
         sensor_accuracy_percent: the sensor's stated accuracy the verdict judges the check against (stored with it;
             default CELL.toml ``sensor.accuracy_percent``).
@@ -335,7 +335,6 @@ def identify(
 
         drift_warn = (SamplingConfig.drift_warn_force_n, SamplingConfig.drift_warn_torque_nm)
     times = trend.pose_times(record)
-    check = None
     try:
         if drift == "linear":
             result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, times,
@@ -344,18 +343,19 @@ def identify(
             result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, None,
                                "asked for (--drift none)" if drift == "none"
                                else "not needed: no large, significant trend", drift_warn)
-            check = _sensor_check(result, record, reference) if sensor_check else None
-            found = trend.ResidualTrend.from_dict(result.diagnostics["trend"] if check is None else check[1])
+            found = trend.ResidualTrend.from_dict(result.diagnostics["trend"])
+            if sensor_check and drift == "auto" and refine:  # drift and gains in one fit: told apart
+                from ftacq.identification.sensor_gain import check_identification, drift_trend
+
+                found = drift_trend(check_identification(result, record, reference, with_drift=True)[0], record)
             if drift == "auto" and refine and found.significant and found.large(*drift_warn):
                 reason = (f"chosen automatically: the residuals trend with time, p = {found.p_value:.2g}, "
                           f"{np.linalg.norm(found.change[:3]):.3g} N and {np.linalg.norm(found.change[3:]):.3g} N·m "
                           "over the recording")
                 result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, times,
                                    reason, drift_warn)
-                check = None
         if sensor_check:
-            result = _with_sensor_check(result, check or _sensor_check(result, record, reference),
-                                        sensor_accuracy_percent)
+            result = _with_sensor_check(result, _sensor_check(result, record, reference), sensor_accuracy_percent)
     except np.linalg.LinAlgError as error:  # a last guard: LAPACK failing on a set that passed the checks above
         raise IdentificationError(f"the fit is numerically degenerate ({error}); check the record's values") from None
     check_tool(result.calibration.mass_kg, result.calibration.center_of_mass)  # a unit mistake, named

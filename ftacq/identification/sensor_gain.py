@@ -97,6 +97,7 @@ class SensorGainFit:
         center_of_mass: (3,) m of this fit. residual: (N, 6) measured − predicted. reduced_chi2: of the fit.
         converged: whether Gauss-Newton settled. parameter_covariance: (P, P) of all parameters.
         gravity_sensor: (N, 3) v_i of this fit. noise: the noise model the check's weights came from.
+        drift_rate: (6,) the linear bias drift fitted beside (zeros when none was), per unit of drift time.
     """
 
     force_gain: np.ndarray
@@ -115,6 +116,7 @@ class SensorGainFit:
     converged: bool
     parameter_covariance: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
     gravity_sensor: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    drift_rate: np.ndarray = field(default_factory=lambda: np.zeros(6))
     noise: dict = field(default_factory=dict)
 
     @property
@@ -317,16 +319,20 @@ def fit_sensor_gain(rotations: np.ndarray, wrench: np.ndarray, start: dict, whit
         mass_kg=float(np.linalg.norm(g) / STANDARD_GRAVITY_M_S2),
         mass_sigma_kg=float(np.sqrt(max(gradient_mass @ g_cov @ gradient_mass, 0.0))),
         center_of_mass=np.array(state["c"]), residual=residual, reduced_chi2=float(reduced), converged=converged,
-        parameter_covariance=covariance, gravity_sensor=_model(state, rotations, drift_time)[2])
+        parameter_covariance=covariance, gravity_sensor=_model(state, rotations, drift_time)[2],
+        drift_rate=np.zeros(6) if state["rate"] is None else np.array(state["rate"]))
 
 
-def check_identification(result, record, reference: ReferenceWeight | None = None) -> tuple[SensorGainFit, dict]:
+def check_identification(result, record, reference: ReferenceWeight | None = None,
+                         with_drift: bool = False) -> tuple[SensorGainFit, dict]:
     """Run the sensor check beside an identification: ``result`` the :class:`ftacq.identification.
     IdentificationResult` of ``record`` (its parameters, robust weights and drift model are the start). The noise
     model (per-channel scatter, robot orientation error: pose_error.py) is estimated again from the check's own
     residuals (:data:`NOISE_ROUNDS` times): a gain error inflates the paper model's scatter, and C's 1σ would be
     overstated with it. Return the fit and the straight-line trend of its residuals against time (trend.py
-    ``ResidualTrend.to_dict``): a drift the paper's model showed only because the gains are off is not in it."""
+    ``ResidualTrend.to_dict``): a drift the paper's model showed only because the gains are off is not in it.
+    ``with_drift``: fit a linear bias drift too (from zero when the calibration has none), so that a drift and a
+    gain error are told apart in one fit (:func:`drift_trend` reads the drift off it)."""
     from ftacq.identification import ORIENTATION_MIN_POSES, _relative_noise, _standard_error, robust, trend
     from ftacq.identification.pose_error import estimate_noise
 
@@ -337,9 +343,10 @@ def check_identification(result, record, reference: ReferenceWeight | None = Non
     drift_model = dict(cal.metadata.get("drift_model", {}) or {})
     times = trend.pose_times(record)
     linear = drift_model.get("model") == "linear"
+    rate = np.asarray(drift_model["bias_rate"], dtype=float) if linear else np.zeros(6) if with_drift else None
     start = {"S": np.array(cal.sensor_rotation), "g": np.array(cal.gravity_base), "F0": np.array(cal.force_bias),
-             "c": np.array(cal.center_of_mass), "T0": np.array(cal.torque_bias),
-             "rate": np.asarray(drift_model["bias_rate"], dtype=float) if linear else None}
+             "c": np.array(cal.center_of_mass), "T0": np.array(cal.torque_bias), "rate": rate}
+    linear = rate is not None
     noise_meta = dict(cal.metadata.get("noise", {}) or {})
     orientation_rad = float(np.radians(float(noise_meta.get("orientation_error_deg", 0.0))))
     scatter2 = np.asarray(noise_meta.get("extra_scatter") or np.zeros(6), dtype=float) ** 2
@@ -369,5 +376,19 @@ def check_identification(result, record, reference: ReferenceWeight | None = Non
     return replace(fit, noise=extra), found.to_dict()
 
 
-__all__ = ["check_identification", "FORCE_AXES", "TORQUE_AXES", "ReferenceWeight", "SensorGainFit", "fit_sensor_gain", "whitening",
+def drift_trend(fit: SensorGainFit, record) -> "object":
+    """Return the bias drift of a check fitted ``with_drift`` as a trend.py ``ResidualTrend`` (rates, their 1σ
+    from the joint fit, the χ²₆ test of "no drift"): the identification's "auto" decides on it, so that a gain
+    error does not pass for a drift nor a drift for a gain error."""
+    from ftacq.identification import trend
+
+    times = trend.pose_times(record)
+    rate = fit.drift_rate
+    covariance = fit.parameter_covariance[_CAL:_CAL + 6, _CAL:_CAL + 6]
+    chi2 = float(rate @ np.linalg.pinv(covariance) @ rate)
+    return trend.ResidualTrend(rate, np.sqrt(np.maximum(np.diag(covariance), 0.0)), chi2,
+                               float(stats.chi2.sf(chi2, 6)), float(np.ptp(times.drift_time)), times.unit)
+
+
+__all__ = ["check_identification", "drift_trend", "FORCE_AXES", "TORQUE_AXES", "ReferenceWeight", "SensorGainFit", "fit_sensor_gain", "whitening",
            "SYMMETRIC_ENTRIES", "REFERENCE_GRAVITY_RELATIVE_SIGMA", "SIGNIFICANCE_P"]
