@@ -136,6 +136,21 @@ def sensor_finding(check: Mapping[str, Any], accuracy_percent: float | None = No
     return Finding("sensor", PASS, summary, details, figures)
 
 
+def parse_reference_mass(text: str):
+    """Return the :class:`ftacq.identification.sensor_gain.ReferenceWeight` of ``KG[±SIGMA]`` (``1.35``,
+    ``1.35±0.002``, ``1.35+-0.002``). Raises ValueError saying what is wrong."""
+    from ftacq.identification.sensor_gain import ReferenceWeight
+
+    parts = str(text).replace("+-", "±").split("±")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{text!r} is not KG or KG±SIGMA (e.g. 1.35 or 1.35±0.002)") from None
+    if len(values) > 2 or not all(np.isfinite(values)) or values[0] <= 0.0 or (len(values) == 2 and values[1] < 0):
+        raise ValueError(f"{text!r}: give a positive mass in kg and, optionally, ±its 1σ (e.g. 1.35±0.002)")
+    return ReferenceWeight(values[0], values[1] if len(values) == 2 else 0.0)
+
+
 def explained_fit(fit: Finding, check: Mapping[str, Any], tolerance: tuple[float, float]) -> Finding:
     """Return the ``fit`` finding with its cause named when it warns of a model mismatch that the sensor check
     explains (its own fit leaves scatter within the tolerance): the sensor's gains, which compensation does not
@@ -151,4 +166,4 @@ def explained_fit(fit: Finding, check: Mapping[str, Any], tolerance: tuple[float
     return Finding(fit.check, fit.status, summary, fit.details, fit.figures)
 
 
-__all__ = ["explained_fit", "sensor_finding", "WARN_SIGMAS", "FAIL_FACTOR"]
+__all__ = ["parse_reference_mass", "explained_fit", "sensor_finding", "WARN_SIGMAS", "FAIL_FACTOR"]
