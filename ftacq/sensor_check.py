@@ -6,8 +6,8 @@ differences that the centre of mass's lever arm shows. Each figure judged here i
 sensor's own calibration, with its 1σ:
 
 - with a reference weight, each force gain C_kk − 1;
-- without one only ratios are known: for each pair of force axes C_kk − C_jj; at least one of the two gains is then
-  off by half that (whatever the tool weighs);
+- for each pair of force axes C_kk − C_jj (without a reference only these ratios are known; with one they are still
+  known more precisely than the gains): at least one of the two gains is off by half that, whatever the tool weighs;
 - each cross-talk C_jk (the symmetric part: one-way cross-talk x between two axes shows as x/2, the rest is the
   mounting rotation); at least one of the two directions is that large;
 - the torque gains' differences d_k − d_j (half of it, as for the force gains' ratios).
@@ -39,28 +39,27 @@ def _items(check: Mapping[str, Any]) -> list[dict]:
     weight_n = float(check.get("mass_kg", 0.0)) * STANDARD_GRAVITY_M_S2
     gain = np.asarray(check["force_gain"], dtype=float)
     cov = np.asarray(check["force_gain_covariance"], dtype=float)
-    diag_index = {0: 0, 1: 1, 2: 2}
     off_index = {(0, 1): 3, (0, 2): 4, (1, 2): 5}
     items = []
     if check.get("reference_mass_kg") is not None:
         for k in range(3):
             error, sigma = gain[k, k] - 1.0, float(np.sqrt(max(cov[k, k], 0.0)))
             items.append({"text": f"{FORCE_AXES[k]} gain {100 * abs(error):.2g} % {'high' if error > 0 else 'low'} "
-                                  f"(± {100 * sigma:.2g} %)", "bound": abs(error), "sigma": sigma, "value": error, "load": weight_n, "unit": "N"})
-    else:
-        for j, k in ((0, 1), (0, 2), (1, 2)):
-            a, b = diag_index[j], diag_index[k]
-            difference = gain[k, k] - gain[j, j]
-            sigma = float(np.sqrt(max(cov[a, a] + cov[b, b] - 2 * cov[a, b], 0.0)))
-            high, low = (FORCE_AXES[k], FORCE_AXES[j]) if difference > 0 else (FORCE_AXES[j], FORCE_AXES[k])
-            items.append({"text": f"{high} reads {100 * abs(difference):.2g} % more than {low} (± {100 * sigma:.2g} %"
-                                  f"): one of their gains is at least {50 * abs(difference):.2g} % off",
-                          "bound": abs(difference) / 2, "sigma": sigma / 2, "value": difference, "load": weight_n,
-                          "unit": "N"})
+                                  f"(± {100 * sigma:.2g} %)", "bound": abs(error), "sigma": sigma, "value": error,
+                          "load": weight_n, "unit": "N"})
+    for j, k in ((0, 1), (0, 2), (1, 2)):  # the gains' ratios
+        difference = gain[k, k] - gain[j, j]
+        sigma = float(np.sqrt(max(cov[j, j] + cov[k, k] - 2 * cov[j, k], 0.0)))
+        high, low = (FORCE_AXES[k], FORCE_AXES[j]) if difference > 0 else (FORCE_AXES[j], FORCE_AXES[k])
+        items.append({"text": f"{high} reads {100 * abs(difference):.2g} % more than {low} (± {100 * sigma:.2g} %): "
+                              f"one of their gains is at least {50 * abs(difference):.2g} % off",
+                      "bound": abs(difference) / 2, "sigma": sigma / 2, "value": difference, "load": weight_n,
+                      "unit": "N"})
     for (j, k), index in off_index.items():
         value, sigma = gain[j, k], float(np.sqrt(max(cov[index, index], 0.0)))
         items.append({"text": f"cross-talk between {FORCE_AXES[j]} and {FORCE_AXES[k]} {100 * abs(value):.2g} % "
-                              f"(± {100 * sigma:.2g} %)", "bound": abs(value), "sigma": sigma, "value": value, "load": weight_n, "unit": "N"})
+                              f"(± {100 * sigma:.2g} %)", "bound": abs(value), "sigma": sigma, "value": value,
+                      "load": weight_n, "unit": "N"})
     for entry in check.get("torque_gain_differences", []):
         j, k = entry["axes"]
         value, sigma = float(entry["value"]), float(entry["sigma"])

@@ -29,6 +29,7 @@ with σ² = σ_m² g0² + (REFERENCE_GRAVITY_RELATIVE_SIGMA m_ref g0)² (the wei
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import stats
@@ -37,6 +38,9 @@ from ftacq import STANDARD_GRAVITY_M_S2
 from ftacq.identification.pose_error import orientation_sensitivity
 from ftacq.identification.torque import skew
 from ftacq.so3 import rotation_from_rotvec
+
+if TYPE_CHECKING:
+    from ftacq.identification.trend import ResidualTrend
 
 FORCE_AXES = ("Fx", "Fy", "Fz")
 TORQUE_AXES = ("Tx", "Ty", "Tz")
@@ -231,7 +235,7 @@ def fit_sensor_gain(rotations: np.ndarray, wrench: np.ndarray, start: dict, whit
     wrench = np.asarray(wrench, dtype=float)
     c_basis = np.eye(6) if reference is not None else _TRACE_FREE
     k_c = c_basis.shape[1]
-    state = {"S": np.array(start["S"], dtype=float), "g": np.array(start["g"], dtype=float),
+    state: dict[str, Any] = {"S": np.array(start["S"], dtype=float), "g": np.array(start["g"], dtype=float),
              "F0": np.array(start["F0"], dtype=float), "c": np.array(start["c"], dtype=float),
              "T0": np.array(start["T0"], dtype=float), "eC": np.zeros(6), "eB": np.zeros(6),
              "rate": None if start.get("rate") is None else np.array(start["rate"], dtype=float)}
@@ -344,7 +348,7 @@ def check_identification(result, record, reference: ReferenceWeight | None = Non
     times = trend.pose_times(record)
     linear = drift_model.get("model") == "linear"
     rate = np.asarray(drift_model["bias_rate"], dtype=float) if linear else np.zeros(6) if with_drift else None
-    start = {"S": np.array(cal.sensor_rotation), "g": np.array(cal.gravity_base), "F0": np.array(cal.force_bias),
+    start: dict[str, Any] = {"S": np.array(cal.sensor_rotation), "g": np.array(cal.gravity_base), "F0": np.array(cal.force_bias),
              "c": np.array(cal.center_of_mass), "T0": np.array(cal.torque_bias), "rate": rate}
     linear = rate is not None
     noise_meta = dict(cal.metadata.get("noise", {}) or {})
@@ -376,7 +380,7 @@ def check_identification(result, record, reference: ReferenceWeight | None = Non
     return replace(fit, noise=extra), found.to_dict()
 
 
-def drift_trend(fit: SensorGainFit, record) -> "object":
+def drift_trend(fit: SensorGainFit, record) -> "ResidualTrend":
     """Return the bias drift of a check fitted ``with_drift`` as a trend.py ``ResidualTrend`` (rates, their 1σ
     from the joint fit, the χ²₆ test of "no drift"): the identification's "auto" decides on it, so that a gain
     error does not pass for a drift nor a drift for a gain error."""
