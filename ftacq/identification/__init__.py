@@ -345,9 +345,11 @@ def identify(
                                else "not needed: no large, significant trend", drift_warn)
             found = trend.ResidualTrend.from_dict(result.diagnostics["trend"])
             if sensor_check and drift == "auto" and refine:  # drift and gains in one fit: told apart
-                from ftacq.identification.sensor_gain import check_identification, drift_trend
+                joint = _sensor_check(result, record, reference, with_drift=True)
+                if joint is not None:
+                    from ftacq.identification.sensor_gain import drift_trend
 
-                found = drift_trend(check_identification(result, record, reference, with_drift=True)[0], record)
+                    found = drift_trend(joint[0], record)
             if drift == "auto" and refine and found.significant and found.large(*drift_warn):
                 reason = (f"chosen automatically: the residuals trend with time, p = {found.p_value:.2g}, "
                           f"{np.linalg.norm(found.change[:3]):.3g} N and {np.linalg.norm(found.change[3:]):.3g} N·m "
@@ -355,17 +357,29 @@ def identify(
                 result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, times,
                                    reason, drift_warn)
         if sensor_check:
-            result = _with_sensor_check(result, _sensor_check(result, record, reference), sensor_accuracy_percent)
+            check = _sensor_check(result, record, reference)
+            result = (_with_sensor_check(result, check, sensor_accuracy_percent) if check is not None else
+                      replace(result, warnings=result.warnings + ("the sensor check could not be fitted on these poses "
+                                                                  "(numerically degenerate); it was left out",)))
     except np.linalg.LinAlgError as error:  # a last guard: LAPACK failing on a set that passed the checks above
         raise IdentificationError(f"the fit is numerically degenerate ({error}); check the record's values") from None
     check_tool(result.calibration.mass_kg, result.calibration.center_of_mass)  # a unit mistake, named
     return result
 
 
-def _sensor_check(result: IdentificationResult, record: PoseRecord, reference) -> tuple:
+def _sensor_check(result: IdentificationResult, record: PoseRecord, reference, with_drift: bool = False
+                  ) -> tuple | None:
+    """The sensor check (sensor_gain.py), or None when it cannot be fitted: it never costs the calibration."""
     from ftacq.identification.sensor_gain import check_identification
 
-    return check_identification(result, record, reference)
+    try:
+        with np.errstate(all="ignore"):
+            fit, found = check_identification(result, record, reference, with_drift)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    if not np.all(np.isfinite(fit.force_gain)) or not np.all(np.isfinite(fit.force_gain_covariance)):
+        return None
+    return fit, found
 
 
 def _with_sensor_check(result: IdentificationResult, check: tuple,
