@@ -171,3 +171,22 @@ def test_the_yumi_recording_shows_gain_ratios_it_cannot_tell_from_other_errors()
     assert check["significant"] and 0.02 < gain[0, 0] - gain[2, 2] < 0.08
     sensor = {f.check: f for f in identification_findings(result)}["sensor"]
     assert sensor.status == PASS and "heavier reference weight" in sensor.summary
+
+
+def test_identify_reads_the_reference_mass_and_refuses_a_bad_one(tmp_path, capsys):
+    from ftacq.app.cli import main
+    from ftacq.calfile import load_calibration
+    from ftacq.posefile import write_pose_csv
+    from ftacq.sensor_check import parse_reference_mass
+
+    assert parse_reference_mass("1.35+-0.002") == ReferenceWeight(1.35, 0.002)
+    poses = tmp_path / "poses.csv"
+    write_pose_csv(poses, example_record(CellTruth(), seed=2))
+    out = tmp_path / "cal.json"
+    assert main(["identify", str(poses), "-o", str(out), "--reference-mass", "1.3x"]) == 2
+    assert "--reference-mass: '1.3x' is not KG or KG±SIGMA" in capsys.readouterr().err and not out.exists()
+    assert main(["identify", str(poses), "-o", str(out), "--reference-mass", "1.35±0.002"]) in (0, 1)
+    check = load_calibration(out).metadata["sensor_check"]
+    assert check["reference_mass_kg"] == 1.35 and check["reference_sigma_kg"] == 0.002
+    findings = {f["check"]: f for f in load_calibration(out).metadata["verdict"]["findings"]}
+    assert findings["sensor"]["status"] == "PASS"
