@@ -18,6 +18,8 @@ Steps (Yu, Shi & Lou 2021, Algorithm 1, with method.md's corrections):
    at the end of the recording.
 5. 1σ of every parameter from (JᵀWJ)⁻¹ at the optimum; mass and base tilt (corrected eqs 46-48) with
    their 1σ, the tilt relative to a named mount; conditioning warnings.
+6. With ``sensor_check``: the sensor's force gain/cross-talk matrix fitted beside (sensor_gain.py); it leaves the
+   calibration as it is, and "auto" then decides on the drift from one fit of the drift and the gains together.
 
 Over 500 lines because the steps above share one state (weights, noise model, parameters, their covariance)
 through one re-weighted loop; the pieces that stand alone live in the sibling modules.
