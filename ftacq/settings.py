@@ -302,6 +302,11 @@ class SensorConfig:
 
     url: str = setting("netft://192.168.1.1", "netft://HOST[:RDT_PORT][?tcp_port=N&http_port=N] or "
                        "can://INTERFACE/CHANNEL[?base=0x20]", edit=True)
+    check: bool = setting(True, "fit the sensor's force gains and cross-talk beside every calibration (the verdict's "
+                          "sensor line; docs/verdict.md)")
+    accuracy_percent: float = setting(1.25, "the sensor's stated accuracy (its calibration certificate), per axis: the "
+                                      "sensor line warns beyond it and fails beyond twice it", unit="%", low=0.01,
+                                      high=50.0)
 
 
 @cell_section("tool")
@@ -320,6 +325,10 @@ class ToolConfig:
     sensor_body_mass_kg: float = setting(0.0, "mass between the flange and the sensor's measuring plane (adapter and "
                                          "sensor body, which the sensor cannot weigh); part of the payload ftacq "
                                          "bridge sets", unit="kg", low=0.0, high=20.0)
+    reference_mass_kg: float | None = setting(
+        None, "the tool's mass weighed on a scale (or a calibrated weight on the flange): fixes the sensor check's "
+        "absolute gain scale (absent = only the gains' ratios are checked)", kind="float", unit="kg", low=0.001,
+        high=100.0, optional=True, example=1.35)
     name: str | None = setting(None, "the tool's name, recorded in calibration.json (provenance; see "
                                "docs/drift-and-tare.md)", kind="str", optional=True, example="gripper-A")
 
