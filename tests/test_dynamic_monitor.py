@@ -10,7 +10,7 @@ import pytest
 
 from ftacq.app.cli import main as ftacq_main
 from ftacq.calfile import save_calibration
-from ftacq.dynamics.clock import SampleClock
+from ftacq.timebase import SampleClock
 from tests.fakes.world import CellTruth
 
 pytest.importorskip("rtde_control")
