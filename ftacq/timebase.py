@@ -375,7 +375,10 @@ class SampleClock:
         arrival = np.asarray(arrival_s, dtype=float)
         if device.size == 0 or not np.isfinite(device[-1]):
             return arrival.copy()
-        starts = session_starts(device, self.clock.block_s, self.clock.window_s)
+        # (a batch that ends after it starts, within a window, holds no restart worth looking for: the usual case,
+        # no per-sample check; a restart needs a step back longer than a block)
+        usual = device[0] <= device[-1] <= device[0] + self.clock.window_s
+        starts = np.empty(0, dtype=np.intp) if usual else session_starts(device, self.clock.block_s, self.clock.window_s)
         if starts.size == 0:
             self.clock.observe(device, arrival)
             out = self.clock.map_times(device)
