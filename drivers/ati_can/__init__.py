@@ -4,25 +4,11 @@
 - :mod:`drivers.ati_can.transport`: the bus: one request and its reply frames, the frame classifier.
 - :mod:`drivers.ati_can.driver`: :class:`AtiCanSensor` (start-up, poll thread, host-side bias) and the ``can://`` URL.
 
-``from drivers.ati_can import AtiCanSensor`` is the public entry; ``open_sensor("can://…")`` reaches it too.
+``from drivers.ati_can import AtiCanSensor`` is the public entry; ``open_sensor("can://…")`` reaches it too. The
+wire tables (opcodes, status bits) are imported from :mod:`drivers.ati_can.protocol`.
 """
 
 from drivers.ati_can.driver import URL_FORM, AtiCanSensor, parse_can_url
-from drivers.ati_can.protocol import (
-    HOST_STATUS_GAGE_SATURATED,
-    OP_COUNTS_PER_UNIT,
-    OP_FIRMWARE,
-    OP_GAGES,
-    OP_GAGES_SECOND,
-    OP_MATRIX,
-    OP_SELECT_CALIBRATION,
-    OP_SERIAL,
-    OP_UNIT_CODES,
-    STATUS_ERROR_MASK,
-    CanCalibration,
-    decode_status,
-)
+from drivers.ati_can.protocol import CanCalibration, decode_status
 
-__all__ = ["AtiCanSensor", "parse_can_url", "URL_FORM", "CanCalibration", "decode_status", "HOST_STATUS_GAGE_SATURATED",
-           "STATUS_ERROR_MASK", "OP_GAGES", "OP_GAGES_SECOND", "OP_MATRIX", "OP_SERIAL", "OP_SELECT_CALIBRATION",
-           "OP_COUNTS_PER_UNIT", "OP_UNIT_CODES", "OP_FIRMWARE"]
+__all__ = ["AtiCanSensor", "parse_can_url", "URL_FORM", "CanCalibration", "decode_status"]
