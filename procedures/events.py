@@ -160,7 +160,7 @@ class RobotState:
 class SensorStatus:
     """A snapshot of the stream's health at ``time_s``; ``dropped`` samples were not delivered to the background
     listeners so far (their queue was full: a slow viewer), never to the record; ``clock_uncertainty_s`` how well
-    the samples' times on the host clock are known (s, :class:`ftacq.dynamics.clock.DeviceClock`; inf: not known,
+    the samples' times on the host clock are known (s, :class:`ftacq.timebase.DeviceClock`; inf: not known,
     a sensor without its own clock)."""
 
     time_s: float

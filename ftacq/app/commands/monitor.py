@@ -24,7 +24,7 @@ import numpy as np
 from ftacq.app.helptext import examples
 
 if TYPE_CHECKING:
-    from ftacq.dynamics.clock import SampleClock
+    from ftacq.timebase import SampleClock
     from procedures.bias_health import DriftCompensator
     from procedures.dynamic_compensation import DynamicCompensator
     from procedures.monitor import HealthCheck
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq import __version__
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.app.readout import LiveReadout, format_summary
-    from ftacq.dynamics.clock import SampleClock
+    from ftacq.timebase import SampleClock
     from ftacq.kinematics import ur_model
     from procedures.monitor import LiveMonitor
 
