@@ -1,4 +1,4 @@
-"""Benchmark: the host ↔ device clock mapping (ftacq/dynamics/clock.py) on synthetic arrivals, accuracy and CPU.
+"""Benchmark: the host ↔ device clock mapping (ftacq/timebase.py) on synthetic arrivals, accuracy and CPU.
 
     .venv/bin/python benchmarks/clock.py [--minutes 10]
 
@@ -22,7 +22,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from ftacq.dynamics.clock import DeviceClock, SampleClock  # noqa: E402
+from ftacq.timebase import DeviceClock, SampleClock  # noqa: E402
 from tests.clock_arrivals import bursting_sensor, reads_of  # noqa: E402
 from tests.fakes.drifting_link import MIN_DELAY_S, simulate  # noqa: E402
 
@@ -60,7 +60,7 @@ def controller(minutes: float, drift: float) -> str:
     spent = time.thread_time()
     for k, (stamp, arrival) in enumerate(zip(stamps, arrivals)):
         clock.observe_one(stamp, arrival)
-        mapped[k] = clock.host_time(stamp)
+        mapped[k] = clock.map_time(stamp)
     spent = time.thread_time() - spent
     error = mapped - (link.true_host_s + MIN_DELAY_S)
     return (f"controller {drift * 1e6:+.0f} ppm, one package at a time: max |error| per minute (ms) "

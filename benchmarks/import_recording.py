@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ftacq.imports import ImportOptions, import_recording  # noqa: E402
-from ftacq.imports.robot_model import dh_joint_model, read_dh_table  # noqa: E402
+from ftacq.imports.robot_model import dh_arm_model, read_dh_table  # noqa: E402
 from ftacq.imports.wrench_frame import frame_mismatch  # noqa: E402
 from ftacq.posefile import write_pose_csv  # noqa: E402
 from tests.fakes.world import CellTruth  # noqa: E402
@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rows = 2_000 if args.quick else 10_000
     repeats = 2 if args.quick else 3
-    model = dh_joint_model(read_dh_table(DH_TABLE))
+    model = dh_arm_model(read_dh_table(DH_TABLE))
     rng = np.random.default_rng(1)
     q = rng.uniform(-2.0, 2.0, size=(rows, model.joints))
     flange_R_base = np.swapaxes(model.flange_transforms(q)[:, :3, :3], -1, -2)

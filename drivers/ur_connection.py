@@ -25,6 +25,10 @@ from ftacq.errors import DeviceConnectionError, DeviceTimeoutError, InputError
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 """The controller's fixed TCP ports: RTDE, UR Dashboard Server, the script ("realtime") port ur-rtde uploads to."""
+E_SERIES_RATE_HZ, CB3_RATE_HZ = 500.0, 125.0
+"""The controller's state rate (its RTDE cycle), Hz: 500 on e-Series and later (software 5+), 125 on a CB3 (every
+generation offers 125). Declared here only: the state stream, the external-F/T input, the bridge and the
+orientation lookup read it from here."""
 PROBE_TIMEOUT_S = 2.0
 """Default deadline of one probe (TCP connect plus, for RTDE, the whole handshake up to the first data package)."""
 WATCHDOG_INTERVAL_S = 0.05
@@ -34,7 +38,7 @@ RTDE_REQUEST_PROTOCOL_VERSION, RTDE_GET_URCONTROL_VERSION = ord("V"), ord("v")
 RTDE_SETUP_OUTPUTS, RTDE_START, RTDE_DATA_PACKAGE, RTDE_TEXT_MESSAGE = ord("O"), ord("S"), ord("U"), ord("M")
 RTDE_HEADER = struct.Struct(">HB")
 """Every RTDE package: uint16 total size (header included), uint8 type; big-endian."""
-PROBE_FREQUENCY_HZ = 125.0
+PROBE_FREQUENCY_HZ = CB3_RATE_HZ
 """Output rate asked for by the probe (every controller generation supports 125 Hz)."""
 PROBE_VARIABLES = b"timestamp"
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.ur_connection import CB3_RATE_HZ, E_SERIES_RATE_HZ
 from ftacq.errors import DeviceConnectionError, DeviceError, DeviceTimeoutError
 
 RTDE_PORT = 30004
@@ -41,7 +42,6 @@ CONNECT_TIMEOUT_S = 2.0
 REPLY_TIMEOUT_S = 2.0
 CYCLE_TIMEOUT_S = 0.1
 """No output package for this long is a lost controller (UR's own watchdog for the input is 0.1 s too)."""
-E_SERIES_RATE_HZ, CB3_RATE_HZ = 500.0, 125.0
 
 _TYPES = {"BOOL": ("?", 1), "UINT8": ("B", 1), "UINT32": ("I", 1), "INT32": ("i", 1), "UINT64": ("Q", 1),
           "DOUBLE": ("d", 1), "VECTOR3D": ("d", 3), "VECTOR6D": ("d", 6), "VECTOR6INT32": ("i", 6),

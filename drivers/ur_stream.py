@@ -9,7 +9,7 @@ on arrival with the host's ``time.monotonic()``, to a fixed-size ring of numpy r
 Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``
 (rad, rad/s, rad/s²).
 The controller's timestamp maps onto the host clock through the minimum-delay line of (timestamp, arrival − timestamp)
-(:class:`ftacq.dynamics.clock.DeviceClock`, the same estimator as the sensor's: it follows the two clocks' rate error,
+(:class:`ftacq.timebase.DeviceClock`, the same estimator as the sensor's: it follows the two clocks' rate error,
 ±200 ppm and more, without ever mapping a state later than it arrived): host times free of receive jitter, also
 after hours of streaming. :meth:`URStateStream.window` maps the rows within the clock's window with its newest line;
 each row also keeps an offset, known when it arrived and rewritten once :data:`SETTLE_AFTER_S` later, for the rows
@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ftacq.dynamics.clock import CLOCK_WINDOW_S, DeviceClock
+from drivers.ur_connection import E_SERIES_RATE_HZ
+from ftacq.timebase import CLOCK_WINDOW_S, DeviceClock
 from ftacq.errors import DeviceConnectionError, DeviceError
 
 log = logging.getLogger(__name__)
@@ -45,7 +46,7 @@ DEFAULT_CAPACITY = 1 << 18
 """Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
 ROW_COLUMNS = 27
 """Columns of one kept state row: arrival (host s), timestamp (controller s), q (6), q̇ (6), target q̇ (6), target q̈ (6),
-offset (host − controller s, as :class:`ftacq.dynamics.clock.DeviceClock` knew it when the row arrived)."""
+offset (host − controller s, as :class:`ftacq.timebase.DeviceClock` knew it when the row arrived)."""
 OFFSET_COLUMN = ROW_COLUMNS - 1
 SETTLE_AFTER_S = 0.5 * CLOCK_WINDOW_S
 """A row's kept offset is rewritten once, with the line of the packages up to this long after it (controller s):
@@ -86,7 +87,7 @@ class StateWindow:
         if since is not None and clock is not None and timestamp.size and not np.any(np.diff(timestamp) < 0):
             first = int(np.searchsorted(timestamp, since, side="left"))
             if first < timestamp.size:
-                time_s[first:] = clock.host_times(timestamp[first:])
+                time_s[first:] = clock.map_times(timestamp[first:])
         return cls(time_s, rows[:, 0], timestamp, rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
 
 
@@ -97,7 +98,7 @@ class URStateStream:
     connect_timeout_s (the handshake's deadline).
     """
 
-    def __init__(self, host: str, frequency_hz: float = 500.0, capacity: int = DEFAULT_CAPACITY,
+    def __init__(self, host: str, frequency_hz: float = E_SERIES_RATE_HZ, capacity: int = DEFAULT_CAPACITY,
                  connect_timeout_s: float = CONNECT_TIMEOUT_S, port: int = RTDE_PORT) -> None:
         self.host, self.port, self.frequency_hz = host, port, float(frequency_hz)
         self.connect_timeout_s = connect_timeout_s
@@ -209,7 +210,7 @@ class URStateStream:
         """Keep one read's data packages (their output values, oldest first), all stamped ``arrival_s`` (host s)."""
         restarts = self.clock.restarts
         self.clock.observe(values[:, 0], arrival_s)
-        offsets = self.clock.host_times(values[:, 0]) - values[:, 0]
+        offsets = self.clock.map_times(values[:, 0]) - values[:, 0]
         capacity = self._rows.shape[0]
         n = len(values)
         kept = min(n, capacity)  # a read longer than the ring keeps its newest rows
@@ -241,7 +242,7 @@ class URStateStream:
             return
         index, timestamp = index[:due], timestamp[:due]
         inside = timestamp >= valid_from  # rows the line was fitted over (the others keep their offsets)
-        self._rows[index[inside], OFFSET_COLUMN] = self.clock.host_times(timestamp[inside]) - timestamp[inside]
+        self._rows[index[inside], OFFSET_COLUMN] = self.clock.map_times(timestamp[inside]) - timestamp[inside]
         self._settled = start + due
 
     # ------------------------------------------------------------------ reading

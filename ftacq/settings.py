@@ -307,6 +307,11 @@ class SensorConfig:
                          "the MCAP record: docs/ros2.md)", parse=check_frame_id, forms=FRAME_FORMS)
     ros2_namespace: str = setting("/ftacq", "ROS 2 namespace of ftacq monitor --ros2's topics and service (and of "
                                   "the MCAP record's topics)", parse=check_namespace, forms=NAMESPACE_FORMS)
+    check: bool = setting(True, "fit the sensor's force gains and cross-talk beside every calibration (the verdict's "
+                          "sensor line; docs/verdict.md)")
+    accuracy_percent: float = setting(1.25, "the sensor's stated accuracy (its calibration certificate), per axis: the "
+                                      "sensor line warns beyond it and fails beyond twice it", unit="%", low=0.01,
+                                      high=50.0)
 
 
 @cell_section("tool")
@@ -325,6 +330,10 @@ class ToolConfig:
     sensor_body_mass_kg: float = setting(0.0, "mass between the flange and the sensor's measuring plane (adapter and "
                                          "sensor body, which the sensor cannot weigh); part of the payload ftacq "
                                          "bridge sets", unit="kg", low=0.0, high=20.0)
+    reference_mass_kg: float | None = setting(
+        None, "the tool's mass weighed on a scale (or a calibrated weight on the flange): fixes the sensor check's "
+        "absolute gain scale (absent = only the gains' ratios are checked)", kind="float", unit="kg", low=0.001,
+        high=100.0, optional=True, example=1.35)
     name: str | None = setting(None, "the tool's name, recorded in calibration.json (provenance; see "
                                "docs/drift-and-tare.md)", kind="str", optional=True, example="gripper-A")
 

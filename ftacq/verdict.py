@@ -72,7 +72,7 @@ UNCONVERGED_FAIL_SIGMAS = 1.0
 """A fit that stopped at its iteration limit is a FAIL when its last re-weighting still moved a parameter more
 than this many σ (else a WARN)."""
 
-CHECKS = ("validation", "drift", "conditioning", "outliers", "poses", "trend", "fit")
+CHECKS = ("validation", "drift", "conditioning", "outliers", "poses", "trend", "fit", "sensor")
 
 
 @dataclass(frozen=True)
@@ -454,7 +454,14 @@ def identification_findings(result: Any, held_out: Any | None = None,
                 outlier_finding(list(result.outliers), len(result.labels))]
     if "trend" in diag:
         findings.append(trend_finding(diag["trend"], cal.metadata.get("drift_model", {})))
-    findings.append(fit_finding(diag, cal.metadata.get("noise", {}), tolerance))
+    fit = fit_finding(diag, cal.metadata.get("noise", {}), tolerance)
+    check = cal.metadata.get("sensor_check")
+    if check:  # the sensor's own gains (ftacq.sensor_check)
+        from ftacq.sensor_check import explained_fit, sensor_finding
+
+        findings += [explained_fit(fit, check, tolerance), sensor_finding(check, tolerance=tolerance)]
+    else:
+        findings.append(fit)
     return findings
 
 

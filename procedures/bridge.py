@@ -41,7 +41,7 @@ cycles while the input was enabled: from the enable call to the end of the feed,
 
 Watchdog (feed thread, every cycle): the newest sample is older than ``max_staleness_s`` (sensor silent or the
 bridge starved; a sample's age runs from its sample time, the sensor's own clock on the host's
-(:class:`ftacq.dynamics.clock.SampleClock`, shared with the dynamic compensation), not from its arrival: a burst of
+(:class:`ftacq.timebase.SampleClock`, shared with the dynamic compensation), not from its arrival: a burst of
 late samples is old), a sensor error or a saturated sample, a fed wrench changing by more than ``jump_force_n`` /
 ``jump_torque_nm`` in one cycle, or the controller's cycle missing for ``cycle_timeout_s``. Then nothing more is
 written (the last written value was fresh and checked), the caller's thread disables the input and says why; if
@@ -67,11 +67,12 @@ import numpy as np
 from scipy import signal
 
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
+from drivers.ur_connection import CB3_RATE_HZ
 from drivers.ur_ft_input import ControllerCycle
 from drivers.ur_stream import OFFSET_COLUMN, ROW_COLUMNS, StateWindow
 from ftacq.bridge_convention import FeedPlan
 from ftacq.calibration import Calibration
-from ftacq.dynamics.clock import DeviceClock, SampleClock
+from ftacq.timebase import DeviceClock, SampleClock
 from ftacq.errors import DeviceError, DeviceTimeoutError, FtacqError
 from ftacq.kinematics import FlangeRotation, URModel
 from procedures.dynamic_compensation import DynamicCompensator
@@ -95,9 +96,9 @@ SENSOR_HOLD_S = 0.0003
 ``prefer_low_latency``; the Net F/T driver's default is 1 ms, to save CPU, and is given back after the run)."""
 STATE_CYCLES = 256
 """Controller cycles of joint state kept for the dynamic model (0.5 s at 500 Hz)."""
-ROBOT_STATE_RATE_HZ = 125.0
+ROBOT_STATE_RATE_HZ = CB3_RATE_HZ
 """RTDE rate (Hz) for ur-rtde's interfaces while bridging (payload, enable call): the bridge's own input client reads
-the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz)."""
+the controller every cycle, so they need not (each costs ~5 % of a core at 500 Hz); every controller offers it."""
 LOG_CHUNK_ROWS = 8192
 """Rows per chunk of the per-cycle log (16 s at 500 Hz, 0.7 MB)."""
 LOG_KEEP_S = 600.0
@@ -253,7 +254,7 @@ def _take(sensor: ForceTorqueSensor) -> WrenchBatch | None:
 class CycleStates:
     """The controller cycles' joint states as a robot state stream (``window``, as drivers.ur_stream.URStateStream)
     for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, on the host
-    clock as the RTDE state stream puts them (:class:`ftacq.dynamics.clock.DeviceClock`: the minimum-delay line of
+    clock as the RTDE state stream puts them (:class:`ftacq.timebase.DeviceClock`: the minimum-delay line of
     arrival − timestamp, following the clocks' rate error, one package at a time). Written and read by the feed
     thread."""
 
@@ -267,7 +268,7 @@ class CycleStates:
         row[0], row[1] = cycle.received_s, cycle.timestamp_s
         row[2:8], row[8:14], row[14:20], row[20:26] = cycle.q, cycle.qd, cycle.target_qd, cycle.target_qdd
         self.clock.observe_one(cycle.timestamp_s, cycle.received_s)
-        row[OFFSET_COLUMN] = self.clock.host_time(cycle.timestamp_s) - cycle.timestamp_s
+        row[OFFSET_COLUMN] = self.clock.map_time(cycle.timestamp_s) - cycle.timestamp_s
         self._count += 1
 
     def window(self, last: int) -> StateWindow:

@@ -167,6 +167,11 @@ class ProcedureOptions:
     drift_warn_torque_nm: float = from_setting("sampling.drift_warn_torque_nm")
     mismatch_tolerance_force_n: float = from_setting("sampling.mismatch_tolerance_force_n")
     mismatch_tolerance_torque_nm: float = from_setting("sampling.mismatch_tolerance_torque_nm")
+    sensor_check: bool = from_setting("sensor.check")
+    sensor_accuracy_percent: float = from_setting("sensor.accuracy_percent")
+    reference_mass_kg: float | None = from_setting("tool.reference_mass_kg")
+    reference_sigma_kg: float = 0.0
+    """1σ of ``reference_mass_kg`` (``--reference-mass KG±SIGMA``)."""
     mount: str | None = None
     drift: str = "auto"
     """Bias drift model of the identification (ftacq.identification.DRIFT_MODELS)."""
@@ -484,8 +489,15 @@ class CalibrationProcedure:
         record = self.identification_record()
         if record is None:
             raise IdentificationError("no identification pose (A or E) was measured")
-        result = identify(record, mount=self.options.mount, drift=self.options.drift,
-                          drift_warn=(self.options.drift_warn_force_n, self.options.drift_warn_torque_nm))
+        from ftacq.identification.sensor_gain import ReferenceWeight
+
+        options = self.options
+        reference = (None if options.reference_mass_kg is None
+                     else ReferenceWeight(options.reference_mass_kg, options.reference_sigma_kg))
+        result = identify(record, mount=options.mount, drift=options.drift,
+                          drift_warn=(options.drift_warn_force_n, options.drift_warn_torque_nm),
+                          sensor_check=options.sensor_check, reference=reference,
+                          sensor_accuracy_percent=options.sensor_accuracy_percent)
         self._result_parts["identification"] = result
         self._result_parts["warnings"].extend(result.warnings)
         self._emit(events.Identified(calibration=result.calibration, labels=tuple(result.labels),

@@ -120,7 +120,7 @@ class WrenchSamples:
     ``uncompensated`` says a compensator had these samples and no robot state of their time: they stay raw (a
     viewer must not compensate them with ``flange_pose``, a pose from another time). ``sample_time_s`` (N,), when
     known, is each sample's time on the host monotonic clock from the sensor's own clock (the record's
-    ``sample_time_s``: :class:`ftacq.dynamics.clock.SampleClock`); ``batch.time_s`` is when it was received.
+    ``sample_time_s``: :class:`ftacq.timebase.SampleClock`); ``batch.time_s`` is when it was received.
     """
 
     batch: WrenchBatch
@@ -165,7 +165,7 @@ class RobotState:
 class SensorStatus:
     """A snapshot of the stream's health at ``time_s``; ``dropped`` samples were not delivered to the background
     listeners so far (their queue was full: a slow viewer), never to the record; ``clock_uncertainty_s`` how well
-    the samples' times on the host clock are known (s, :class:`ftacq.dynamics.clock.DeviceClock`; inf: not known,
+    the samples' times on the host clock are known (s, :class:`ftacq.timebase.DeviceClock`; inf: not known,
     a sensor without its own clock)."""
 
     time_s: float

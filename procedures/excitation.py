@@ -13,7 +13,7 @@ Recording: the sensor is read in its own thread, the robot's every RTDE state by
 while this thread issues the moves (each blocking until arrived). Ctrl-C stops the robot and keeps what was
 recorded. Sensor samples are put on the host clock through the device's own sample times (the Net F/T's sample
 counter: a skipped sample is a gap, not a shift of the samples after it) and the minimum-delay line of the whole
-recording (:func:`ftacq.dynamics.clock.device_to_host_clock`), robot samples likewise through the controller's
+recording (:func:`ftacq.timebase.device_to_host_clock`), robot samples likewise through the controller's
 timestamps and their arrival stamps; the residual lag is measured by the identification.
 """
 
@@ -28,7 +28,7 @@ import numpy as np
 
 from ftacq.dynamics.acceleration import joint_acceleration
 from ftacq.dynamics.identify import MotionRecord
-from ftacq.dynamics.clock import device_to_host_clock
+from ftacq.timebase import device_to_host_clock
 from ftacq.errors import PlanError
 
 if TYPE_CHECKING:

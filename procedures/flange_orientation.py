@@ -3,7 +3,7 @@
 The live compensators' static path (:mod:`procedures.static_compensation`, and the dynamic compensator's fallback,
 :mod:`procedures.dynamic_compensation`) compensates each sensor sample with the tool's weight at the orientation the
 flange had *when the sample was taken* (the samples' times on the host clock through the sensor's own clock,
-:class:`ftacq.dynamics.clock.SampleClock`), never with the newest one: a monitor that reads 100 ms late while the
+:class:`ftacq.timebase.SampleClock`), never with the newest one: a monitor that reads 100 ms late while the
 arm turns at 1 rad/s would otherwise rotate the tool's weight by 0.1 rad (4 N of a 4 kg tool).
 
 Per query (one sensor batch): the stream's rows around the samples (host times through the controller's own clock,
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivers.ur_connection import E_SERIES_RATE_HZ
 from ftacq.dynamics.timing import interpolate_rows, slerp_rows
 from ftacq.kinematics import FlangeRotation, URModel
 from ftacq.so3 import rotvec_from_rotation
@@ -37,7 +38,7 @@ scaled by cos(θ/2), so the weight it predicts is at most θ²/8 short (1.3·10�
 far below any sensor's noise), for a fraction of the slerp's cost per batch (benchmarks/static_compensation.py).
 0.01 rad between 2 ms states is a flange turning at 5 rad/s; a wider interval (a gap of the stream, a faster
 wrist) takes the slerp."""
-DEFAULT_STATE_RATE_HZ = 500.0
+DEFAULT_STATE_RATE_HZ = E_SERIES_RATE_HZ
 """The state stream's rate when it does not say (``frequency_hz``), Hz: only sizes the first read of rows."""
 READ_MARGIN_ROWS = 4
 """Rows read beyond what the last query needed (the next batch may reach a little further back)."""

@@ -1,7 +1,7 @@
 """The calibration plan: pose sets, reachability and collision checks, duration estimate.
 
 :func:`make_plan` builds the A/E/V pose sets (:mod:`procedures.poses`) about a centre, solves the IK of every pose
-in each of the eight branches (:mod:`procedures.ik`), keeps the branch that reaches the most poses without
+in each of the eight branches (:mod:`ftacq.kinematics.ik`), keeps the branch that reaches the most poses without
 collision (:mod:`procedures.collision`; ties go to the robot's current branch), rejects the rest with a reason,
 has :mod:`procedures.tour` order the poses and check every joint move of that order along its path, and
 estimates the duration from trapezoidal joint profiles. When no centre is given and the default one loses poses,
@@ -45,7 +45,7 @@ from ftacq.mounts import mount_of
 from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 from procedures.collision import CollisionChecker
-from procedures.ik import Branch, IKResult, branch_of, solve_ik_branches
+from ftacq.kinematics.ik import Branch, IKResult, branch_of, solve_ik_branches
 from procedures.plan_settings import PlanSettings
 from procedures.poses import PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
 from procedures.tour import (

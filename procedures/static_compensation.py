@@ -2,7 +2,7 @@
 :class:`~procedures.monitor.Compensator` for a calibration without inertia.
 
 Per sensor batch: the samples are put on the host clock through the device's own sample times
-(:class:`ftacq.dynamics.clock.SampleClock`, shared with the monitor's record: docs/dynamics.md, "How the clocks are
+(:class:`ftacq.timebase.SampleClock`, shared with the monitor's record: docs/dynamics.md, "How the clocks are
 aligned"), the flange orientation is interpolated at each sample's time from the RTDE state stream's rows
 (:class:`procedures.flange_orientation.FlangeOrientations`: slerp between the states around it) and the calibration
 subtracts the biases and the tool's weight at that orientation (:meth:`ftacq.calibration.Calibration.compensate`,
@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ftacq.calibration import Calibration
-from ftacq.dynamics.clock import SampleClock
+from ftacq.timebase import SampleClock
 from ftacq.kinematics import URModel
 from procedures.flange_orientation import FlangeOrientations, pose_rows, still_over
 
@@ -33,7 +33,7 @@ class StaticCompensator:
     """Static gravity compensation with the flange orientation at each sample's time (module docstring).
 
     Args: calibration, robot (the arm's model), stream (a started :class:`drivers.ur_stream.URStateStream`, or
-    anything with its ``window(last=…)``), clock (the samples' :class:`~ftacq.dynamics.clock.SampleClock`, shared
+    anything with its ``window(last=…)``), clock (the samples' :class:`~ftacq.timebase.SampleClock`, shared
     with the monitor so that each batch is observed once; default its own), lag_s (the sensor's lag behind the
     robot stream, s: the one the identification measured when the calibration says it, else 0 — a millisecond
     moves the orientation by a milliradian at 1 rad/s).

@@ -25,7 +25,7 @@ import numpy as np
 
 from ftacq.kinematics import URModel, middle_equivalent, planning_limits_rad
 from procedures.collision import CollisionChecker
-from procedures.ik import TWO_PI
+from ftacq.kinematics.ik import TWO_PI
 
 COLLIDING_EDGE_PENALTY_RAD = 1e3
 """Cost added to a joint move that failed the path check, so the 2-opt avoids it."""

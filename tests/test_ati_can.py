@@ -19,7 +19,8 @@ import can
 import numpy as np
 import pytest
 
-from drivers.ati_can import (
+from drivers.ati_can import AtiCanSensor, decode_status, parse_can_url
+from drivers.ati_can.protocol import (
     HOST_STATUS_GAGE_SATURATED,
     OP_COUNTS_PER_UNIT,
     OP_FIRMWARE,
@@ -28,9 +29,6 @@ from drivers.ati_can import (
     OP_SELECT_CALIBRATION,
     OP_SERIAL,
     OP_UNIT_CODES,
-    AtiCanSensor,
-    decode_status,
-    parse_can_url,
 )
 from drivers.sensor import ForceTorqueSensor, open_sensor
 from ftacq.errors import DeviceConnectionError, DeviceTimeoutError, InputError, SensorFaultError

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.ur_ft_input import ControllerCycle
 from drivers.ur_stream import OFFSET_COLUMN, ROW_COLUMNS, StateWindow
-from ftacq.dynamics.clock import DeviceClock
+from ftacq.timebase import DeviceClock
 from procedures.bridge import CycleStates
 from tests.fakes.drifting_link import MIN_DELAY_S, simulate
 
@@ -55,7 +55,7 @@ def test_cycle_states_and_the_state_stream_map_the_same_packages_alike():
     clock = DeviceClock()
     for k in range(link.timestamp_s.size):  # as URStateStream keeps them (here one package a read)
         clock.observe(link.timestamp_s[k:k + 1], link.arrival_s[k])
-        rows[k, OFFSET_COLUMN] = clock.host_times(link.timestamp_s[k]) - link.timestamp_s[k]
+        rows[k, OFFSET_COLUMN] = clock.map_times(link.timestamp_s[k]) - link.timestamp_s[k]
     np.testing.assert_allclose(states.window(last=len(rows)).time_s, StateWindow.from_rows(rows, clock).time_s,
                                rtol=0, atol=1e-9)
     assert states.clock.offset_s == pytest.approx(rows[-1, OFFSET_COLUMN], abs=1e-9)

@@ -165,7 +165,8 @@ def test_verdict_is_printed_last_and_stored(tmp_path):
     stored = json.loads((run_dir / "run.json").read_text())["verdict"]
     assert stored["status"] == tail[1].split("\n")[0]
     assert {f["check"] for f in stored["findings"]} == {"validation", "drift", "conditioning", "outliers", "poses", "trend",
-                                                     "fit"}
+                                                     "fit", "sensor"}
+    assert next(f for f in stored["findings"] if f["check"] == "sensor")["status"] == "PASS"
     assert json.loads((run_dir / "calibration.json").read_text())["verdict"]["status"] == stored["status"]
     assert (run_dir / "report.md").read_text().split("\n")[2] == f"## Verdict: **{stored['status']}**"
 
@@ -177,3 +178,17 @@ def test_verdict_is_printed_last_and_stored(tmp_path):
     run_dir = next((tmp_path / "bad").iterdir())
     assert json.loads((run_dir / "run.json").read_text())["verdict"]["status"] == "FAIL"
     assert (run_dir / "calibration.json").exists()  # kept, judged unusable
+
+
+def test_a_sensor_whose_own_calibration_is_off_fails_naming_the_axis(tmp_path):
+    """--sim-bad-sensor: the simulated sensor reads Fz 4 % high, Fx 1.5 % low (and some cross-talk); the run's
+    verdict is FAIL on its sensor line, naming Fz and the certificate's accuracy; without the check, nothing names it."""
+    bad = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "bad"), "--sim-bad-sensor",
+                                       "--reference-mass", "1.35±0.002"))
+    assert bad.returncode == 1, bad.stderr
+    verdict = bad.stdout.rstrip().split("\n\nverdict: ")[1]
+    assert verdict.startswith("FAIL\n  FAIL  sensor       the sensor's own calibration is off: Fz gain 4"), verdict
+    assert "certificate accuracy 1.25 %" in verdict
+    unchecked = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "unchecked"), "--sim-bad-sensor",
+                                             "--no-sensor-check"))
+    assert "sensor  " not in unchecked.stdout.rstrip().split("\n\nverdict: ")[1]

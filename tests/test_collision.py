@@ -7,7 +7,7 @@ import pytest
 
 from ftacq.kinematics import dh_transforms, ur_model
 from procedures.collision import CollisionChecker, segment_distances
-from procedures.ik import solve_ik_branches
+from ftacq.kinematics.ik import solve_ik_branches
 from procedures.poses import special_poses
 
 HOME = np.array([np.pi / 2, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])

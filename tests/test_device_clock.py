@@ -1,4 +1,4 @@
-"""ftacq/dynamics/clock.py: a device's own clock on the host's, from arrival stamps alone (numpy arrays, no sockets).
+"""ftacq/timebase.py: a device's own clock on the host's, from arrival stamps alone (numpy arrays, no sockets).
 
 A sensor whose crystal runs 150 ppm off the host's, sending in bursts through a queue with random delays and
 stalls, and skipping samples; a UR controller ±200 ppm off with jittered, batched reads (tests/fakes/drifting_link.py);
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from drivers.netft.device_time import SampleCounterClock
-from ftacq.dynamics.clock import (
+from ftacq.timebase import (
     MAX_RATE_ERROR,
     SETTLE_SPAN_S,
     DeviceClock,
@@ -71,10 +71,10 @@ def test_controller_clock_follows_200_ppm_with_jitter_and_stalls(drift):
     bounds = np.flatnonzero(np.diff(link.read)) + 1
     for part in np.split(np.arange(link.timestamp_s.size), bounds):
         batched.observe(link.timestamp_s[part], link.arrival_s[part[0]])  # URStateStream: one stamp per read
-        by_read[part] = batched.host_times(link.timestamp_s[part])
+        by_read[part] = batched.map_times(link.timestamp_s[part])
     for k in range(link.timestamp_s.size // 4):  # the bridge: one package per controller cycle, floats (2.5 min)
         single.observe_one(float(link.timestamp_s[k]), float(link.arrival_s[k]))
-        by_package[k] = single.host_time(float(link.timestamp_s[k]))
+        by_package[k] = single.map_time(float(link.timestamp_s[k]))
     truth = link.true_host_s + MIN_DELAY_S
     settled = link.timestamp_s > link.timestamp_s[0] + SETTLED_AFTER_S
     quarter = slice(0, link.timestamp_s.size // 4)
@@ -88,23 +88,23 @@ def test_controller_clock_follows_200_ppm_with_jitter_and_stalls(drift):
 def test_restart_and_late_samples():
     clock = DeviceClock()
     clock.observe(np.arange(0.0, 20.0, 0.002), 100.0 + np.arange(0.0, 20.0, 0.002))
-    assert clock.host_time(20.0) == pytest.approx(120.0)
+    assert clock.map_time(20.0) == pytest.approx(120.0)
     clock.observe_one(19.5, 200.0)  # a late sample half a second back: ignored
-    assert clock.restarts == 0 and clock.host_time(20.0) == pytest.approx(120.0)
+    assert clock.restarts == 0 and clock.map_time(20.0) == pytest.approx(120.0)
     clock.observe(np.array([1.0, 1.002]), np.array([500.0, 500.002]))  # the device restarted its count
-    assert clock.restarts == 1 and clock.host_time(1.0) == pytest.approx(500.0)
+    assert clock.restarts == 1 and clock.map_time(1.0) == pytest.approx(500.0)
     clock.observe_one(100.0, 599.0)  # a silence longer than the window: a new mapping, at the new offset
-    assert clock.restarts == 2 and clock.host_time(100.0) == pytest.approx(599.0)
+    assert clock.restarts == 2 and clock.map_time(100.0) == pytest.approx(599.0)
 
 
 def test_rate_is_bounded_and_a_short_span_is_unsure():
     clock = DeviceClock()
-    assert np.isnan(clock.host_times(np.array([1.0]))[0]) and clock.uncertainty_s == np.inf  # nothing seen yet
+    assert np.isnan(clock.map_times(np.array([1.0]))[0]) and clock.uncertainty_s == np.inf  # nothing seen yet
     # a queue filling: arrival − device time rising by 1 ms per second is not a clock
     device = np.arange(0.0, 3.0, 0.01)
     clock.observe(device, 50.0 + device * 1.001)
     assert abs(clock.rate_error) <= MAX_RATE_ERROR
-    assert np.all(clock.host_times(device) <= 50.0 + device * 1.001 + 1e-12)
+    assert np.all(clock.map_times(device) <= 50.0 + device * 1.001 + 1e-12)
     assert not clock.settled  # 3 s of span
 
 

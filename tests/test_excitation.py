@@ -70,8 +70,10 @@ def test_recorded_excitation_stays_within_the_limits_and_identifies_the_inertia(
 
     static = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m))
     result = identify_dynamics(static, record, ur_model("UR5e"))
-    # loose: a loaded machine ticks the simulated controller unevenly (benchmarks/dynamics.py has the figure)
-    assert np.linalg.norm(result.inertia - truth.inertia) < 0.5 * np.linalg.norm(truth.inertia)
+    # the identification's goal (benchmarks/README.md, benchmarks/dynamics.py: ≈1 % on the full excitation); this
+    # 4-move excitation at 1 kHz gave 2.0 % and 2.9 % (Frobenius) at load average 11 on 2 cores, where a loaded
+    # machine ticks the simulated controller unevenly
+    assert np.linalg.norm(result.inertia - truth.inertia) < 0.1 * np.linalg.norm(truth.inertia)
     assert np.all(result.held_out_rms_dynamic[3:5] < result.held_out_rms_static[3:5])
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ftacq.kinematics import UR_MODELS, flange_pose, forward_kinematics, ur_model
-from procedures.ik import (
+from ftacq.kinematics.ik import (
     Branch, analytic_ik, branch_of, pose_error, singularity_reason, solve_ik, solve_ik_branches, wrap_near,
 )
 

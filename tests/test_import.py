@@ -9,7 +9,7 @@ from ftacq.app.cli import main
 from ftacq.calfile import load_calibration
 from ftacq.errors import InputError
 from ftacq.imports import ImportOptions, import_recording
-from ftacq.imports.robot_model import dh_joint_model, ur_joint_model, urdf_joint_model
+from ftacq.imports.robot_model import dh_arm_model, ur_arm_model, urdf_arm_model
 from ftacq.imports.wrench_frame import base_from_sensor
 from ftacq.kinematics import flange_pose, ur_model
 from ftacq.posefile import read_pose_csv, write_pose_csv
@@ -97,8 +97,8 @@ def test_a_dh_table_through_pinocchio_equals_the_ur_kinematics():
     model = ur_model("UR5e")
     table = np.column_stack([model.alpha, model.a, model.d, np.zeros(6)])
     q = np.random.default_rng(5).uniform(-3.0, 3.0, size=(20, 6))
-    np.testing.assert_allclose(dh_joint_model(table).flange_transforms(q),
-                               ur_joint_model("UR5e").flange_transforms(q), atol=1e-12)
+    np.testing.assert_allclose(dh_arm_model(table).flange_transforms(q),
+                               ur_arm_model("UR5e").flange_transforms(q), atol=1e-12)
 
 
 URDF = """<?xml version="1.0"?>
@@ -117,7 +117,7 @@ URDF = """<?xml version="1.0"?>
 def test_a_urdf_arm_with_a_continuous_joint(tmp_path):
     path = tmp_path / "arm.urdf"
     path.write_text(URDF)
-    model = urdf_joint_model(path)
+    model = urdf_arm_model(path)
     q = np.array([[0.3, -0.7], [-2.0, 1.2]])
     for angles, transform in zip(q, model.flange_transforms(q)):
         rz, ry = Rotation.from_euler("z", angles[0]), Rotation.from_euler("y", angles[1])
@@ -126,7 +126,7 @@ def test_a_urdf_arm_with_a_continuous_joint(tmp_path):
         np.testing.assert_allclose(transform[:3, :3], (rz * ry * Rotation.from_euler("z", 0.5)).as_matrix(),
                                    atol=1e-12)
     with pytest.raises(InputError, match="no frame 'wrist'"):
-        urdf_joint_model(path, "wrist")
+        urdf_arm_model(path, "wrist")
 
 
 def test_base_frame_wrenches_are_named_by_the_verdict_and_converted_on_request(tmp_path, record, capsys):

@@ -109,3 +109,47 @@ def test_only_the_application_reaches_the_simulator():
             if module_name(path).startswith("ftacq.app"):
                 continue
             assert not [t for _, t in imported_modules(path) if t.startswith("tests")], path
+
+
+PACKAGE_PARTS = {
+    "drivers.netft": {"protocol": 0, "device_time": 1, "sequence": 1, "discovery": 1, "receiver": 1, "driver": 2},
+    "drivers.ati_can": {"protocol": 0, "transport": 1, "driver": 2},
+    "ftacq.kinematics": {"ur": 0, "pinocchio_models": 1, "ik": 2},
+}
+"""Inside a package split by idea, each part's rank: a part imports only parts of a lower rank (the wire protocol
+first, the driver that puts the parts together last); the package's ``__init__`` re-exports."""
+
+
+def inner_imports(package: str, ranks: dict[str, int], root: Path = ROOT) -> list[str]:
+    """The imports between the parts of ``package`` that do not go to a lower rank, and the parts left unranked."""
+    folder = root.joinpath(*package.split("."))
+    problems = []
+    for path in sorted(folder.glob("*.py")):
+        if path.name == "__init__.py":
+            continue
+        part = path.stem
+        if part not in ranks:
+            problems.append(f"{package}.{part}: no rank in PACKAGE_PARTS")
+            continue
+        found = {(line, target[len(package) + 1:].split(".")[0]) for line, target in imported_modules(path, root)
+                 if target.startswith(package + ".")}
+        problems.extend(f"{path.relative_to(root)}:{line}: {part} imports {other}" for line, other in sorted(found)
+                        if other in ranks and ranks[other] >= ranks[part])
+    return problems
+
+
+@pytest.mark.parametrize("package", sorted(PACKAGE_PARTS))
+def test_the_parts_of_a_split_package_import_downward(package):
+    assert inner_imports(package, PACKAGE_PARTS[package]) == []
+
+
+def test_an_upward_import_inside_a_package_is_caught(tmp_path):
+    folder = tmp_path / "drivers" / "board"
+    folder.mkdir(parents=True)
+    (folder / "__init__.py").write_text("")
+    (folder / "protocol.py").write_text("from drivers.board.driver import Board\n")
+    (folder / "driver.py").write_text("from drivers.board.protocol import OP\n")
+    (folder / "extra.py").write_text("")
+    problems = inner_imports("drivers.board", {"protocol": 0, "driver": 1}, tmp_path)
+    assert problems == ["drivers.board.extra: no rank in PACKAGE_PARTS",
+                        "drivers/board/protocol.py:1: protocol imports driver"]

@@ -9,7 +9,7 @@ from ftacq.errors import ConfigError, PlanError
 from ftacq.kinematics import UR_MODELS, forward_kinematics, ur_model
 from ftacq.mounts import MOUNTS
 from ftacq.so3 import rotation_from_rotvec
-from procedures.ik import branch_of
+from ftacq.kinematics.ik import branch_of
 from procedures.plan import (
     Plan, PlanSettings, check_path, default_center_m, format_plan, home_configuration_rad, make_plan,
     trapezoid_time_s,

@@ -9,7 +9,7 @@ import pytest
 from drivers.robot import MotionLimits
 from drivers.ur import URRobot
 from drivers.ur_stream import URStateStream
-from ftacq.dynamics.clock import MAX_RATE_ERROR
+from ftacq.timebase import MAX_RATE_ERROR
 from ftacq.errors import DeviceConnectionError
 from tests.conftest import wait_until
 from tests.fakes.ur_process import URControllerProcess, random_loopback_address

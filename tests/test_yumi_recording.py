@@ -16,7 +16,7 @@ from ftacq.calfile import load_calibration
 from ftacq.errors import IdentificationError
 from ftacq.identification import identify
 from ftacq.imports import ImportOptions, import_recording
-from ftacq.imports.robot_model import dh_joint_model, read_dh_table
+from ftacq.imports.robot_model import dh_arm_model, read_dh_table
 from ftacq.imports.wrench_frame import base_from_sensor, frame_mismatch
 from ftacq.posefile import read_csv_table, write_pose_csv
 
@@ -30,7 +30,7 @@ HELD_OUT_EVERY = 5
 
 
 def _import(**kwargs):
-    options = ImportOptions(orientation="joints", robot=dh_joint_model(read_dh_table(DH_TABLE)),
+    options = ImportOptions(orientation="joints", robot=dh_arm_model(read_dh_table(DH_TABLE)),
                             torque_unit="N-mm", rename={"row": "label"}, **kwargs)
     return import_recording(RECORDING, options)
 

@@ -4,7 +4,7 @@
 record at ``comrdtrate`` = 7000/n Hz), runs on across streams (a start or a bias does not reset it) and restarts only
 when the box powers up. Unlike ``rdt_sequence`` it counts the samples the host never received, so a sample's device
 time ``ft_sequence / internal rate`` shows a skipped sample as a gap instead of compressing the clock, and it is the
-clock the host ↔ device mapping (:class:`ftacq.dynamics.clock.DeviceClock`) follows.
+clock the host ↔ device mapping (:class:`ftacq.timebase.DeviceClock`) follows.
 
 The 32-bit counter wraps after 7.1 days at 7 kHz: :class:`SampleCounterClock` unwraps it by the signed difference
 (mod 2³²) between consecutive records, so a wrap is a step forward; a power cycle (the counter back near zero) is a

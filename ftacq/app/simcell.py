@@ -64,7 +64,11 @@ def enter_calibration_cell(stack: contextlib.ExitStack, config: Any, sim_info: d
     pace = "real time" if time_scale == 1.0 else f"time scale {time_scale:g}"
     print(f"starting the simulated cell: {sim_info['model']} controller ({sim_info['mount']} mount, {pace}) and a "
           f"simulated {sim_info['sensor']} sensor on loopback …", file=sys.stderr, flush=True)
-    cell = stack.enter_context(simulated_cell(sensor=sim_info["sensor"], model=sim_info["model"],
+    truth = None
+    if sim_info.get("bad_sensor"):  # --sim-bad-sensor: the sensor's own calibration is off
+        truth = simulated_truth(sensor_gain_error=_fakes_module("world").BAD_SENSOR_GAIN_ERROR)
+        print("the simulated sensor's own calibration is off (--sim-bad-sensor)", file=sys.stderr, flush=True)
+    cell = stack.enter_context(simulated_cell(truth=truth, sensor=sim_info["sensor"], model=sim_info["model"],
                                               mount=sim_info["mount"], time_scale=time_scale))
     config = config.replace_section("robot", host=cell.robot_host)
     return cell, config.replace_section("sensor", url=cell.sensor_url)

@@ -2,19 +2,23 @@
 
 - :mod:`ftacq.dynamics.model`: Pinocchio's sensor-frame motion and body regressor; the predicted wrench (RNEA).
 - :mod:`ftacq.dynamics.identify`: physically consistent least squares, 1σ, conditioning, held-out error, lag.
-- :mod:`ftacq.dynamics.clock`: one host clock for sensor and robot samples (the minimum-delay line).
 - :mod:`ftacq.dynamics.joint`: every calibration parameter (rotation, biases, mass, centre of mass, tilt,
   inertia, and the lag) from one motion: ``ftacq calibrate --quick``.
 - :mod:`ftacq.dynamics.timing`: resampling between the sensor's and the robot's rates.
 - :mod:`ftacq.dynamics.compensate`: :func:`compensate_moving`, the batch compensation every stream uses.
+
+The host clock every stream uses is :mod:`ftacq.timebase`. The names below load on first use (Pinocchio takes
+a while to import): ``import ftacq.dynamics`` imports none of these modules.
 """
 
-from ftacq.dynamics.compensate import compensate_moving
-from ftacq.dynamics.identify import DynamicsResult, MotionRecord, estimate_lag, identify_dynamics
-from ftacq.dynamics.model import SensorDynamics, WrenchPredictor, inertial_parameters, predict_moving, pseudo_inertia
-from ftacq.dynamics.clock import DeviceClock, device_to_host_clock
-from ftacq.dynamics.timing import box_average, interpolate_rows
+from ftacq.lazy import lazy_names
 
-__all__ = ["compensate_moving", "DynamicsResult", "MotionRecord", "estimate_lag", "identify_dynamics",
-           "SensorDynamics", "WrenchPredictor", "inertial_parameters", "predict_moving", "pseudo_inertia", "box_average",
-           "device_to_host_clock", "DeviceClock", "interpolate_rows"]
+_HOMES = {"compensate_moving": "compensate", "DynamicsResult": "identify", "MotionRecord": "identify",
+          "estimate_lag": "identify", "identify_dynamics": "identify", "SensorDynamics": "model",
+          "WrenchPredictor": "model", "inertial_parameters": "model", "predict_moving": "model",
+          "pseudo_inertia": "model", "box_average": "timing", "interpolate_rows": "timing"}
+
+__getattr__, __dir__ = lazy_names(__name__, {name: f"{__name__}.{home}" for name, home in _HOMES.items()},
+                                  globals())
+
+__all__ = list(_HOMES)

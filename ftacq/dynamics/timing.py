@@ -1,6 +1,6 @@
 """Matching sensor samples to robot samples in time: resampling between 7 kHz and 500 Hz.
 
-Both streams are first put on the host's monotonic clock by :class:`ftacq.dynamics.clock.DeviceClock` (each device's
+Both streams are first put on the host's monotonic clock by :class:`ftacq.timebase.DeviceClock` (each device's
 own sample times through the minimum-delay line of their arrival stamps; docs/dynamics.md, "How the clocks are
 aligned"). What remains is a constant lag between the two streams (the fastest transport of each, the sensor's filter
 delay): :func:`ftacq.dynamics.identify.estimate_lag` measures it from the motion itself. This module averages and

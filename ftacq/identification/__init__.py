@@ -18,6 +18,8 @@ Steps (Yu, Shi & Lou 2021, Algorithm 1, with method.md's corrections):
    at the end of the recording.
 5. 1σ of every parameter from (JᵀWJ)⁻¹ at the optimum; mass and base tilt (corrected eqs 46-48) with
    their 1σ, the tilt relative to a named mount; conditioning warnings.
+6. With ``sensor_check``: the sensor's force gain/cross-talk matrix fitted beside (sensor_gain.py); it leaves the
+   calibration as it is, and "auto" then decides on the drift from one fit of the drift and the gains together.
 
 Over 500 lines because the steps above share one state (weights, noise model, parameters, their covariance)
 through one re-weighted loop; the pieces that stand alone live in the sibling modules.
@@ -26,6 +28,7 @@ through one re-weighted loop; the pieces that stand alone live in the sibling mo
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -53,6 +56,9 @@ from ftacq.identification.wahba import wahba
 from ftacq.mounts import MOUNT_FORMS, MOUNTS, check_mount
 from ftacq.plausibility import check_tool
 from ftacq.posefile import PoseRecord
+
+if TYPE_CHECKING:
+    from ftacq.identification.sensor_gain import ReferenceWeight
 
 METHODS = ("auto", "srom", "lrom")
 DRIFT_MODELS = ("auto", "none", "linear")
@@ -193,6 +199,19 @@ def _relative_noise(record: PoseRecord) -> np.ndarray:
     return np.clip(relative, MIN_RELATIVE_STANDARD_ERROR, 1.0 / MIN_RELATIVE_STANDARD_ERROR)
 
 
+def _standard_error(record: PoseRecord) -> np.ndarray | None:
+    """Return the record's standard errors (N, 6) as the fit uses them, or None: None when a whole channel's are
+    zero (the noise is then estimated from the residuals); a zero or implausibly small one (one sample, a stuck
+    channel) replaced by the channel's median, so that it cannot dominate the fit."""
+    standard_error = record.standard_error
+    if standard_error is None:
+        return None
+    typical = np.median(standard_error, axis=0)
+    if np.any(typical <= 0.0):
+        return None
+    return np.where(standard_error < MIN_RELATIVE_STANDARD_ERROR * typical, typical, standard_error)
+
+
 def _parameter_change(before: ModelParameters, after: ModelParameters) -> np.ndarray:
     """Return the 15-vector from ``before`` to ``after`` (rotation as a small sensor-frame rotation vector, rad)."""
     relative = after.sensor_rotation @ before.sensor_rotation.T
@@ -267,6 +286,9 @@ def identify(
     orientation_error: bool = True,
     drift: str = "auto",
     drift_warn: tuple[float, float] | None = None,
+    sensor_check: bool = False,
+    reference: "ReferenceWeight | None" = None,
+    sensor_accuracy_percent: float | None = None,
 ) -> IdentificationResult:
     """Identify the calibration from a pose record (see the module docstring for the steps).
 
@@ -282,6 +304,12 @@ def identify(
         drift: one of :data:`DRIFT_MODELS` (a linear bias drift over the recording; needs ``refine``).
         drift_warn: (N, N·m) change over the recording above which "auto" models a significant trend
             (default: CELL.toml ``sampling.drift_warn_force_n`` / ``drift_warn_torque_nm``).
+        sensor_check: also fit the sensor's force gain/cross-talk matrix (sensor_gain.py) beside the parameters;
+            it does not change the calibration, it lands in ``metadata["sensor_check"]``, and "auto" decides on a
+            drift from a fit of the drift and the gains together (a gain error is not a drift, nor the reverse).
+        reference: a known tool mass (sensor_gain.ReferenceWeight) that fixes the gains' absolute scale.
+        sensor_accuracy_percent: the sensor's stated accuracy the verdict judges the check against (stored with it;
+            default CELL.toml ``sensor.accuracy_percent``).
 
     Raises:
         IdentificationError: a value that is not finite or beyond what a robot or sensor reports, a tolerance
@@ -318,16 +346,57 @@ def identify(
                                "asked for (--drift none)" if drift == "none"
                                else "not needed: no large, significant trend", drift_warn)
             found = trend.ResidualTrend.from_dict(result.diagnostics["trend"])
+            if sensor_check and drift == "auto" and refine:  # drift and gains in one fit: told apart
+                joint = _sensor_check(result, record, reference, with_drift=True)
+                if joint is not None:
+                    from ftacq.identification.sensor_gain import drift_trend
+
+                    found = drift_trend(joint[0], record)
             if drift == "auto" and refine and found.significant and found.large(*drift_warn):
                 reason = (f"chosen automatically: the residuals trend with time, p = {found.p_value:.2g}, "
                           f"{np.linalg.norm(found.change[:3]):.3g} N and {np.linalg.norm(found.change[3:]):.3g} N·m "
                           "over the recording")
                 result = _identify(record, mount, method, refine, special_tolerance_deg, orientation_error, times,
                                    reason, drift_warn)
+        if sensor_check:
+            check = _sensor_check(result, record, reference)
+            result = (_with_sensor_check(result, check, sensor_accuracy_percent) if check is not None else
+                      replace(result, warnings=result.warnings + ("the sensor check could not be fitted on these poses "
+                                                                  "(numerically degenerate); it was left out",)))
     except np.linalg.LinAlgError as error:  # a last guard: LAPACK failing on a set that passed the checks above
         raise IdentificationError(f"the fit is numerically degenerate ({error}); check the record's values") from None
     check_tool(result.calibration.mass_kg, result.calibration.center_of_mass)  # a unit mistake, named
     return result
+
+
+def _sensor_check(result: IdentificationResult, record: PoseRecord, reference, with_drift: bool = False
+                  ) -> tuple | None:
+    """The sensor check (sensor_gain.py), or None when it cannot be fitted: it never costs the calibration."""
+    from ftacq.identification.sensor_gain import check_identification
+
+    try:
+        with np.errstate(all="ignore"):
+            fit, found = check_identification(result, record, reference, with_drift)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    if not np.all(np.isfinite(fit.force_gain)) or not np.all(np.isfinite(fit.force_gain_covariance)):
+        return None
+    return fit, found
+
+
+def _with_sensor_check(result: IdentificationResult, check: tuple,
+                       accuracy_percent: float | None) -> IdentificationResult:
+    """Attach the sensor check: ``metadata["sensor_check"]``; the trend the verdict judges is that of its residuals
+    (the paper model's is kept as ``trend_paper_model``)."""
+    fit, found = check
+    if accuracy_percent is None:
+        from ftacq.settings import SensorConfig
+
+        accuracy_percent = SensorConfig.accuracy_percent
+    metadata = {**result.calibration.metadata,
+                "sensor_check": {**fit.to_dict(), "trend": found, "accuracy_percent": float(accuracy_percent)}}
+    diagnostics = {**result.diagnostics, "trend": found, "trend_paper_model": result.diagnostics.get("trend")}
+    return replace(result, calibration=replace(result.calibration, metadata=metadata), diagnostics=diagnostics)
 
 
 def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, special_tolerance_deg: float,
@@ -355,21 +424,15 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
             "gravity_base started from LROM"
         )
 
-    standard_error = record.standard_error
-    relative = _relative_noise(record)
+    standard_error = _standard_error(record)
+    relative = _relative_noise(record) if standard_error is not None or record.standard_error is None else np.ones((n, 6))
     if record.std is not None and record.count is None:
         warnings.append(
             "std_* columns without a count column: std used as relative weights, the noise scale estimated from "
             "the residuals"
         )
-    if standard_error is not None:
-        typical = np.median(standard_error, axis=0)
-        if np.any(typical <= 0.0):
-            warnings.append("std_* columns are zero for a whole channel: noise estimated from the residuals instead")
-            standard_error = None
-            relative = np.ones((n, 6))
-        else:  # a zero or implausibly small std (one sample, a stuck channel) must not dominate the fit
-            standard_error = np.where(standard_error < MIN_RELATIVE_STANDARD_ERROR * typical, typical, standard_error)
+    if standard_error is None and record.standard_error is not None:
+        warnings.append("std_* columns are zero for a whole channel: noise estimated from the residuals instead")
     dof_ratio = max((6.0 * n - 15.0) / (6.0 * n), 1e-3)
     floor = robust.noise_floor(wrench)
 

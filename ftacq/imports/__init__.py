@@ -36,7 +36,7 @@ from ftacq.imports.orientation import (
     from_rotation_vectors,
     to_rotation_vectors,
 )
-from ftacq.imports.robot_model import JointModel
+from ftacq.imports.robot_model import ArmModel
 from ftacq.imports.wrench_frame import WRENCH_FRAMES, sensor_from_base
 from ftacq.posefile import (
     JOINT_COLUMNS,
@@ -85,7 +85,7 @@ class ImportOptions:
     quaternion_order: str = "xyzw"
     orientation_columns: tuple[str, ...] | None = None
     position_columns: tuple[str, str, str] = POSITION_COLUMNS
-    robot: JointModel | None = None
+    robot: ArmModel | None = None
     wrench_frame: str = "sensor"
     force_unit: str | None = None
     torque_unit: str | None = None

@@ -6,12 +6,13 @@
   ``offset`` (rad; ``alpha_deg`` / ``offset_deg`` in degrees instead), standard (distal) convention
   ``T_j = Rz(q_j + offset_j) · Tz(d_j) · Tx(a_j) · Rx(alpha_j)``, flange = T_1 ⋯ T_n. Built as a Pinocchio model
   of revolute-z joints: joint j sits at DH frame j−1 rotated by Rz(offset_j); the fixed step
-  Tz(d_j) Tx(a_j) Rx(alpha_j) places the next. Prismatic joints are not supported.
+  Tz(d_j) Tx(a_j) Rx(alpha_j) places the next (:func:`ftacq.kinematics.dh_chain_model`, the builder of the UR
+  models too). Prismatic joints are not supported.
 - A URDF: :func:`ftacq.kinematics.pinocchio_model_from_urdf`, the flange being a frame of the URDF (``tool0``,
   ``flange``, or the one named); the joint angles fill the model's configuration in the URDF's joint order
   (a continuous joint takes cos q, sin q).
 
-:class:`JointModel` maps (N, n) joint angles to (N, 4, 4) ``base_T_flange``, one Pinocchio forward-kinematics pass
+:class:`ArmModel` maps (N, n) joint angles to (N, 4, 4) ``base_T_flange``, one Pinocchio forward-kinematics pass
 per row (~10 µs; an import of 10⁴ rows takes a fraction of a second).
 """
 
@@ -25,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ftacq.errors import InputError
-from ftacq.kinematics import FLANGE_FRAME, pinocchio_model, pinocchio_model_from_urdf, ur_model
+from ftacq.kinematics import FLANGE_FRAME, dh_chain_model, pinocchio_model, pinocchio_model_from_urdf, ur_model
 
 URDF_FLANGE_FRAMES = ("tool0", "flange", "ee_link")
 """Frames tried, in order, as the flange of a URDF when none is named."""
@@ -33,7 +34,7 @@ MAX_DH_JOINTS = 12
 
 
 @dataclass
-class JointModel:
+class ArmModel:
     """A Pinocchio model and its flange frame: ``flange_transforms(q)`` gives base_T_flange for joint angles.
 
     Attributes:
@@ -66,10 +67,10 @@ class JointModel:
         return out
 
 
-def ur_joint_model(name: str) -> JointModel:
-    """The JointModel of a UR arm ftacq knows (``UR5e`` …); ValueError lists the known ones."""
+def ur_arm_model(name: str) -> ArmModel:
+    """The ArmModel of a UR arm ftacq knows (``UR5e`` …); ValueError lists the known ones."""
     model = pinocchio_model(ur_model(name))
-    return JointModel(ur_model(name).name, 6, model, model.getFrameId(FLANGE_FRAME))
+    return ArmModel(ur_model(name).name, 6, model, model.getFrameId(FLANGE_FRAME))
 
 
 def read_dh_table(path: str | os.PathLike) -> np.ndarray:
@@ -98,28 +99,15 @@ def read_dh_table(path: str | os.PathLike) -> np.ndarray:
     return table
 
 
-def dh_joint_model(table: np.ndarray, name: str = "dh") -> JointModel:
-    """Build the JointModel of a standard DH table (n, 4) [alpha, a, d, offset] (rad, m)."""
-    import pinocchio as pin
-
+def dh_arm_model(table: np.ndarray, name: str = "dh") -> ArmModel:
+    """Build the ArmModel of a standard DH table (n, 4) [alpha, a, d, offset] (rad, m)."""
     table = np.asarray(table, dtype=float).reshape(-1, 4)
-    model = pin.Model()
-    model.name = name
-    parent, placement = 0, pin.SE3.Identity()
-    for j, (alpha, a, d, offset) in enumerate(table):
-        offset_se3 = pin.SE3(pin.utils.rotate("z", float(offset)), np.zeros(3))
-        joint = model.addJoint(parent, pin.JointModelRZ(), placement * offset_se3, f"joint_{j + 1}",
-                               np.array([1e3]), np.array([1e3]), np.array([-4 * np.pi]), np.array([4 * np.pi]))
-        model.appendBodyToJoint(joint, pin.Inertia(1.0, np.zeros(3), np.eye(3) * 0.01), pin.SE3.Identity())
-        ca, sa = np.cos(alpha), np.sin(alpha)
-        step = pin.SE3(np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]]), np.array([a, 0.0, d]))
-        parent, placement = joint, step
-    frame = model.addFrame(pin.Frame(FLANGE_FRAME, parent, 0, placement, pin.FrameType.OP_FRAME))
-    return JointModel(name, len(table), model, frame)
+    model = dh_chain_model(name, table[:, 0], table[:, 1], table[:, 2], offset_rad=table[:, 3])
+    return ArmModel(name, len(table), model, model.getFrameId(FLANGE_FRAME))
 
 
-def urdf_joint_model(path: str | os.PathLike, frame: str | None = None) -> JointModel:
-    """Build the JointModel of a URDF file whose flange is ``frame`` (default the first of URDF_FLANGE_FRAMES)."""
+def urdf_arm_model(path: str | os.PathLike, frame: str | None = None) -> ArmModel:
+    """Build the ArmModel of a URDF file whose flange is ``frame`` (default the first of URDF_FLANGE_FRAMES)."""
     model = pinocchio_model_from_urdf(str(path))
     names = [f.name for f in model.frames]
     wanted = [frame] if frame else [name for name in URDF_FLANGE_FRAMES if name in names]
@@ -130,7 +118,7 @@ def urdf_joint_model(path: str | os.PathLike, frame: str | None = None) -> Joint
     if not kinds <= {"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned",
                      "JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned"}:
         raise InputError(f"{path}: only revolute joints are supported (found {', '.join(sorted(kinds))})")
-    return JointModel(f"urdf:{Path(path).name}#{wanted[0]}", model.njoints - 1, model, model.getFrameId(wanted[0]))
+    return ArmModel(f"urdf:{Path(path).name}#{wanted[0]}", model.njoints - 1, model, model.getFrameId(wanted[0]))
 
 
-__all__ = ["JointModel", "dh_joint_model", "read_dh_table", "ur_joint_model", "urdf_joint_model"]
+__all__ = ["ArmModel", "dh_arm_model", "read_dh_table", "ur_arm_model", "urdf_arm_model"]

@@ -124,7 +124,7 @@ def simulate_record(
     poses = poses_from_orientations(rotations)
     calibration = truth.calibration()
     exact_rotations = np.swapaxes(rotation_from_rotvec(poses[:, 3:]), -1, -2)  # as the reader will see them
-    mean = calibration.predict(exact_rotations)
+    mean = truth.measured(calibration.predict(exact_rotations))  # through the sensor's own gains
     if orientation_error_deg > 0.0:
         error_rng = np.random.default_rng([seed, 7919])
         error = rotation_from_rotvec(error_rng.standard_normal((n, 3)) * np.radians(orientation_error_deg))

@@ -45,6 +45,11 @@ TIMELINE_SLACK_S, TIMELINE_GAP_S = 0.01, 1.0
 MAX_EXTRAPOLATION_S = 2.0
 """The sensor follows the controller's last published move at most this far (motion time, s): through a stall of
 the controller process (a loaded machine) the arm goes on along its profile, as a real one would."""
+BAD_SENSOR_GAIN_ERROR = ((-0.015, 0.0, 0.0, 0.0, 0.0, 0.0), (0.02, 0.0, 0.0, 0.0, 0.0, 0.0),
+                         (0.0, 0.0, 0.04, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.02, 0.0, 0.0),
+                         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+"""``CellTruth.sensor_gain_error`` of ``--sim-bad-sensor``: Fz reads 4 % high, Fx 1.5 % low, 2 % of Fx appears on
+Fy, Tx reads 2 % high: a sensor out of its certificate (1.25 %), as after an overload."""
 
 
 def gravity_base_from_tilt(mass_kg: float, alpha_deg: float, beta_deg: float) -> np.ndarray:
@@ -69,6 +74,9 @@ class CellTruth:
         thermal_step_n, thermal_step_nm: a thermal-like exponential step of the biases, per channel: the bias moves
             by step × (1 − exp(−(t − thermal_step_at_s) / thermal_time_constant_s)) after thermal_step_at_s.
         motion_noise_gain: extra noise factor per rad/s of joint speed while the arm moves.
+        sensor_gain_error: the sensor's own calibration off by E (6×6, rows and columns Fx Fy Fz Tx Ty Tz): it
+            reports (I + E) @ the applied wrench, plus the biases (E[2, 2] = 0.01: Fz reads 1 % high; E[1, 0] =
+            0.007: 0.7 % of Fx appears on Fy). None: a perfect sensor.
     """
 
     sensor_rotation_zyx_deg: tuple[float, float, float] = (30.0, -20.0, 75.0)
@@ -90,6 +98,22 @@ class CellTruth:
     thermal_step_at_s: float = 0.0
     thermal_time_constant_s: float = 600.0
     motion_noise_gain: float = 2.0
+    sensor_gain_error: tuple[tuple[float, ...], ...] | None = None
+
+    @property
+    def sensor_gain(self) -> np.ndarray:
+        """The sensor's gain matrix K = I + sensor_gain_error (6, 6): it reports K @ the applied wrench."""
+        if self.sensor_gain_error is None:
+            return np.eye(6)
+        return np.eye(6) + np.asarray(self.sensor_gain_error, dtype=float).reshape(6, 6)
+
+    def measured(self, wrench: np.ndarray, bias: np.ndarray | None = None) -> np.ndarray:
+        """Return what the sensor reports (…, 6) for an applied ``wrench`` (…, 6) whose last axis already holds the
+        ``bias`` (6,) (default the truth's): the bias stays, the load goes through :attr:`sensor_gain`."""
+        if self.sensor_gain_error is None:
+            return wrench
+        bias = np.array(self.force_bias_n + self.torque_bias_nm) if bias is None else bias
+        return (np.asarray(wrench, dtype=float) - bias) @ self.sensor_gain.T + bias
 
     @property
     def sensor_rotation(self) -> np.ndarray:
@@ -354,7 +378,8 @@ class SensorPhysics:
         base_R_flange = rotation_from_rotvec(np.asarray(pose)[3:6])
         gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
         torque = np.cross(com, gravity_sensor)
-        return np.concatenate([gravity_sensor, torque]) + self.bias_at(elapsed_s) + self.contact_wrench
+        load = np.concatenate([gravity_sensor, torque]) + self.contact_wrench
+        return load @ self.truth.sensor_gain.T + self.bias_at(elapsed_s)
 
     def tool_wrench(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Return the wrench (S, 6) of the moving tool alone (gravity and inertia; no bias, drift, contact, noise)."""
@@ -370,7 +395,7 @@ class SensorPhysics:
                                 elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:
         """Return the wrench (S, 6) without noise for joint states (S, 6) at ``elapsed_s`` after start (drift)."""
         elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
-        return self.tool_wrench(q, qd, qdd) + self.bias_at(elapsed) + self.contact_wrench
+        return (self.tool_wrench(q, qd, qdd) + self.contact_wrench) @ self.truth.sensor_gain.T + self.bias_at(elapsed)
 
     def sample(self, n: int, start_time_s: float | None = None, period_s: float | None = None) -> np.ndarray:
         """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample,

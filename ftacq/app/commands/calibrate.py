@@ -70,6 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--drift", choices=("auto", "none", "linear"), default="auto",
                         help="model a linear drift of the sensor's zero over the run: linear, none, or auto (when "
                              "the residuals trend with time beyond the drift thresholds; default); docs/verdict.md")
+    add_sensor_check_args(parser)
     parser.add_argument("--out", type=Path, metavar="DIR",
                         help="parent folder of the run folder (default: output.folder of the config, 'runs')")
     sim = parser.add_argument_group("simulation (--sim)")
@@ -84,6 +85,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sim.add_argument("--sim-wrong-tool", action="store_true",
                      help="fault: the validation poses are measured with a part (0.2 kg) left in the gripper, "
                           "unknown to ftacq; the verdict must be FAIL")
+    sim.add_argument("--sim-bad-sensor", action="store_true",
+                     help="fault: the simulated sensor's own calibration is off (Fz 4 %% high, Fx 1.5 %% low, 2 %% of "
+                          "Fx on Fy, Tx 2 %% high); the verdict's sensor line must be FAIL, naming Fz")
     viewer = parser.add_argument_group("live view")
     viewer.add_argument("--rerun", action="store_true",
                         help="draw the procedure in the Rerun dashboard (sink chosen by the flags below)")
@@ -92,6 +96,39 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ helpers
+
+
+def add_sensor_check_args(parser: argparse.ArgumentParser) -> None:
+    """The sensor check's options (``ftacq calibrate`` and ``ftacq identify``; docs/verdict.md)."""
+    parser.add_argument("--sensor-check", action=argparse.BooleanOptionalAction, default=None,
+                        help="fit the sensor's force gains and cross-talk beside the calibration (the verdict's sensor "
+                             "line; default: CELL.toml sensor.check, on)")
+    parser.add_argument("--reference-mass", metavar="KG[±SIGMA]",
+                        help="the tool's mass weighed on a scale: the sensor check then finds the gains' absolute "
+                             "scale (default: CELL.toml tool.reference_mass_kg; without: only their ratios)")
+    parser.add_argument("--sensor-accuracy", type=float, metavar="PERCENT",
+                        help="the sensor's stated accuracy (its certificate), %% per axis (default: CELL.toml "
+                             "sensor.accuracy_percent, 1.25)")
+
+
+def sensor_check_options(args: argparse.Namespace, options) -> dict:
+    """Return the sensor check's fields of ``options`` (ProcedureOptions, or None: only check the arguments) as the
+    command line overrides them. Raises InputError for a bad value."""
+    from ftacq.sensor_check import parse_reference_mass
+    from ftacq.validation import check_number
+
+    out: dict = {}
+    if getattr(args, "sensor_check", None) is not None:
+        out["sensor_check"] = bool(args.sensor_check)
+    if getattr(args, "sensor_accuracy", None) is not None:
+        out["sensor_accuracy_percent"] = check_number(args.sensor_accuracy, "--sensor-accuracy", low=0.01, high=50.0)
+    if getattr(args, "reference_mass", None) is not None:
+        try:
+            reference = parse_reference_mass(args.reference_mass)
+        except ValueError as error:
+            raise InputError(f"--reference-mass: {error}") from None
+        out["reference_mass_kg"], out["reference_sigma_kg"] = reference.mass_kg, reference.sigma_kg
+    return out
 
 
 def _sim_config(args: argparse.Namespace):
@@ -186,8 +223,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         config = load_config(args.config)
         plan = None
+    sensor_check_options(args, None)  # a bad --reference-mass is refused before anything moves
     if args.sim:
         sim_info = {"sensor": sim_info.get("sensor", args.sensor), "time_scale": time_scale,
+                    "bad_sensor": bool(sim_info.get("bad_sensor", getattr(args, "sim_bad_sensor", False))),
                     "model": sim_info.get("model", config.robot.model),
                     "mount": sim_info.get("mount", config.robot.mount)}
     out_parent = args.out or Path(config.output.folder)
@@ -255,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
         _err(f"run folder: {folder.path}")
         sampling = sim_sampling(config.sampling, time_scale) if args.sim else config.sampling
         options = ProcedureOptions.from_config(config.replace_section("sampling", **_as_dict(sampling)))
-        options = dataclasses.replace(options, drift=args.drift)
+        options = dataclasses.replace(options, drift=args.drift, **sensor_check_options(args, options))
         total = count_measurements(plan, (), drift_check)
         estimate_s = plan.estimated_duration_s * remaining / max(total, 1)
         progress = ProgressListener(total, estimate_s / (max(time_scale, 1.0) if args.sim else 1),

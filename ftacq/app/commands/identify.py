@@ -94,6 +94,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="for a record without V poses (an imported recording): hold out this fraction of the "
                              "poses, spread evenly over the record, as set V, to judge the calibration on poses it "
                              "was not fitted to (e.g. 0.2; docs/formats.md, column set)")
+    from ftacq.app.commands.calibrate import add_sensor_check_args
+
+    add_sensor_check_args(parser)
     dynamics = parser.add_argument_group("motion (docs/dynamics.md)")
     dynamics.add_argument("--motion", metavar="MOTION.csv",
                           help="a recorded motion (ftacq calibrate --dynamic writes RUN_DIR/motion.csv): also "
@@ -185,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
     fit_record = record
     if held_out.any() and (~held_out).sum() >= MIN_POSES and not args.use_validation:
         fit_record = record.select(~held_out)
+    check = _sensor_check(args)
     try:
         result = identify(
             fit_record,
@@ -193,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
             refine=not args.no_refine,
             special_tolerance_deg=args.special_tolerance_deg,
             drift="none" if args.no_refine and args.drift == "auto" else args.drift,
+            **check,
         )
     except IdentificationError as error:
         from ftacq.imports.wrench_frame import frame_mismatch
@@ -231,6 +236,19 @@ def run(args: argparse.Namespace) -> int:
     print("")
     print(format_verdict(verdict))
     return 1 if verdict.status == FAIL else 0
+
+
+def _sensor_check(args: argparse.Namespace) -> dict:
+    """The sensor check's keyword arguments of ``identify`` from the command line (defaults: CELL.toml's)."""
+    from ftacq.app.commands.calibrate import sensor_check_options
+    from ftacq.identification.sensor_gain import ReferenceWeight
+    from ftacq.settings import SensorConfig
+
+    given = sensor_check_options(args, None)
+    reference = given.get("reference_mass_kg")
+    return {"sensor_check": given.get("sensor_check", SensorConfig.check),
+            "reference": None if reference is None else ReferenceWeight(reference, given["reference_sigma_kg"]),
+            "sensor_accuracy_percent": given.get("sensor_accuracy_percent", SensorConfig.accuracy_percent)}
 
 
 def mount_option(mount: str | None, gravity_direction: str | None) -> str | None:

@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.errors import InputError
     from ftacq.identification.diagnostics import MIN_POSES
     from ftacq.imports import ImportOptions, import_recording
-    from ftacq.imports.robot_model import dh_joint_model, read_dh_table, ur_joint_model, urdf_joint_model
+    from ftacq.imports.robot_model import dh_arm_model, read_dh_table, ur_arm_model, urdf_arm_model
     from ftacq.imports.wrench_frame import frame_mismatch
     from ftacq.posefile import write_pose_csv
     from ftacq.validation import check_output_file
@@ -94,13 +94,13 @@ def run(args: argparse.Namespace) -> int:
     robot = None
     if args.robot:
         try:
-            robot = ur_joint_model(args.robot)
+            robot = ur_arm_model(args.robot)
         except ValueError as error:
             raise InputError(f"--robot {args.robot}: {error}") from None
     elif args.dh_table:
-        robot = dh_joint_model(read_dh_table(args.dh_table), f"DH table {Path(args.dh_table).name}")
+        robot = dh_arm_model(read_dh_table(args.dh_table), f"DH table {Path(args.dh_table).name}")
     elif args.urdf:
-        robot = urdf_joint_model(args.urdf, args.urdf_frame)
+        robot = urdf_arm_model(args.urdf, args.urdf_frame)
     rename = {}
     for item in args.rename:
         old, sep, new = item.partition("=")

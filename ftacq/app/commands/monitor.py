@@ -25,7 +25,7 @@ import numpy as np
 from ftacq.app.helptext import examples
 
 if TYPE_CHECKING:
-    from ftacq.dynamics.clock import SampleClock
+    from ftacq.timebase import SampleClock
     from procedures.bias_health import DriftCompensator
     from procedures.dynamic_compensation import DynamicCompensator
     from procedures.monitor import HealthCheck
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.app.readout import LiveReadout, format_summary
     from ftacq.app import ros2_outputs
     from ftacq.app.ros2_outputs import check_ros2_args, is_bag, ros2_listeners
-    from ftacq.dynamics.clock import SampleClock
+    from ftacq.timebase import SampleClock
     from ftacq.kinematics import ur_model
     from procedures.monitor import BATCH_PERIOD_S, LiveMonitor
 

@@ -37,7 +37,7 @@ CSV_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "status", "saturated", "
 """The sensor record's columns (docs/formats.md, "Sensor record"): ``t`` the receive time (s since the first
 sample's), ``device_time_s`` the sample's time on the sensor's own clock (s; empty for a sensor without one),
 ``sample_time_s`` that time on the host clock (s since the first sample's receive time, as ``t``: the minimum-delay
-line, :class:`ftacq.dynamics.clock.SampleClock`; the receive time without a device clock)."""
+line, :class:`ftacq.timebase.SampleClock`; the receive time without a device clock)."""
 CSV_FORMATS = ["%.6f"] + ["%.9g"] * 6 + ["%d"] * 9 + ["%.9f", "%.7f"]
 MAX_LOST_FRACTION = 0.001
 """Default ``record --max-lost-fraction``: the recording fails (exit 1) when more than this fraction of the samples
@@ -198,7 +198,7 @@ def run_record(args: argparse.Namespace) -> int:
     """Record ``--seconds`` of samples to a CSV; keep what was recorded on Ctrl-C."""
     import numpy as np
 
-    from ftacq.dynamics.clock import SampleClock
+    from ftacq.timebase import SampleClock
     from ftacq.errors import DeviceTimeoutError
     from ftacq.fileio import atomic_write
 

@@ -32,14 +32,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from ftacq.kinematics import (
-    FLANGE_FRAME,
-    URModel,
-    dh_transforms,
-    forward_kinematics,
-    pinocchio_model,
-    planning_limits_rad,
-)
+from ftacq.kinematics.pinocchio_models import FLANGE_FRAME, pinocchio_model
+from ftacq.kinematics.ur import URModel, dh_step, dh_transforms, forward_kinematics, planning_limits_rad
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 
 TWO_PI = 2.0 * np.pi
@@ -109,17 +103,6 @@ def _as_transform(pose_or_transform: np.ndarray) -> np.ndarray:
     return out
 
 
-def _dh_matrix(model: URModel, i: int, q: float) -> np.ndarray:
-    ct, st = np.cos(q), np.sin(q)
-    ca, sa = np.cos(model.alpha[i]), np.sin(model.alpha[i])
-    return np.array([
-        [ct, -st * ca, st * sa, model.a[i] * ct],
-        [st, ct * ca, -ct * sa, model.a[i] * st],
-        [0.0, sa, ca, model.d[i]],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
-
-
 def branch_of(model: URModel, q_rad: np.ndarray) -> Branch:
     """Return the IK branch a joint configuration ``q_rad`` (6,) lies in."""
     q = np.asarray(q_rad, dtype=float)
@@ -175,8 +158,8 @@ def analytic_ik(model: URModel, pose_or_transform: np.ndarray) -> list[tuple[Bra
                 q6 = 0.0
             else:
                 q6 = np.arctan2(-w[1] / s5, w[0] / s5)
-            t14 = (np.linalg.inv(_dh_matrix(model, 0, q1)) @ t06 @ np.linalg.inv(_dh_matrix(model, 5, q6))
-                   @ np.linalg.inv(_dh_matrix(model, 4, q5)))
+            t14 = (np.linalg.inv(dh_step(model, 0, q1)) @ t06 @ np.linalg.inv(dh_step(model, 5, q6))
+                   @ np.linalg.inv(dh_step(model, 4, q5)))
             x, y = t14[0, 3], t14[1, 3]
             cos_q3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
             for elbow in (1, -1):

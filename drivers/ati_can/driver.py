@@ -18,10 +18,11 @@ Threads: ``start()`` reads the board's identity and calibration in the caller's 
 thread requests gages at ``rate_hz`` and is the bus's only reader. The poll loop never raises: timeouts,
 partial replies, late replies, foreign and malformed frames are counted in :class:`SensorHealth`.
 
-Lifecycle, ``read`` and ``average`` come from :class:`drivers.sensor.SensorBase`; units from :mod:`drivers.units`.
-Why one module of ~750 lines: the start-up requests, the poll loop and the host-side bias share one bus, one lock
-and one frame classifier (the board answers on the IDs the host sends on), and splitting them would pass that
-state between modules; the protocol tables at the top are the only part another module could use, and none does.
+Lifecycle, ``read`` and ``average`` come from :class:`drivers.sensor.SensorBase`; units from :mod:`drivers.units`;
+the wire tables from :mod:`drivers.ati_can.protocol`; the bus (requests, replies, the frame classifier) from
+:class:`drivers.ati_can.transport.CanTransport`, a mixin: the start-up requests, the poll loop and the host-side
+bias share one bus, one lock and one frame classifier. Why ~590 lines: one class whose start-up, poll loop and
+host-side bias share that lock and the pending samples.
 """
 
 from __future__ import annotations
@@ -32,15 +33,33 @@ import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 from urllib.parse import unquote, urlsplit
 
 import numpy as np
 
+from drivers.ati_can.protocol import (
+    FIRMWARE_WITH_COUNTS,
+    GAGE_MAX,
+    GAGE_MIN,
+    HOST_STATUS_GAGE_SATURATED,
+    LEGACY_COUNTS_PER_UNIT,
+    OP_COUNTS_PER_UNIT,
+    OP_FIRMWARE,
+    OP_GAGES,
+    OP_GAGES_SECOND,
+    OP_MATRIX,
+    OP_SELECT_CALIBRATION,
+    OP_SERIAL,
+    OP_UNIT_CODES,
+    STATUS_ERROR_MASK,
+    STATUS_WATCHDOG_RESET,
+    CanCalibration,
+    decode_status,
+)
+from drivers.ati_can.transport import CanTransport
 from drivers.sensor import (
     STATUS_SATURATION,
-    STATUS_SUMMARY,
     SensorBase,
     SensorHealth,
     SensorInfo,
@@ -49,71 +68,9 @@ from drivers.sensor import (
     query_items,
 )
 from drivers.units import FORCE_UNIT_CODES, FORCE_UNITS, TORQUE_UNIT_CODES, TORQUE_UNITS
-from ftacq.errors import DeviceConnectionError, DeviceError, DeviceTimeoutError, InputError, SensorFaultError
+from ftacq.errors import DeviceError, DeviceTimeoutError, InputError, SensorFaultError
 
 logger = logging.getLogger(__name__)
-
-# ------------------------------------------------------------------------ protocol (docs/protocols-ati.md, "CAN")
-OP_GAGES = 0x0
-"""Request gages; replies op 0x0 (u16 status, i16 sg0, sg2, sg4) then op 0x1 (i16 sg1, sg3, sg5)."""
-OP_GAGES_SECOND = 0x1
-OP_MATRIX = 0x2
-"""Request one matrix row (1 byte, 0 Fx … 5 Tz); replies ops 0x2, 0x3, 0x4 with two f32 each."""
-OP_SERIAL = 0x5
-OP_SELECT_CALIBRATION = 0x6
-OP_COUNTS_PER_UNIT = 0x7
-OP_UNIT_CODES = 0x8
-OP_DIAGNOSTIC_ADC = 0x9
-OP_RESET = 0xC
-OP_FIRMWARE = 0xF
-
-REPLY_LENGTHS = {
-    OP_GAGES: 8,
-    OP_GAGES_SECOND: 6,
-    OP_MATRIX: 8,
-    OP_MATRIX + 1: 8,
-    OP_MATRIX + 2: 8,
-    OP_SERIAL: 8,
-    OP_SELECT_CALIBRATION: 1,
-    OP_COUNTS_PER_UNIT: 8,
-    OP_UNIT_CODES: 2,
-    OP_DIAGNOSTIC_ADC: 2,
-    OP_FIRMWARE: 4,
-}
-"""Data length of every reply opcode; a frame on our IDs with another length is malformed."""
-
-GAGE_MAX = 32767
-GAGE_MIN = -32768
-FIRMWARE_WITH_COUNTS = (3, 7)
-"""Opcodes 0x7 (counts per unit) and 0x8 (unit codes) exist from firmware 3.7."""
-LEGACY_COUNTS_PER_UNIT = 1_000_000.0
-"""Counts per unit of boards older than firmware 3.7 (and of every MINI45 calibration)."""
-
-STATUS_BIT_NAMES = {
-    0: "watchdog reset",
-    1: "DAC/ADC check too high",
-    2: "DAC/ADC check too low",
-    3: "artificial ground out of range",
-    4: "supply too high",
-    5: "supply too low",
-    6: "bad active calibration",
-    7: "EEPROM failure",
-    8: "configuration invalid (defaults used)",
-    11: "sensor temperature too high",
-    12: "sensor temperature too low",
-    14: "CAN bus error",
-    15: "any error",
-}
-"""NETCANOEM u16 status bits."""
-STATUS_CRITICAL_MASK = sum(1 << b for b in (1, 2, 3, 4, 5, 6, 7, 11, 12))
-"""Bits the manual calls critical: the board keeps sending data, so the host must act on them."""
-STATUS_ERROR_MASK = STATUS_CRITICAL_MASK | (1 << 15)
-"""A sample whose status has any of these bits is flagged (``WrenchBatch.saturated``) and never averaged."""
-STATUS_WATCHDOG_RESET = 1 << 0
-HOST_STATUS_GAGE_SATURATED = STATUS_SUMMARY | STATUS_SATURATION
-"""Set by this driver in bits 31 and 17 of ``WrenchBatch.status`` when a gage reads +32767 or −32768 (the
-board's own u16 status is in bits 0–15); the same bits as the Net F/T saturation status."""
-
 
 # ------------------------------------------------------------------------ defaults
 DEFAULT_BASE = 0x20
@@ -124,8 +81,6 @@ MAX_RATE_HZ = 10_000.0
 MAX_BITRATE = 2_000_000
 DEFAULT_REPLY_TIMEOUT_S = 0.1
 """Time a request waits for its reply frames, seconds (monotonic), as the SocketCAN C++ driver."""
-STARTUP_ATTEMPTS = 3
-"""Tries per start-up request before the board is declared unreachable."""
 DEFAULT_STARTUP_TIMEOUT_S = 0.5
 """Time each start-up request try waits for its reply, seconds (longer than a poll's: a loaded host may be slow
 to schedule, and start-up happens once)."""
@@ -144,38 +99,6 @@ CLOSE_JOIN_TIMEOUT_S = 2.0
 URL_FORM = "can://INTERFACE/CHANNEL[?base=0x20&bitrate=250000&rate_hz=500&calibration=0&timeout_s=0.1]"
 
 
-def decode_status(status: int) -> list[str]:
-    """Return the names of the NETCANOEM status bits set in ``status`` (bits 0–15), low bit first."""
-    return [STATUS_BIT_NAMES.get(bit, f"reserved bit {bit}") for bit in range(16) if status >> bit & 1]
-
-
-@dataclass(frozen=True)
-class CanCalibration:
-    """What the board reports about its active calibration.
-
-    Attributes:
-        matrix: (6, 6) counts = matrix @ (gages − bias), rows Fx … Tz (as sent, float32 values).
-        counts_per_force, counts_per_torque: counts per device unit.
-        force_unit, torque_unit: unit names (``N``, ``N-m``, ``N-mm`` …).
-        force_si_per_unit, torque_si_per_unit: N per force unit, N·m per torque unit.
-    """
-
-    matrix: np.ndarray
-    counts_per_force: float
-    counts_per_torque: float
-    force_unit: str
-    torque_unit: str
-    force_si_per_unit: float
-    torque_si_per_unit: float
-
-    @property
-    def gages_to_si(self) -> np.ndarray:
-        """(6, 6) K with wrench_si = K @ (gages − bias): rows scaled by SI-per-unit / counts-per-unit."""
-        scale = np.array([self.force_si_per_unit / self.counts_per_force] * 3
-                         + [self.torque_si_per_unit / self.counts_per_torque] * 3)
-        return scale[:, np.newaxis] * self.matrix
-
-
 class _BiasRequest:
     """A bias in progress: the poll thread adds valid gage samples until ``needed`` are in."""
 
@@ -188,7 +111,7 @@ class _BiasRequest:
         self.done = threading.Event()
 
 
-class AtiCanSensor(SensorBase):
+class AtiCanSensor(CanTransport, SensorBase):
     """ATI NETCANOEM on a python-can bus, implementing :class:`drivers.sensor.ForceTorqueSensor`.
 
     Args:
@@ -413,26 +336,6 @@ class AtiCanSensor(SensorBase):
 
     # ------------------------------------------------------------------ start-up
 
-    def _open_bus(self):
-        import can
-
-        filters = [{"can_id": self.base << 4, "can_mask": 0x7F0, "extended": False}]
-        try:
-            return can.Bus(**{"can_filters": filters, **self.bus_options, "interface": self.interface,
-                              "channel": self.channel, "bitrate": self.bitrate, "ignore_config": True})
-        except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as error:
-            raise DeviceConnectionError(
-                f"cannot open CAN interface {self.interface!r} channel {self.channel!r} at {self.bitrate} bit/s: "
-                f"{error}") from error
-
-    def _shutdown_owned_bus(self) -> None:
-        if self._owns_bus and self._bus is not None:
-            try:
-                self._bus.shutdown()
-            except Exception:  # a failed shutdown must not hide the error that got us here
-                logger.exception("shutting down CAN bus %r failed", self.channel)
-            self._bus = None
-
     def _discover(self) -> None:
         """Read firmware, select the calibration, read matrix, counts per unit, units, serial (§4.1 sequence)."""
         major, minor, build = struct.unpack(">BBH", self._request(OP_FIRMWARE, b"", "firmware version")[OP_FIRMWARE])
@@ -491,85 +394,6 @@ class AtiCanSensor(SensorBase):
                              "set active calibration")[OP_SELECT_CALIBRATION]
         if echo[0] != self.calibration_index:
             raise DeviceError(f"ATI CAN board selected calibration {echo[0]} instead of {self.calibration_index}")
-
-    def _request(self, opcode: int, data: bytes, what: str, reply_ops: tuple[int, ...] | None = None) -> dict[int, bytes]:
-        """Send one start-up request and return its reply frames by opcode; retry, then raise DeviceTimeoutError."""
-        import can
-
-        reply_ops = reply_ops or (opcode,)
-        for _attempt in range(STARTUP_ATTEMPTS):
-            tally = SensorHealth()
-            self._drain(tally)
-            try:
-                self._bus.send(can.Message(arbitration_id=self.base << 4 | opcode, data=data, is_extended_id=False))
-            except can.CanError as error:
-                raise DeviceConnectionError(
-                    f"cannot send the {what} request on CAN {self.interface!r} {self.channel!r}: {error}") from error
-            replies = self._collect(reply_ops, time.monotonic() + self.startup_timeout_s, tally)
-            self._merge(tally)
-            if len(replies) == len(reply_ops):
-                return replies
-        raise DeviceTimeoutError(
-            f"ATI CAN board at base {self.base:#04x} on {self.interface} channel {self.channel!r} did not answer "
-            f"the {what} request (ID {self.base << 4 | opcode:#05x}) within {self.startup_timeout_s} s, "
-            f"{STARTUP_ATTEMPTS} tries: check power, wiring and termination, the bit rate ({self.bitrate} bit/s) "
-            f"and the base ID")
-
-    def _collect(self, reply_ops: tuple[int, ...], deadline: float, tally: SensorHealth) -> dict[int, bytes]:
-        """Receive frames until every opcode in ``reply_ops`` arrived or ``deadline`` (monotonic) passed.
-
-        Frames that are not wanted replies are counted in ``tally`` (a scratch SensorHealth, merged later).
-        """
-        replies: dict[int, bytes] = {}
-        while len(replies) < len(reply_ops):
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                break
-            message = self._bus.recv(timeout=remaining)
-            if message is None:
-                break
-            opcode = self._classify(message, tally)
-            if opcode is None:
-                continue
-            if opcode in reply_ops:
-                if opcode in replies:
-                    tally.duplicate += 1
-                else:
-                    replies[opcode] = bytes(message.data)
-            else:
-                tally.out_of_order += 1  # a reply to another (earlier) request
-        return replies
-
-    def _classify(self, message, tally: SensorHealth) -> int | None:
-        """Return the reply opcode of a valid frame from our board, or None (counting why in ``tally``)."""
-        if not getattr(message, "is_rx", True):
-            return None  # our own request, echoed back
-        if message.is_error_frame or message.is_remote_frame or message.is_extended_id:
-            tally.foreign += 1
-            return None
-        if message.arbitration_id >> 4 != self.base:
-            tally.foreign += 1
-            return None
-        opcode = message.arbitration_id & 0xF
-        if REPLY_LENGTHS.get(opcode) != message.dlc:
-            tally.malformed += 1
-            return None
-        return opcode
-
-    def _drain(self, tally: SensorHealth) -> None:
-        """Discard frames already queued (late replies to a request that timed out), counting them."""
-        while (message := self._bus.recv(timeout=0.0)) is not None:
-            if self._classify(message, tally) is not None:
-                tally.out_of_order += 1
-
-    def _merge(self, tally: SensorHealth) -> None:
-        """Add the frame counters of ``tally`` to the driver's health (under the lock)."""
-        if tally.duplicate or tally.out_of_order or tally.malformed or tally.foreign:
-            with self._lock:
-                self._health.duplicate += tally.duplicate
-                self._health.out_of_order += tally.out_of_order
-                self._health.malformed += tally.malformed
-                self._health.foreign += tally.foreign
 
     # ------------------------------------------------------------------ the poll loop
 
