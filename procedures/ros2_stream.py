@@ -67,25 +67,32 @@ class WindowMean:
         self._floor_s = -np.inf
 
     def feed(self, time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Add samples (N,) s and (N, 6); return the completed windows' (mean time (M,), mean values (M, 6))."""
-        time_s = np.maximum.accumulate(np.r_[self._floor_s, np.asarray(time_s, dtype=float)])[1:]
+        """Add samples (N,) s and (N, 6); return the completed windows' (mean time (M,), mean values (M, 6)).
+        A few numpy calls per read (no ``np.r_``: its overhead alone was a third of the cost at 500 reads/s)."""
+        time_s = np.maximum.accumulate(np.asarray(time_s, dtype=float))
         if not len(time_s):
-            return np.empty(0), np.empty((0, 6))
+            return _NO_TIMES, _NO_VALUES
+        np.maximum(time_s, self._floor_s, out=time_s)
         self._floor_s = time_s[-1]  # the newest time seen: a window sent ended before it (batching-independent)
+        values = np.asarray(values, dtype=float)
         if self.period_s <= 0:
-            return time_s, np.asarray(values, dtype=float)
-        time_s = np.concatenate([self._time_s, time_s])
-        values = np.concatenate([self._values, values])
+            return time_s, values
+        if len(self._time_s):
+            time_s = np.concatenate((self._time_s, time_s))
+            values = np.concatenate((self._values, values))
         window = np.floor(time_s / self.period_s).astype(np.int64)
-        done = window < window[-1]  # the newest sample's window may still grow
-        self._time_s, self._values = time_s[~done], values[~done]
-        if not done.any():
-            return np.empty(0), np.empty((0, 6))
-        window, time_s, values = window[done], time_s[done], values[done]
-        starts = np.flatnonzero(np.r_[True, window[1:] != window[:-1]])
-        counts = np.diff(np.r_[starts, len(window)])
+        open_from = int(np.searchsorted(window, window[-1]))  # the newest window may still grow (windows ascend)
+        self._time_s, self._values = time_s[open_from:], values[open_from:]
+        if open_from == 0:
+            return _NO_TIMES, _NO_VALUES
+        window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
+        starts = np.flatnonzero(np.diff(window, prepend=window[0] - 1))
+        counts = np.diff(starts, append=open_from)
         return (np.add.reduceat(time_s, starts) / counts,
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
+
+
+_NO_TIMES, _NO_VALUES = np.empty(0), np.empty((0, 6))
 
 
 class OffsetTare:
