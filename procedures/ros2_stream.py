@@ -39,6 +39,9 @@ DEFAULT_RATE_HZ = 1000.0
 UR_JOINT_NAMES = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
                   "wrist_3_joint")
 """The joint names of Universal Robots' ROS 2 description (ur_description), for ``joint_states``."""
+RELIABLE_EVERY_SAMPLE_HZ = 8000
+"""With reliable QoS at every sample, the wrench writers keep this many messages (1 s of a 7 kHz Net F/T) for a
+subscriber that falls behind."""
 TARE_WINDOW_S = 0.1
 """A tare zeroes the mean compensated wrench of this much sample time before the request, s."""
 
@@ -199,7 +202,8 @@ class Ros2Publisher:
         self.node = node
         self.clock = clock or StampClock()
         self.streams = _WrenchStreams(frame_id, rate_hz, self.clock)
-        wrench_qos = dds.RELIABLE if reliable else dds.SENSOR_DATA
+        # reliable: one second of messages kept for a subscriber that falls behind (at every sample, of a 7 kHz sensor)
+        wrench_qos = dds.reliable(int(rate_hz or RELIABLE_EVERY_SAMPLE_HZ)) if reliable else dds.SENSOR_DATA
         self.writers = {name: node.writer(name, WRENCH_TYPE, WrenchStamped, wrench_qos)
                         for name in ("wrench_raw", "wrench_compensated")}
         for name in ("bias", "bias_sigma"):

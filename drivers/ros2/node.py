@@ -3,8 +3,8 @@
 ROS 2's mapping onto DDS (the one rmw_cyclonedds_cpp implements): the ROS topic ``/ns/name`` is the DDS topic
 ``rt/ns/name`` of type ``pkg::msg::dds_::Type_`` (:mod:`drivers.ros2.messages`), data in plain CDR (XCDR1); a
 service ``/ns/name`` is the request topic ``rq/ns/nameRequest`` and the reply topic ``rr/ns/nameReply``. QoS as
-ROS 2 names them (rmw/qos_profiles.h): :data:`SENSOR_DATA` (best effort, keep last 5), :data:`RELIABLE` (reliable,
-keep last :data:`RELIABLE_DEPTH`), :data:`LATCHED` (reliable, transient local, keep last 1: a late subscriber with
+ROS 2 names them (rmw/qos_profiles.h): :data:`SENSOR_DATA` (best effort, keep last 5), :func:`reliable` (reliable,
+keep last N), :data:`LATCHED` (reliable, transient local, keep last 1: a late subscriber with
 transient-local durability gets the last message), :data:`SERVICES` (reliable, keep last 10).
 
 Discovery: Cyclone DDS's own configuration. By default multicast on every interface (a cell network: any host on
@@ -57,8 +57,16 @@ SERVICE_WAKE_S = 1.0
 
 _XCDR1 = Policy.DataRepresentation(use_cdrv0_representation=True)
 SENSOR_DATA = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(5), Policy.Durability.Volatile, _XCDR1)
-RELIABLE = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(RELIABLE_DEPTH),
+
+
+def reliable(depth: int = RELIABLE_DEPTH) -> Qos:
+    """Reliable, volatile, keep last ``depth``: what a subscriber has not acknowledged yet is kept for it, up to
+    ``depth`` messages (a writer overwrites the oldest beyond; it never blocks)."""
+    return Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(int(depth)),
                Policy.Durability.Volatile, _XCDR1)
+
+
+RELIABLE = reliable()
 LATCHED = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(1),
               Policy.Durability.TransientLocal, _XCDR1)
 SERVICES = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(10),
@@ -268,4 +276,4 @@ class _ignored_errors:
 
 
 __all__ = ["Ros2Node", "Writer", "TriggerServer", "SENSOR_DATA", "RELIABLE", "LATCHED", "SERVICES",
-           "LOCALHOST_CONFIG", "RELIABLE_DEPTH", "localhost_only"]
+           "LOCALHOST_CONFIG", "RELIABLE_DEPTH", "localhost_only", "reliable"]
