@@ -200,14 +200,14 @@ mapping's uncertainty when the batch was read (s; empty without a device clock).
 _STOP = object()
 
 
-def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event) -> bool:
+def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event, warn: bool = True) -> bool:
     """Make the first SIGINT set ``interrupted`` and ``stop`` (and put Python's default handler back, so that a
     second one raises KeyboardInterrupt at once). Only from the main thread and while SIGINT has Python's default
     handler (an ignored SIGINT stays ignored, a custom handler is kept); return whether it was installed."""
     if threading.current_thread() is not threading.main_thread():
         return False
     current = signal.getsignal(signal.SIGINT)
-    if current is signal.SIG_IGN:  # inherited: a shell without job control starts `cmd &` (and nohup) so
+    if current is signal.SIG_IGN and warn:  # inherited: a shell without job control starts `cmd &` (and nohup) so
         log.warning("Ctrl-C (SIGINT) is ignored in this process (started in the background?): stop it with "
                     "SIGTERM (kill PID)")
     if current is not signal.default_int_handler:
@@ -305,6 +305,11 @@ class LiveMonitor:
         queue_batches, listener_period_s: the BackgroundListener's queue bound and delivery period.
         sample_clock: the samples' :class:`~ftacq.dynamics.clock.SampleClock` (their times on the host clock, for
             the record); share it with a dynamic compensator so that each batch is observed once. Default: its own.
+        sample_poses: give every published batch the flange pose at each sample's time when the compensator
+            knows it (``WrenchSamples.sample_flange_pose``; always with a record).
+
+    One run: :meth:`run`, or :meth:`start`, then :meth:`step` or :meth:`stream` from one thread at a time, then
+    :meth:`finish` (what :class:`ftacq.app.session.Cell` does, for ``ftacq monitor`` and the Python API).
     """
 
     sensor: ForceTorqueSensor
@@ -323,81 +328,139 @@ class LiveMonitor:
     record_header: list[str] = field(default_factory=list)
     sample_clock: SampleClock = field(default_factory=SampleClock)
     switch_interval_s: float = SWITCH_INTERVAL_S
+    sample_poses: bool = False
+    _summary: MonitorSummary | None = field(default=None, init=False, repr=False)
+    _publisher: BackgroundListener = field(default=None, init=False, repr=False)  # type: ignore[assignment]
+    _recorder: _Recorder | None = field(default=None, init=False, repr=False)
+    _finished: bool = field(default=False, init=False, repr=False)
 
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> MonitorSummary:
         """Stream until ``duration_s`` seconds have passed, ``stop`` is set, or Ctrl-C; return the summary.
 
-        Sensor errors propagate after the threads are closed (the CSV keeps what was recorded). From the main
-        thread, Ctrl-C stops the loop between two reads (see the module docstring).
+        :meth:`start`, :meth:`stream`, :meth:`finish`. Sensor errors propagate after the threads are closed (the CSV
+        keeps what was recorded). From the main thread, Ctrl-C stops the loop between two reads (see the module
+        docstring).
         """
-        stop = stop or threading.Event()
-        interrupted = threading.Event()
-        summary = MonitorSummary(record_path=self.record_path)
-        publisher = BackgroundListener(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
-        recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
-        if recorder is not None:
-            recorder.start()
-        self._publisher = publisher
+        self.start()
+        try:
+            self.stream(duration_s, stop)
+        finally:
+            summary = self.finish()
+        if self._publisher.first_error is not None and self.strict:
+            raise self._publisher.first_error
+        return summary
+
+    def start(self) -> None:
+        """Start the listeners' and the record's threads and shorten the switch interval (once: :meth:`finish`
+        ends what this started). Reads (:meth:`step`) may follow from any one thread at a time."""
+        if self._summary is not None:
+            return
+        self._summary = MonitorSummary(record_path=self.record_path)
+        self._publisher = BackgroundListener(self.listeners, max_queued=self.queue_batches,
+                                             period_s=self.listener_period_s)
+        self._recorder = _Recorder(self.record_path, self.record_header) if self.record_path is not None else None
+        if self._recorder is not None:
+            self._recorder.start()
         self._last_robot_s = self._last_status_s = -np.inf
         self._robot_connected = True
-        start_s = time.monotonic()
-        deadline_s = None if duration_s is None else start_s + duration_s
+        self._start_s = self._next_read_s = time.monotonic()
+        self._switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval_s, self.switch_interval_s))
+
+    @property
+    def started(self) -> bool:
+        """Whether :meth:`start` has run."""
+        return self._summary is not None
+
+    @property
+    def summary(self) -> MonitorSummary:
+        """The run's counts so far (complete after :meth:`finish`)."""
+        if self._summary is None:
+            raise RuntimeError("the monitor has not started")
+        return self._summary
+
+    def add_listener(self, listener: events.Listener) -> None:
+        """Add a listener; once started, it receives the events published from then on."""
+        self.listeners = [*self.listeners, listener]
+        if self._publisher is not None:
+            self._publisher.add(listener)
+
+    def stream(self, duration_s: float | None = None, stop: threading.Event | None = None) -> None:
+        """Read (:meth:`step`) until ``duration_s`` seconds have passed, ``stop`` is set, or Ctrl-C (then
+        ``summary.interrupted``); from the main thread the first Ctrl-C ends the loop between two reads."""
+        summary = self.summary
+        stop = stop or threading.Event()
+        interrupted = threading.Event()
+        deadline_s = None if duration_s is None else time.monotonic() + duration_s
         sigint_caught = _stop_on_sigint(stop, interrupted)
-        switch_interval_s = sys.getswitchinterval()
-        sys.setswitchinterval(min(switch_interval_s, self.switch_interval_s))
         try:
-            next_read_s = start_s
             while not stop.is_set():
-                now_s = time.monotonic()
-                if deadline_s is not None and now_s >= deadline_s:
+                if deadline_s is not None and time.monotonic() >= deadline_s:
                     break
-                if next_read_s > now_s:  # pace reads: the driver buffers, fewer and larger batches cost less
-                    stop.wait(next_read_s - now_s)
-                next_read_s = max(next_read_s + self.batch_period_s, time.monotonic())
-                timeout_s = self.read_timeout_s
-                if deadline_s is not None:
-                    timeout_s = max(0.0, min(timeout_s, deadline_s - time.monotonic()))
-                try:
-                    batch = self.sensor.read(timeout_s=timeout_s)
-                except DeviceTimeoutError:
-                    summary.timeouts += 1
-                    continue
-                if len(batch) == 0:
-                    continue
-                sample_time_s = self.sample_clock.host_times(batch.time_s, batch.device_time_s)
-                samples = self._process(batch)
-                self._count(summary, samples)
-                publisher(samples)
-                if recorder is not None:
-                    recorder.put(samples, sample_time_s, self.sample_clock.uncertainty_s)
-                self._run_checks(samples, summary)
-                self._publish_periodic(samples, summary)
+                self.step(deadline_s, stop)
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:
-            sys.setswitchinterval(switch_interval_s)
             if sigint_caught and signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
                 signal.signal(signal.SIGINT, signal.default_int_handler)
             summary.interrupted = summary.interrupted or interrupted.is_set()
-            summary.duration_s = time.monotonic() - start_s
-            summary.clock_rate_error = self.sample_clock.rate_error
-            summary.clock_uncertainty_s = self.sample_clock.uncertainty_s
-            try:
-                health = self.sensor.health()
-                summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
-                summary.socket_drops, summary.ring_overflows = int(health.socket_drops), int(health.ring_overflows)
-                if summary.last_sample_s is not None:
-                    publisher(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
-            except FtacqError:
-                log.warning("could not read the sensor's health at the end of the run", exc_info=True)
-            publisher.close(THREAD_JOIN_TIMEOUT_S)
-            summary.dropped_batches, summary.dropped_samples = publisher.dropped_batches, publisher.dropped_samples
-            if publisher.first_error is not None:
-                summary.listener_error = f"{type(publisher.first_error).__name__}: {publisher.first_error}"
-            if recorder is not None:
-                recorder.close()
-        if publisher.first_error is not None and self.strict:
-            raise publisher.first_error
+
+    def step(self, deadline_s: float | None = None, stop: threading.Event | None = None
+             ) -> events.WrenchSamples | None:
+        """Read the sensor once (paced: at most every ``batch_period_s``), then compensate, publish, record and
+        check what it returned; return those samples, or None when nothing came before the read's timeout (or
+        ``deadline_s``, monotonic clock, s). ``stop`` cuts the pacing wait short."""
+        summary = self.summary
+        now_s = time.monotonic()
+        if self._next_read_s > now_s:  # pace reads: the driver buffers, fewer and larger batches cost less
+            (stop or threading.Event()).wait(self._next_read_s - now_s)
+        self._next_read_s = max(self._next_read_s + self.batch_period_s, time.monotonic())
+        timeout_s = self.read_timeout_s
+        if deadline_s is not None:
+            timeout_s = max(0.0, min(timeout_s, deadline_s - time.monotonic()))
+        try:
+            batch = self.sensor.read(timeout_s=timeout_s)
+        except DeviceTimeoutError:
+            summary.timeouts += 1
+            return None
+        if len(batch) == 0:
+            return None
+        sample_time_s = self.sample_clock.host_times(batch.time_s, batch.device_time_s)
+        samples = self._process(batch, sample_time_s)
+        self._count(summary, samples)
+        self._publisher(samples)
+        if self._recorder is not None:
+            self._recorder.put(samples, sample_time_s, self.sample_clock.uncertainty_s)
+        self._run_checks(samples, summary)
+        self._publish_periodic(samples, summary)
+        return samples
+
+    def finish(self) -> MonitorSummary:
+        """Publish the last status, deliver what is queued, finish the record and join both threads, give the
+        switch interval back; return the summary (safe twice). Re-raises the record's write error."""
+        summary = self.summary
+        if self._finished:
+            return summary
+        self._finished = True
+        publisher = self._publisher
+        sys.setswitchinterval(self._switch_interval_s)
+        summary.duration_s = time.monotonic() - self._start_s
+        summary.clock_rate_error = self.sample_clock.rate_error
+        summary.clock_uncertainty_s = self.sample_clock.uncertainty_s
+        try:
+            health = self.sensor.health()
+            summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
+            summary.socket_drops, summary.ring_overflows = int(health.socket_drops), int(health.ring_overflows)
+            if summary.last_sample_s is not None:
+                publisher(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
+        except FtacqError:
+            log.warning("could not read the sensor's health at the end of the run", exc_info=True)
+        publisher.close(THREAD_JOIN_TIMEOUT_S)
+        summary.dropped_batches, summary.dropped_samples = publisher.dropped_batches, publisher.dropped_samples
+        if publisher.first_error is not None:
+            summary.listener_error = f"{type(publisher.first_error).__name__}: {publisher.first_error}"
+        if self._recorder is not None:
+            self._recorder.close()
         return summary
 
     # -- steps of the acquisition loop ------------------------------------------------------------------------
@@ -409,15 +472,16 @@ class LiveMonitor:
                                  joint_positions_rad=np.asarray(self.robot.joint_positions(), dtype=float),
                                  flange_pose=np.asarray(self.robot.flange_pose(), dtype=float))
 
-    def _process(self, batch: WrenchBatch) -> events.WrenchSamples:
+    def _process(self, batch: WrenchBatch, sample_time_s: np.ndarray) -> events.WrenchSamples:
         robot = self._robot_state(float(batch.time_s[-1]))
         compensated = None if self.compensator is None else self.compensator.compensate(batch, robot)
         pose_at_samples = getattr(self.compensator, "sample_flange_pose", None)
         return events.WrenchSamples(batch=batch, compensated=compensated,
                                     flange_pose=None if robot is None else robot.flange_pose,
                                     joint_positions_rad=None if robot is None else robot.joint_positions_rad,
-                                    sample_flange_pose=pose_at_samples() if (
-                                        pose_at_samples is not None and self.record_path is not None) else None,
+                                    sample_flange_pose=pose_at_samples() if pose_at_samples is not None and (
+                                        self.record_path is not None or self.sample_poses) else None,
+                                    sample_time_s=sample_time_s,
                                     uncompensated=self.compensator is not None and robot is not None
                                     and compensated is None)
 
