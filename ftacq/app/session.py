@@ -244,6 +244,7 @@ class Cell:
                 self.monitor.stream(seconds, stop)
         finally:
             summary = self.close()
+        assert summary is not None  # (started above)
         return summary
 
     def add_listener(self, listener: events.Listener, close: Callable[[], None] | None = None) -> None:
