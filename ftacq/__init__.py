@@ -34,6 +34,8 @@ _LAZY = {
     "FtacqError": "ftacq.errors",
     "open_cell": "ftacq.app.session",
     "SimOptions": "ftacq.app.session",
+    "Cell": "ftacq.app.session",
+    "Batch": "ftacq.app.session",
 }
 """Public name → the module defining it."""
 

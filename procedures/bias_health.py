@@ -17,6 +17,7 @@ never used.
 from __future__ import annotations
 
 import collections
+import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -84,6 +85,8 @@ class DriftCompensator:
     """(6,) the biases' change since the calibration compensated with (live tares: :meth:`rebase`), N and N·m."""
     still_now: bool = False
     """Whether the arm was still while the last batch's samples were taken (the tracker's rule)."""
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+    """Held while a batch is compensated and the tracker updated: another thread reading the tracker takes it."""
 
     def __post_init__(self) -> None:
         self._base = self.health.tracker.calibration  # what ``moving`` (or, without it, this) compensates with
@@ -97,12 +100,17 @@ class DriftCompensator:
         """Use ``calibration``'s biases from now on (a live tare: the rest of the model is unchanged): they are
         constants of both models, so subtracting their change from the residual is the same compensation. The drift
         tracker restarts from them (just measured: age 0); ``auto_tare`` is kept."""
-        self.bias_offset = (np.concatenate([calibration.force_bias, calibration.torque_bias])
-                            - np.concatenate([self._base.force_bias, self._base.torque_bias]))
-        self.health = BiasHealth(calibration, self.health.settings, age_s=0.0, auto_tare=self.health.auto_tare)
+        with self.lock:
+            self.bias_offset = (np.concatenate([calibration.force_bias, calibration.torque_bias])
+                                - np.concatenate([self._base.force_bias, self._base.torque_bias]))
+            self.health = BiasHealth(calibration, self.health.settings, age_s=0.0, auto_tare=self.health.auto_tare)
 
     def compensate(self, batch, robot) -> np.ndarray | None:
         """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one)."""
+        with self.lock:
+            return self._compensate(batch, robot)
+
+    def _compensate(self, batch, robot) -> np.ndarray | None:
         self.still_now = False
         if robot is None:
             return None

@@ -222,7 +222,7 @@ class Cell:
         """The current bias estimate (:class:`LiveBias`), or None without a calibration."""
         if self.drift is None:
             return None
-        with self._step_lock:
+        with self.drift.lock:  # (not the reading lock: ``run`` holds that for the whole stream)
             health = self.drift.health
             tracker = health.tracker
             time_s = self.monitor.summary.last_sample_s if self.monitor.started else None
