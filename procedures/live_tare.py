@@ -36,14 +36,13 @@ class TareError(FtacqError):
 
 @dataclass
 class TareRequest:
-    """One tare asked for: wait on :meth:`wait`; ``result`` (a :class:`procedures.tare.TareResult`, with the
-    calibration now in force as ``calibration``) or ``error`` once ``done`` is set."""
+    """One tare asked for: wait on :meth:`wait`; ``result`` (a :class:`procedures.tare.TareResult`; the calibration
+    now in force is the compensator's) or ``error`` once ``done`` is set."""
 
     average_s: float
     deadline_s: float
     done: threading.Event = field(default_factory=threading.Event)
     result: TareResult | None = None
-    calibration: object | None = None
     error: BaseException | None = None
 
     def wait(self, timeout_s: float | None = None) -> TareResult:
@@ -66,6 +65,8 @@ class LiveTare:
         self._pending: list[TareRequest] = []
         self._parts: list[np.ndarray] = []
         self._start_s: float | None = None
+        self._pose = np.zeros(6)
+        self._serving: TareRequest | None = None
 
     def request(self, average_s: float, timeout_s: float = TARE_TIMEOUT_S) -> TareRequest:
         """Ask for a tare averaging ``average_s`` of still samples (any thread); it fails after ``timeout_s``."""
@@ -84,17 +85,25 @@ class LiveTare:
             request.error = TareError(why)
             request.done.set()
 
-    def check(self, samples: events.WrenchSamples) -> list[events.StreamEvent]:
-        """Add a read to the open window; complete the oldest request when the window is full."""
+    def expire(self) -> None:
+        """Fail the requests past their deadline (also when no read comes: a silent sensor)."""
+        now_s = time.monotonic()
         with self._lock:
-            request = self._pending[0] if self._pending else None
-        if request is None:
-            return []
-        if time.monotonic() > request.deadline_s:
-            self._restart()
+            expired = [request for request in self._pending if now_s > request.deadline_s]
+        for request in expired:
             self._finish(request, error=TareError(
                 f"the arm was not still (and the stream compensated) for {request.average_s:g} s within the tare's "
                 "time: keep the arm still and tare again"))
+
+    def check(self, samples: events.WrenchSamples) -> list[events.StreamEvent]:
+        """Add a read to the open window; complete the oldest request when the window is full."""
+        self.expire()
+        with self._lock:
+            request = self._pending[0] if self._pending else None
+        if request is not self._serving:  # a new request (or none): its window starts empty
+            self._restart()
+            self._serving = request
+        if request is None:
             return []
         batch = samples.batch
         pose = samples.sample_flange_pose
@@ -122,7 +131,6 @@ class LiveTare:
             return []
         self.compensator.rebase(tared)
         self.tares += 1
-        request.calibration = tared
         self._finish(request, result=result)
         change = result.estimate.change
         return [events.Notice(f"tared at the current pose ({len(wrench)} samples): biases changed by F ["
@@ -136,9 +144,12 @@ class LiveTare:
 
     def _finish(self, request: TareRequest, result: TareResult | None = None,
                 error: BaseException | None = None) -> None:
+        """Hand the request its outcome (once: a request another thread already finished is left as it is)."""
         with self._lock:
+            if request not in self._pending:
+                return
             self._pending.remove(request)
-        request.result, request.error = result, error
+            request.result, request.error = result, error
         request.done.set()
 
 

@@ -135,7 +135,7 @@ class Cell:
     """
 
     def __init__(self) -> None:
-        self.calibration: Calibration | None = None
+        self._calibration: Calibration | None = None
         self.model: Any = None
         self.robot_host = ""
         self.sensor_url = ""
@@ -157,6 +157,11 @@ class Cell:
         self._iterators = 0
         self._closed = False
         self._summary: MonitorSummary | None = None
+
+    @property
+    def calibration(self) -> Calibration | None:
+        """The calibration in force (its biases as the last tare left them), or None (raw only)."""
+        return self.drift.calibration if self.drift is not None else self._calibration
 
     # ------------------------------------------------------------------------------------------ reading
 
@@ -200,6 +205,7 @@ class Cell:
                                      TARE_TIMEOUT_S if timeout_s is None else float(timeout_s))
         try:
             while not request.done.is_set():
+                self._tare.expire()
                 if self._closed:
                     self._tare.cancel("the cell was closed")
                 elif self._step_lock.acquire(blocking=False):
@@ -213,9 +219,7 @@ class Cell:
         except BaseException:
             self._tare.cancel("interrupted")
             raise
-        result = request.wait(0)
-        self.calibration = request.calibration
-        return result
+        return request.wait(0)
 
     @property
     def bias(self) -> LiveBias | None:
@@ -433,7 +437,7 @@ def _open(cell: Cell, config, calibration, sim, record, listeners, auto_tare: bo
                                                         cell_config.sensor.url)
         cell.average_s = float(cell_config.sampling.average_time_s)
         cell.source = str(config)
-    cell.calibration = calibration
+    cell._calibration = calibration
     model = cell.model = ur_model(model_name)
     before_start = prepare(cell) if prepare is not None else None
 
