@@ -38,6 +38,7 @@ Two seams, for what is added to the monitor without touching its loop:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import signal
@@ -46,7 +47,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, Sequence
+from typing import TYPE_CHECKING, Iterator, Protocol, Sequence
 
 import numpy as np
 
@@ -220,6 +221,22 @@ def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event, warn: b
 
     signal.signal(signal.SIGINT, handler)
     return True
+
+
+@contextlib.contextmanager
+def ctrl_c_after() -> Iterator[None]:
+    """Run one read with the first Ctrl-C held until its end (main thread, Python's SIGINT handler; a no-op
+    elsewhere): the read is published and recorded alike, then KeyboardInterrupt is raised. A second Ctrl-C
+    raises at once. For a caller that reads one batch at a time (:class:`ftacq.app.session.Cell`)."""
+    interrupted = threading.Event()
+    caught = _stop_on_sigint(threading.Event(), interrupted, warn=False)
+    try:
+        yield
+    finally:
+        if caught and signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+    if interrupted.is_set():
+        raise KeyboardInterrupt
 
 
 class _Recorder:
@@ -536,4 +553,4 @@ class LiveMonitor:
 
 
 __all__ = ["LiveMonitor", "MonitorSummary", "Compensator", "GravityCompensator", "HealthCheck", "RECORD_COLUMNS",
-           "flange_R_base_from_pose"]
+           "flange_R_base_from_pose", "ctrl_c_after"]

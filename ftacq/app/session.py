@@ -306,24 +306,14 @@ class Cell:
     def _step(self, deadline_s: float | None) -> None:
         """One read through the monitor (caller holds ``_step_lock``); queue it for an open iterator. From the
         main thread a Ctrl-C during the read lets it finish (published and recorded alike), then raises."""
-        from procedures.monitor import _stop_on_sigint
+        from procedures.monitor import ctrl_c_after
 
         self._start_monitor()
         dynamic_before = getattr(self.compensator, "dynamic_batches", 0)
-        interrupted = threading.Event()
-        caught = _stop_on_sigint(threading.Event(), interrupted, warn=False)
-        try:
+        with ctrl_c_after():
             samples = self.monitor.step(deadline_s, self._stop)
-        finally:
-            if caught:
-                import signal
-
-                if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-                    signal.signal(signal.SIGINT, signal.default_int_handler)
-        if samples is not None and self._iterators:
-            self._backlog.append(self._batch(samples, dynamic_before))
-        if interrupted.is_set():
-            raise KeyboardInterrupt
+            if samples is not None and self._iterators:
+                self._backlog.append(self._batch(samples, dynamic_before))
 
     def _batch(self, samples: events.WrenchSamples, dynamic_before: int) -> Batch:
         raw = samples.batch
