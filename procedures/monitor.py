@@ -34,6 +34,8 @@ Two seams, for what is added to the monitor without touching its loop:
   a batch it leaves uncompensated (None, with a robot) is published flagged ``uncompensated``;
 - :class:`HealthCheck` objects see every read (compensated) in the acquisition thread and return notices
   (warnings are also kept in :attr:`MonitorSummary.warnings`).
+
+(Over 500 lines: the loop, its record writer and its Ctrl-C handling share the run's state and are read together.)
 """
 
 from __future__ import annotations

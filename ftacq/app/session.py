@@ -19,7 +19,7 @@ finishes the record, joins the monitor's threads and closes the devices (and the
 A listener (a live viewer, a publisher) is a callable taking each :mod:`procedures.events` event, called from the
 monitor's "ftacq-listeners" thread; it must not block (a slow one costs dropped viewer frames, never samples).
 ``cell.add_listener(listener, close=...)`` (or ``open_cell(listeners=...)``); ``close`` runs once after its last
-event. docs/python-api.md.
+event. docs/python-api.md. (Over 500 lines: the opening of a cell and the reading it allows are one contract.)
 """
 
 from __future__ import annotations
