@@ -265,3 +265,14 @@ def test_while_run_streams_another_thread_reads_the_bias_and_tares(nothing_left_
     assert np.all(np.abs(found["tare"].estimate.change) < 0.05)  # the true calibration: nothing to change
     assert any(n.source == "tare" and n.text.startswith("tared at the current pose") for n in notices)
     assert summary.samples > 0 and not summary.warnings
+
+
+def test_a_tare_while_the_arm_moves_fails_and_changes_nothing(nothing_left_running):
+    from procedures.live_tare import TareError
+
+    with ftacq.open_cell(sim=ftacq.SimOptions(jog=True)) as cell:
+        before = cell.calibration
+        with pytest.raises(TareError, match="not still"):
+            cell.tare(timeout_s=1.5)  # the simulated technician jogs for its first 8 s
+        assert cell.calibration is before and np.all(cell.drift.bias_offset == 0)
+        assert sum(len(b) for b in cell.batches(seconds=0.2)) > 0  # the stream goes on
