@@ -276,3 +276,22 @@ def test_a_tare_while_the_arm_moves_fails_and_changes_nothing(nothing_left_runni
             cell.tare(timeout_s=1.5)  # the simulated technician jogs for its first 8 s
         assert cell.calibration is before and np.all(cell.drift.bias_offset == 0)
         assert sum(len(b) for b in cell.batches(seconds=0.2)) > 0  # the stream goes on
+
+
+def test_ftacq_monitor_is_a_client_of_the_session(tmp_path, monkeypatch, nothing_left_running):
+    """Not a second path: the command opens its cell with open_cell, and its record is that cell's."""
+    import ftacq.app.session as session
+    from ftacq.app.cli import main as ftacq_main
+
+    opened = []
+
+    def spy(*args, **kwargs):
+        opened.append(session_open(*args, **kwargs))
+        return opened[-1]
+
+    session_open = session.open_cell
+    monkeypatch.setattr(session, "open_cell", spy)
+    record = tmp_path / "monitor.csv"
+    assert ftacq_main(["monitor", "--sim", "--sim-still", "--seconds", "1", "--record", str(record),
+                       "--save", str(tmp_path / "monitor.rrd")]) == 0
+    assert len(opened) == 1 and opened[0].summary.samples == read_record(record).size > 0
