@@ -295,3 +295,16 @@ def test_ftacq_monitor_is_a_client_of_the_session(tmp_path, monkeypatch, nothing
     assert ftacq_main(["monitor", "--sim", "--sim-still", "--seconds", "1", "--record", str(record),
                        "--save", str(tmp_path / "monitor.rrd")]) == 0
     assert len(opened) == 1 and opened[0].summary.samples == read_record(record).size > 0
+
+
+def test_a_tare_inside_the_loop_hands_the_loop_every_read_it_made(tmp_path, nothing_left_running):
+    path = tmp_path / "run.csv"
+    yielded = tared = 0
+    with ftacq.open_cell(sim=True, record=path) as cell:
+        for batch in cell.batches(seconds=2 * SECONDS):
+            yielded += len(batch)
+            if not tared and yielded > 1000:
+                tared = cell.summary.samples
+                cell.tare(seconds=0.2)
+                assert cell.summary.samples > tared  # the tare read on its own
+    assert yielded == read_record(path).size
