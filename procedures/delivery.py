@@ -105,6 +105,11 @@ class BackgroundListener:
             if len(self._queue) == 1:
                 self._condition.notify()
 
+    def add(self, listener: Listener) -> None:
+        """Add a listener: it receives the events delivered from now on (any thread)."""
+        with self._condition:
+            self.listeners.append(listener)
+
     @property
     def first_error(self) -> Exception | None:
         """The first exception a listener raised, or None."""

@@ -118,7 +118,9 @@ class WrenchSamples:
     state when the samples were read, or None without a robot. ``sample_flange_pose`` (N, 6), when known, is the
     flange pose at each sample's own time (what the live compensation used: procedures/flange_orientation.py).
     ``uncompensated`` says a compensator had these samples and no robot state of their time: they stay raw (a
-    viewer must not compensate them with ``flange_pose``, a pose from another time).
+    viewer must not compensate them with ``flange_pose``, a pose from another time). ``sample_time_s`` (N,), when
+    known, is each sample's time on the host monotonic clock from the sensor's own clock
+    (:class:`ftacq.timebase.SampleClock`; the record's ``sample_time_s``); ``batch.time_s`` is when it arrived.
     """
 
     batch: WrenchBatch
@@ -127,6 +129,7 @@ class WrenchSamples:
     joint_positions_rad: np.ndarray | None = None
     sample_flange_pose: np.ndarray | None = None
     uncompensated: bool = False
+    sample_time_s: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.batch)
@@ -141,10 +144,12 @@ class WrenchSamples:
             raise ValueError("cannot join samples with and without a compensated wrench")
         compensated = np.concatenate([part.compensated for part in parts]) if with_compensation[0] else None
         poses = [part.sample_flange_pose for part in parts if part.sample_flange_pose is not None]
+        times = [part.sample_time_s for part in parts if part.sample_time_s is not None]
         return WrenchSamples(batch=WrenchBatch.concatenate([part.batch for part in parts]), compensated=compensated,
                              flange_pose=parts[-1].flange_pose, joint_positions_rad=parts[-1].joint_positions_rad,
                              sample_flange_pose=np.concatenate(poses) if len(poses) == len(parts) else None,
-                             uncompensated=any(part.uncompensated for part in parts))
+                             uncompensated=any(part.uncompensated for part in parts),
+                             sample_time_s=np.concatenate(times) if len(times) == len(parts) else None)
 
 
 @dataclass(frozen=True)
