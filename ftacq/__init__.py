@@ -5,7 +5,8 @@ IEEE Sensors J. 22(18), 2022 (doi 10.1109/JSEN.2021.3056943). Frame conventions:
 
 The core's public names (:data:`__all__`) are loaded lazily: ``import ftacq`` imports nothing heavy; the first
 use of a name imports its module. The devices are in the ``drivers`` package, the steps (plan, calibration
-procedure, monitor) in ``procedures``.
+procedure, monitor) in ``procedures``. ``open_cell`` (the live stream in Python: docs/python-api.md) is the
+application's (:mod:`ftacq.app.session`, which reads CELL.toml and starts the simulated cell), named here for users.
 """
 
 from __future__ import annotations
@@ -31,6 +32,10 @@ _LAZY = {
     "MOUNTS": "ftacq.mounts",
     "POSE_SETS": "ftacq.posesets",
     "FtacqError": "ftacq.errors",
+    "open_cell": "ftacq.app.session",
+    "SimOptions": "ftacq.app.session",
+    "Cell": "ftacq.app.session",
+    "Batch": "ftacq.app.session",
 }
 """Public name → the module defining it."""
 

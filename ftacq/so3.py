@@ -30,8 +30,8 @@ def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
 
 def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """Return rotation vectors (…, 3), angle in [0, π], of rotation matrices (…, 3, 3): vectorised (axis·sin θ from
-    the skew part, scaled by θ / sin θ); only the angles within 1e-4 rad of π (where sin θ vanishes) take their axis
-    from the symmetric part, one matrix at a time."""
+    the skew part, scaled by θ / sin θ); the angles within 1e-4 rad of π (where sin θ vanishes: a tool pointing down)
+    take their axis from the symmetric part, also batched."""
     rotation = np.asarray(rotation, dtype=float)
     r = rotation.reshape(-1, 3, 3)
     cos_theta = np.clip((np.trace(r, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
@@ -40,14 +40,18 @@ def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
     sin_theta = np.sin(theta)
     scale = np.divide(theta, sin_theta, out=np.ones_like(theta), where=theta >= 1e-6)
     out = axis_sin * scale[:, None]
-    for i in np.flatnonzero(theta >= np.pi - 1e-4):  # near π: axis from the symmetric part, sign from the skew part
-        m = r[i]
-        outer = ((m + m.T) / 2.0 - cos_theta[i] * np.eye(3)) / (1.0 - cos_theta[i])  # axis axisᵀ
-        j = int(np.argmax(np.diag(outer)))
-        axis = outer[:, j] / np.sqrt(max(outer[j, j], 1e-300))
-        if axis @ axis_sin[i] < 0:
-            axis = -axis
-        out[i] = axis * theta[i]
+    near = np.flatnonzero(theta >= np.pi - 1e-4)
+    if near.size:  # near π: axis from the symmetric part (its largest diagonal's column), sign from the skew part
+        m = r[near]
+        c = cos_theta[near][:, None, None]
+        outer = ((m + np.swapaxes(m, 1, 2)) / 2.0 - c * np.eye(3)) / (1.0 - c)  # axis axisᵀ
+        diagonal = np.diagonal(outer, axis1=1, axis2=2)
+        j = np.argmax(diagonal, axis=1)
+        rows = np.arange(near.size)
+        axis = outer[rows, :, j] / np.sqrt(np.maximum(diagonal[rows, j], 1e-300))[:, None]
+        flip = np.einsum("ij,ij->i", axis, axis_sin[near]) < 0
+        axis[flip] *= -1.0
+        out[near] = axis * theta[near][:, None]
     return out.reshape(rotation.shape[:-2] + (3,))
 
 

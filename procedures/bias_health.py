@@ -17,6 +17,7 @@ never used.
 from __future__ import annotations
 
 import collections
+import threading
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -80,13 +81,37 @@ class DriftCompensator:
     still: StillDetector = field(default_factory=StillDetector)
     notices: list[HealthNotice] = field(default_factory=list)
     moving: Compensator | None = None
+    bias_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    """(6,) the biases' change since the calibration compensated with (live tares: :meth:`rebase`), N and N·m."""
+    still_now: bool = False
+    """Whether the arm was still while the last batch's samples were taken (the tracker's rule)."""
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
+    """Held while a batch is compensated and the tracker updated: another thread reading the tracker takes it."""
+
+    def __post_init__(self) -> None:
+        self._base = self.health.tracker.calibration  # what ``moving`` (or, without it, this) compensates with
 
     @property
     def calibration(self):
+        """The calibration in force: the one compensated with, its biases as the last live tare left them."""
         return self.health.tracker.calibration
+
+    def rebase(self, calibration) -> None:
+        """Use ``calibration``'s biases from now on (a live tare: the rest of the model is unchanged): they are
+        constants of both models, so subtracting their change from the residual is the same compensation. The drift
+        tracker restarts from them (just measured: age 0); ``auto_tare`` is kept."""
+        with self.lock:
+            self.bias_offset = (np.concatenate([calibration.force_bias, calibration.torque_bias])
+                                - np.concatenate([self._base.force_bias, self._base.torque_bias]))
+            self.health = BiasHealth(calibration, self.health.settings, age_s=0.0, auto_tare=self.health.auto_tare)
 
     def compensate(self, batch, robot) -> np.ndarray | None:
         """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one)."""
+        with self.lock:
+            return self._compensate(batch, robot)
+
+    def _compensate(self, batch, robot) -> np.ndarray | None:
+        self.still_now = False
         if robot is None:
             return None
         flange_R_base = rotation_from_rotvec(np.asarray(robot.flange_pose, dtype=float)[3:6]).T
@@ -98,13 +123,16 @@ class DriftCompensator:
             if at_samples is not None and len(at_samples) == len(residual):
                 flange_R_base = at_samples[-1]
         else:
-            residual = self.calibration.compensate(batch.wrench, flange_R_base)
+            residual = self._base.compensate(batch.wrench, flange_R_base)
+        if self.bias_offset.any():
+            residual -= self.bias_offset
         time_s = np.asarray(batch.time_s, dtype=float)
         still_over = getattr(self.moving, "still_over", None)
         if still_over is not None:  # still while the samples were taken (the states of their time)
             still = still_over(self.still.window_s, self.still.tolerance_rad)
         else:  # the newest joint angles read with the batches (an arm known to be still; tests)
             still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
+        self.still_now = bool(still)
         good = ~np.asarray(batch.saturated, dtype=bool)
         if still and not good.all():
             self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window

@@ -212,6 +212,14 @@ class Fanout:
         else:
             self.background.add(listener)
 
+    def close(self, timeout_s: float = CLOSE_TIMEOUT_S) -> None:
+        """Close the background thread (see :meth:`BackgroundListener.close`); direct listeners close themselves."""
+        self.background.close(timeout_s)
+
+    @property
+    def dropped_batches(self) -> int:
+        return self.background.dropped_batches
+
     @property
     def dropped_samples(self) -> int:
         return self.background.dropped_samples

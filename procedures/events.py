@@ -119,8 +119,8 @@ class WrenchSamples:
     flange pose at each sample's own time (what the live compensation used: procedures/flange_orientation.py).
     ``uncompensated`` says a compensator had these samples and no robot state of their time: they stay raw (a
     viewer must not compensate them with ``flange_pose``, a pose from another time). ``sample_time_s`` (N,), when
-    known, is each sample's time on the host monotonic clock from the sensor's own clock (the record's
-    ``sample_time_s``: :class:`ftacq.timebase.SampleClock`); ``batch.time_s`` is when it was received.
+    known, is each sample's time on the host monotonic clock from the sensor's own clock
+    (:class:`ftacq.timebase.SampleClock`; the record's ``sample_time_s``); ``batch.time_s`` is when it arrived.
     """
 
     batch: WrenchBatch

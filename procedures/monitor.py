@@ -14,7 +14,7 @@ lines for the operator as :class:`~procedures.events.Notice`. The application ch
 Acquisition never waits for a listener: events go through a :class:`procedures.delivery.BackgroundListener`,
 whose bounded queue drops (and counts) samples when a viewer is slow: frames on screen are lost, never samples.
 The optional CSV recorder gets every batch, with each sample's time on the host clock from the sensor's own clock
-(:class:`ftacq.dynamics.clock.SampleClock`, shared with a dynamic compensator) and the mapping's uncertainty. The
+(:class:`ftacq.timebase.SampleClock`, shared with a dynamic compensator) and the mapping's uncertainty. The
 robot's state is read by its own reader at its own rate (:class:`drivers.ur.URStateReader`); the monitor only asks
 it for the latest joint angles and flange pose.
 Ctrl-C ends the run cleanly: threads joined, file finished. Run from the main thread, :meth:`LiveMonitor.run` turns
@@ -34,10 +34,13 @@ Two seams, for what is added to the monitor without touching its loop:
   a batch it leaves uncompensated (None, with a robot) is published flagged ``uncompensated``;
 - :class:`HealthCheck` objects see every read (compensated) in the acquisition thread and return notices
   (warnings are also kept in :attr:`MonitorSummary.warnings`).
+
+(Over 500 lines: the loop, its record writer and its Ctrl-C handling share the run's state and are read together.)
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import signal
@@ -46,13 +49,13 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, Sequence
+from typing import TYPE_CHECKING, Iterator, Protocol, Sequence
 
 import numpy as np
 
 from drivers.robot import RobotStateSource
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
-from ftacq.dynamics.clock import SampleClock
+from ftacq.timebase import SampleClock
 from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
 from procedures import events
@@ -143,7 +146,7 @@ class MonitorSummary:
         listener_error: the first listener failure ("Type: message"), if any (acquisition went on).
         warnings: the WARN/ERROR notices of the health checks and of the robot state stream.
         clock_rate_error, clock_uncertainty_s: the sensor clock's mapping at the end of the run (s/s, s; 0 and inf
-            without a device clock): :class:`ftacq.dynamics.clock.DeviceClock`.
+            without a device clock): :class:`ftacq.timebase.DeviceClock`.
     """
 
     samples: int = 0
@@ -192,7 +195,7 @@ at the sample's time when the compensator knows it (``sample_flange_pose``: the 
 else the one read with the batch (m, rad; base frame, rotation vector; empty without a robot); the raw sensor-frame wrench
 (N, N·m); the compensated contact wrench (empty without a calibration, and for a batch left uncompensated: no
 robot state near its samples); the device's sequence number, status word and saturation flag; the sample's time
-on the host clock from the device's own clock (s, monotonic clock: :class:`ftacq.dynamics.clock.SampleClock`; the
+on the host clock from the device's own clock (s, monotonic clock: :class:`ftacq.timebase.SampleClock`; the
 receive time for a sensor without a sample clock), its time on the device's clock (s; empty without one) and the
 mapping's uncertainty when the batch was read (s; empty without a device clock). The pose and wrench columns are named as in a pose record (:mod:`ftacq.posefile`), so
 ``ftacq compensate`` reads a monitor record as it is."""
@@ -200,14 +203,14 @@ mapping's uncertainty when the batch was read (s; empty without a device clock).
 _STOP = object()
 
 
-def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event) -> bool:
+def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event, warn: bool = True) -> bool:
     """Make the first SIGINT set ``interrupted`` and ``stop`` (and put Python's default handler back, so that a
     second one raises KeyboardInterrupt at once). Only from the main thread and while SIGINT has Python's default
     handler (an ignored SIGINT stays ignored, a custom handler is kept); return whether it was installed."""
     if threading.current_thread() is not threading.main_thread():
         return False
     current = signal.getsignal(signal.SIGINT)
-    if current is signal.SIG_IGN:  # inherited: a shell without job control starts `cmd &` (and nohup) so
+    if current is signal.SIG_IGN and warn:  # inherited: a shell without job control starts `cmd &` (and nohup) so
         log.warning("Ctrl-C (SIGINT) is ignored in this process (started in the background?): stop it with "
                     "SIGTERM (kill PID)")
     if current is not signal.default_int_handler:
@@ -220,6 +223,22 @@ def _stop_on_sigint(stop: threading.Event, interrupted: threading.Event) -> bool
 
     signal.signal(signal.SIGINT, handler)
     return True
+
+
+@contextlib.contextmanager
+def ctrl_c_after() -> Iterator[None]:
+    """Run one read with the first Ctrl-C held until its end (main thread, Python's SIGINT handler; a no-op
+    elsewhere): the read is published and recorded alike, then KeyboardInterrupt is raised. A second Ctrl-C
+    raises at once. For a caller that reads one batch at a time (:class:`ftacq.app.session.Cell`)."""
+    interrupted = threading.Event()
+    caught = _stop_on_sigint(threading.Event(), interrupted, warn=False)
+    try:
+        yield
+    finally:
+        if caught and signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+    if interrupted.is_set():
+        raise KeyboardInterrupt
 
 
 class _Recorder:
@@ -311,8 +330,13 @@ class LiveMonitor:
         record_every: write only every k-th sample to it (:class:`ftacq.decimation.Decimator`; 1 = every one).
         strict: re-raise a listener's failure at the end of :meth:`run` (tests); live, it is only reported.
         queue_batches, listener_period_s: the BackgroundListener's queue bound and delivery period.
-        sample_clock: the samples' :class:`~ftacq.dynamics.clock.SampleClock` (their times on the host clock, for
+        sample_clock: the samples' :class:`~ftacq.timebase.SampleClock` (their times on the host clock, for
             the record); share it with a dynamic compensator so that each batch is observed once. Default: its own.
+        sample_poses: give every published batch the flange pose at each sample's time when the compensator
+            knows it (``WrenchSamples.sample_flange_pose``; always with a record).
+
+    One run: :meth:`run`, or :meth:`start`, then :meth:`step` or :meth:`stream` from one thread at a time, then
+    :meth:`finish` (what :class:`ftacq.app.session.Cell` does, for ``ftacq monitor`` and the Python API).
     """
 
     sensor: ForceTorqueSensor
@@ -332,83 +356,138 @@ class LiveMonitor:
     record_every: int = 1
     sample_clock: SampleClock = field(default_factory=SampleClock)
     switch_interval_s: float = SWITCH_INTERVAL_S
+    sample_poses: bool = False
+    _summary: MonitorSummary | None = field(default=None, init=False, repr=False)
+    _publisher: Fanout = field(default=None, init=False, repr=False)  # type: ignore[assignment]
+    _recorder: _Recorder | None = field(default=None, init=False, repr=False)
+    _finished: bool = field(default=False, init=False, repr=False)
 
     def run(self, duration_s: float | None = None, stop: threading.Event | None = None) -> MonitorSummary:
         """Stream until ``duration_s`` seconds have passed, ``stop`` is set, or Ctrl-C; return the summary.
 
-        Sensor errors propagate after the threads are closed (the CSV keeps what was recorded). From the main
-        thread, Ctrl-C stops the loop between two reads (see the module docstring).
+        :meth:`start`, :meth:`stream`, :meth:`finish`. Sensor errors propagate after the threads are closed (the CSV
+        keeps what was recorded). From the main thread, Ctrl-C stops the loop between two reads (see the module
+        docstring).
         """
-        stop = stop or threading.Event()
-        interrupted = threading.Event()
-        summary = MonitorSummary(record_path=self.record_path)
-        fanout = Fanout(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
-        publisher = fanout.background
-        recorder = (_Recorder(self.record_path, self.record_header, self.record_every)
-                    if self.record_path is not None else None)
-        if recorder is not None:
-            recorder.start()
-        self._publisher = fanout
+        self.start()
+        try:
+            self.stream(duration_s, stop)
+        finally:
+            summary = self.finish()
+        if self._publisher.first_error is not None and self.strict:
+            raise self._publisher.first_error
+        return summary
+
+    def start(self) -> None:
+        """Start the listeners' and the record's threads and shorten the switch interval (once: :meth:`finish`
+        ends what this started). Reads (:meth:`step`) may follow from any one thread at a time."""
+        if self._summary is not None:
+            return
+        self._summary = MonitorSummary(record_path=self.record_path)
+        self._publisher = Fanout(self.listeners, max_queued=self.queue_batches, period_s=self.listener_period_s)
+        self._recorder = _Recorder(self.record_path, self.record_header, self.record_every) if self.record_path is not None else None
+        if self._recorder is not None:
+            self._recorder.start()
         self._last_robot_s = self._last_status_s = -np.inf
         self._robot_connected = True
-        start_s = time.monotonic()
-        deadline_s = None if duration_s is None else start_s + duration_s
+        self._start_s = self._next_read_s = time.monotonic()
+        self._switch_interval_s = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval_s, self.switch_interval_s))
+
+    @property
+    def started(self) -> bool:
+        """Whether :meth:`start` has run."""
+        return self._summary is not None
+
+    @property
+    def summary(self) -> MonitorSummary:
+        """The run's counts so far (complete after :meth:`finish`)."""
+        if self._summary is None:
+            raise RuntimeError("the monitor has not started")
+        return self._summary
+
+    def add_listener(self, listener: events.Listener) -> None:
+        """Add a listener; once started, it receives the events published from then on."""
+        self.listeners = [*self.listeners, listener]
+        if self._publisher is not None:
+            self._publisher.add(listener)
+
+    def stream(self, duration_s: float | None = None, stop: threading.Event | None = None) -> None:
+        """Read (:meth:`step`) until ``duration_s`` seconds have passed, ``stop`` is set, or Ctrl-C (then
+        ``summary.interrupted``); from the main thread the first Ctrl-C ends the loop between two reads."""
+        summary = self.summary
+        stop = stop or threading.Event()
+        interrupted = threading.Event()
+        deadline_s = None if duration_s is None else time.monotonic() + duration_s
         sigint_caught = _stop_on_sigint(stop, interrupted)
-        switch_interval_s = sys.getswitchinterval()
-        sys.setswitchinterval(min(switch_interval_s, self.switch_interval_s))
         try:
-            next_read_s = start_s
             while not stop.is_set():
-                now_s = time.monotonic()
-                if deadline_s is not None and now_s >= deadline_s:
+                if deadline_s is not None and time.monotonic() >= deadline_s:
                     break
-                if next_read_s > now_s:  # pace reads: the driver buffers, fewer and larger batches cost less
-                    stop.wait(next_read_s - now_s)
-                next_read_s = max(next_read_s + self.batch_period_s, time.monotonic())
-                timeout_s = self.read_timeout_s
-                if deadline_s is not None:
-                    timeout_s = max(0.0, min(timeout_s, deadline_s - time.monotonic()))
-                try:
-                    batch = self.sensor.read(timeout_s=timeout_s)
-                except DeviceTimeoutError:
-                    summary.timeouts += 1
-                    continue
-                if len(batch) == 0:
-                    continue
-                sample_time_s = self.sample_clock.host_times(batch.time_s, batch.device_time_s)
-                samples = self._process(batch, sample_time_s)
-                self._count(summary, samples)
-                fanout(samples)
-                if recorder is not None:
-                    recorder.put(samples, sample_time_s, self.sample_clock.uncertainty_s)
-                self._run_checks(samples, summary)
-                self._publish_periodic(samples, summary)
+                self.step(deadline_s, stop)
         except KeyboardInterrupt:
             summary.interrupted = True
         finally:
-            sys.setswitchinterval(switch_interval_s)
             if sigint_caught and signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
                 signal.signal(signal.SIGINT, signal.default_int_handler)
             summary.interrupted = summary.interrupted or interrupted.is_set()
-            summary.duration_s = time.monotonic() - start_s
-            summary.clock_rate_error = self.sample_clock.rate_error
-            summary.clock_uncertainty_s = self.sample_clock.uncertainty_s
-            try:
-                health = self.sensor.health()
-                summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
-                summary.socket_drops, summary.ring_overflows = int(health.socket_drops), int(health.ring_overflows)
-                if summary.last_sample_s is not None:
-                    fanout(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
-            except FtacqError:
-                log.warning("could not read the sensor's health at the end of the run", exc_info=True)
-            publisher.close(THREAD_JOIN_TIMEOUT_S)
-            summary.dropped_batches, summary.dropped_samples = publisher.dropped_batches, publisher.dropped_samples
-            if fanout.first_error is not None:
-                summary.listener_error = f"{type(fanout.first_error).__name__}: {fanout.first_error}"
-            if recorder is not None:
-                recorder.close()
-        if fanout.first_error is not None and self.strict:
-            raise fanout.first_error
+
+    def step(self, deadline_s: float | None = None, stop: threading.Event | None = None
+             ) -> events.WrenchSamples | None:
+        """Read the sensor once (paced: at most every ``batch_period_s``), then compensate, publish, record and
+        check what it returned; return those samples, or None when nothing came before the read's timeout (or
+        ``deadline_s``, monotonic clock, s). ``stop`` cuts the pacing wait short."""
+        summary = self.summary
+        now_s = time.monotonic()
+        if self._next_read_s > now_s:  # pace reads: the driver buffers, fewer and larger batches cost less
+            (stop or threading.Event()).wait(self._next_read_s - now_s)
+        self._next_read_s = max(self._next_read_s + self.batch_period_s, time.monotonic())
+        timeout_s = self.read_timeout_s
+        if deadline_s is not None:
+            timeout_s = max(0.0, min(timeout_s, deadline_s - time.monotonic()))
+        try:
+            batch = self.sensor.read(timeout_s=timeout_s)
+        except DeviceTimeoutError:
+            summary.timeouts += 1
+            return None
+        if len(batch) == 0:
+            return None
+        sample_time_s = self.sample_clock.host_times(batch.time_s, batch.device_time_s)
+        samples = self._process(batch, sample_time_s)
+        self._count(summary, samples)
+        self._publisher(samples)
+        if self._recorder is not None:
+            self._recorder.put(samples, sample_time_s, self.sample_clock.uncertainty_s)
+        self._run_checks(samples, summary)
+        self._publish_periodic(samples, summary)
+        return samples
+
+    def finish(self) -> MonitorSummary:
+        """Publish the last status, deliver what is queued, finish the record and join both threads, give the
+        switch interval back; return the summary (safe twice). Re-raises the record's write error."""
+        summary = self.summary
+        if self._finished:
+            return summary
+        self._finished = True
+        publisher = self._publisher
+        sys.setswitchinterval(self._switch_interval_s)
+        summary.duration_s = time.monotonic() - self._start_s
+        summary.clock_rate_error = self.sample_clock.rate_error
+        summary.clock_uncertainty_s = self.sample_clock.uncertainty_s
+        try:
+            health = self.sensor.health()
+            summary.lost, summary.driver_rate_hz = int(health.lost), float(health.rate_hz)
+            summary.socket_drops, summary.ring_overflows = int(health.socket_drops), int(health.ring_overflows)
+            if summary.last_sample_s is not None:
+                publisher(events.SensorStatus(summary.last_sample_s, health, publisher.dropped_samples))
+        except FtacqError:
+            log.warning("could not read the sensor's health at the end of the run", exc_info=True)
+        publisher.close(THREAD_JOIN_TIMEOUT_S)
+        summary.dropped_batches, summary.dropped_samples = publisher.dropped_batches, publisher.dropped_samples
+        if publisher.first_error is not None:
+            summary.listener_error = f"{type(publisher.first_error).__name__}: {publisher.first_error}"
+        if self._recorder is not None:
+            self._recorder.close()
         return summary
 
     # -- steps of the acquisition loop ------------------------------------------------------------------------
@@ -420,17 +499,18 @@ class LiveMonitor:
                                  joint_positions_rad=np.asarray(self.robot.joint_positions(), dtype=float),
                                  flange_pose=np.asarray(self.robot.flange_pose(), dtype=float))
 
-    def _process(self, batch: WrenchBatch, sample_time_s: np.ndarray | None = None) -> events.WrenchSamples:
+    def _process(self, batch: WrenchBatch, sample_time_s: np.ndarray) -> events.WrenchSamples:
         robot = self._robot_state(float(batch.time_s[-1]))
         compensated = None if self.compensator is None else self.compensator.compensate(batch, robot)
         pose_at_samples = getattr(self.compensator, "sample_flange_pose", None)
         return events.WrenchSamples(batch=batch, compensated=compensated,
                                     flange_pose=None if robot is None else robot.flange_pose,
                                     joint_positions_rad=None if robot is None else robot.joint_positions_rad,
-                                    sample_flange_pose=pose_at_samples() if (
-                                        pose_at_samples is not None and self.record_path is not None) else None,
+                                    sample_flange_pose=pose_at_samples() if pose_at_samples is not None and (
+                                        self.record_path is not None or self.sample_poses) else None,
+                                    sample_time_s=sample_time_s,
                                     uncompensated=self.compensator is not None and robot is not None
-                                    and compensated is None, sample_time_s=sample_time_s)
+                                    and compensated is None)
 
     @staticmethod
     def _count(summary: MonitorSummary, samples: events.WrenchSamples) -> None:
@@ -483,4 +563,4 @@ class LiveMonitor:
 
 
 __all__ = ["LiveMonitor", "MonitorSummary", "Compensator", "GravityCompensator", "HealthCheck", "RECORD_COLUMNS",
-           "flange_R_base_from_pose"]
+           "flange_R_base_from_pose", "ctrl_c_after"]

@@ -7,7 +7,7 @@ every batch (the bag: an unbounded queue) and at once (the topics: period 0), ne
 What they send (ROS names under the node's namespace, docs/ros2.md):
 
 - ``wrench_raw``, ``wrench_compensated`` (``geometry_msgs/msg/WrenchStamped``): the sensor-frame wrench [N, N·m] as
-  read, and the contact wrench after compensation (and the tare, :class:`OffsetTare`); ``header.frame_id`` the sensor
+  read, and the contact wrench after compensation; ``header.frame_id`` the sensor
   frame's name; ``header.stamp`` the sample's time: its time on the host monotonic clock (the record's
   ``sample_time_s``) + (UNIX − monotonic) taken once at the start (:class:`StampClock`), i.e. ROS time on this host.
   At ``rate_hz`` (default 1 kHz) each message is the mean of the samples in one window [k/rate, (k+1)/rate) of
@@ -22,7 +22,6 @@ What they send (ROS names under the node's namespace, docs/ros2.md):
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Callable
 
@@ -42,8 +41,6 @@ UR_JOINT_NAMES = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "w
 RELIABLE_EVERY_SAMPLE_HZ = 8000
 """With reliable QoS at every sample, the wrench writers keep this many messages (1 s of a 7 kHz Net F/T) for a
 subscriber that falls behind."""
-TARE_WINDOW_S = 0.1
-"""A tare zeroes the mean compensated wrench of this much sample time before the request, s."""
 
 
 class StampClock:
@@ -98,51 +95,6 @@ class WindowMean:
 _NO_TIMES, _NO_VALUES = np.empty(0), np.empty((0, 6))
 
 
-class OffsetTare:
-    """The compensated stream's tare (the monitor's Compensator seam, wrapping the live compensator).
-
-    :meth:`tare` (from any thread) takes the mean compensated wrench over the last :data:`TARE_WINDOW_S` of samples
-    compensated before the request and subtracts it from every later compensated sample: the contact wrench reads
-    zero with what touches the tool now (a task's start). The raw stream, the calibration and the drift tracker are
-    untouched. Returns the offset applied (6,) [N, N·m].
-    """
-
-    def __init__(self, inner, window_s: float = TARE_WINDOW_S) -> None:
-        self.inner = inner
-        self.window_s = float(window_s)
-        self.offset = np.zeros(6)
-        self.tares = 0
-        self._recent: list[tuple[np.ndarray, np.ndarray]] = []
-        self._lock = threading.Lock()
-
-    def __getattr__(self, name: str):  # sample_flange_pose, still_over, …: the wrapped compensator's
-        return getattr(self.__dict__["inner"], name)
-
-    def compensate(self, batch, robot) -> np.ndarray | None:
-        compensated = self.inner.compensate(batch, robot)
-        if compensated is None:
-            return None
-        time_s = np.asarray(batch.time_s, dtype=float)
-        with self._lock:
-            self._recent.append((time_s, np.array(compensated)))
-            while len(self._recent) > 1 and self._recent[1][0][0] <= time_s[-1] - self.window_s:
-                self._recent.pop(0)
-            return compensated - self.offset
-
-    def tare(self) -> np.ndarray:
-        """Zero the compensated wrench now; return the offset applied (6,) [N, N·m] (ValueError: nothing
-        compensated yet)."""
-        with self._lock:
-            if not self._recent:
-                raise ValueError("no compensated samples yet (no calibration, or no robot state)")
-            end_s = self._recent[-1][0][-1]
-            time_s = np.concatenate([t for t, _ in self._recent])
-            values = np.concatenate([v for _, v in self._recent])
-            self.offset = values[time_s > end_s - self.window_s].mean(axis=0)
-            self.tares += 1
-            return self.offset.copy()
-
-
 def _sample_times(samples: events.WrenchSamples) -> np.ndarray:
     return samples.sample_time_s if samples.sample_time_s is not None else np.asarray(samples.batch.time_s)
 
@@ -187,14 +139,17 @@ class Ros2Publisher:
         frame_id: the sensor frame's name in ``header.frame_id``.
         rate_hz: wrench messages per second (window means), 0 for every sample.
         reliable: reliable wrench topics (default: ROS 2's sensor-data QoS, best effort).
-        calibration_json: the calibration in force (latched on ``calibration``), or None.
-        reference_bias: the calibration's biases (6,) [N, N·m], for ``bias``.
-        tare: called by the ``tare`` service (std_srvs/srv/Trigger); returns the offset applied (6,).
+        calibration_json: () → the calibration in force as JSON (latched on ``calibration``, again after a tare), or
+            None (no calibration).
+        reference_bias: () → the calibration's biases now (6,) [N, N·m], for ``bias``.
+        tare: called by the ``tare`` service (std_srvs/srv/Trigger) in the service's thread: the session's live tare
+            (procedures/live_tare.py); returns the biases' change (6,) [N, N·m] or raises (the answer says why).
         clock: the stamps' :class:`StampClock` (share one with a :class:`BagRecorder`: identical stamps).
     """
 
     def __init__(self, node, frame_id: str, rate_hz: float = DEFAULT_RATE_HZ, reliable: bool = False,
-                 calibration_json: str | None = None, reference_bias: np.ndarray | None = None,
+                 calibration_json: Callable[[], str | None] = lambda: None,
+                 reference_bias: Callable[[], np.ndarray] = lambda: np.zeros(6),
                  tare: Callable[[], np.ndarray] | None = None, clock: StampClock | None = None) -> None:
         from drivers.ros2 import node as dds
         from drivers.ros2.messages import String, WrenchStamped
@@ -208,10 +163,12 @@ class Ros2Publisher:
                         for name in ("wrench_raw", "wrench_compensated")}
         for name in ("bias", "bias_sigma"):
             self.writers[name] = node.writer(name, WRENCH_TYPE, WrenchStamped, dds.RELIABLE)
-        self.reference_bias = np.zeros(6) if reference_bias is None else np.asarray(reference_bias, dtype=float)
+        self.reference_bias = reference_bias
         self.sent = dict.fromkeys(self.writers, 0)
-        if calibration_json is not None:
-            node.writer("calibration", STRING_TYPE, String, dds.LATCHED).write(String(data=calibration_json))
+        self.tares = 0
+        self.calibration_json = calibration_json
+        self._calibration_writer = node.writer("calibration", STRING_TYPE, String, dds.LATCHED)
+        self._publish_calibration()
         self._tare = tare
         if tare is not None:
             node.trigger_service("tare", self._answer_tare)
@@ -220,7 +177,14 @@ class Ros2Publisher:
         if isinstance(event, events.WrenchSamples):
             self._send(self.streams.messages(event))
         elif isinstance(event, events.BiasDrift):
-            self._send(bias_messages(event, self.reference_bias, self.clock, self.streams.encoder))
+            self._send(bias_messages(event, self.reference_bias(), self.clock, self.streams.encoder))
+
+    def _publish_calibration(self) -> None:
+        from drivers.ros2.messages import String
+
+        text = self.calibration_json()
+        if text is not None:
+            self._calibration_writer.write(String(data=text))
 
     def _send(self, messages: list[tuple[str, list[bytes], np.ndarray]]) -> None:
         for name, data, stamp_ns in messages:
@@ -230,13 +194,14 @@ class Ros2Publisher:
             self.sent[name] += len(data)
 
     def _answer_tare(self) -> tuple[bool, str]:
+        """The ``tare`` service: tare, publish the calibration now in force, answer with the biases' change (an
+        error raised here becomes ``success: false`` with its text: drivers.ros2.node.TriggerServer)."""
         assert self._tare is not None
-        try:
-            offset = self._tare()
-        except ValueError as error:
-            return False, f"not tared: {error}"
-        return True, ("tared: offset applied F [" + ", ".join(f"{v:+.4f}" for v in offset[:3]) + "] N, T ["
-                      + ", ".join(f"{v:+.5f}" for v in offset[3:]) + "] N·m")
+        change = np.asarray(self._tare(), dtype=float)
+        self.tares += 1
+        self._publish_calibration()
+        return True, ("tared: biases changed by F [" + ", ".join(f"{v:+.4f}" for v in change[:3]) + "] N, T ["
+                      + ", ".join(f"{v:+.5f}" for v in change[3:]) + "] N·m")
 
 
 class BagRecorder:
@@ -245,7 +210,7 @@ class BagRecorder:
     after the stream ends to finish the file."""
 
     def __init__(self, path, namespace: str, frame_id: str, rate_hz: float = DEFAULT_RATE_HZ,
-                 calibration_json: str | None = None, reference_bias: np.ndarray | None = None,
+                 calibration_json: str | None = None, reference_bias: Callable[[], np.ndarray] = lambda: np.zeros(6),
                  joint_names: tuple[str, ...] = UR_JOINT_NAMES, metadata: dict[str, str] | None = None,
                  clock: StampClock | None = None) -> None:
         from drivers.ros2.bag import BagWriter
@@ -254,7 +219,7 @@ class BagRecorder:
         self.namespace = normalize_namespace(namespace)
         self.clock = clock or StampClock()
         self.streams = _WrenchStreams(frame_id, rate_hz, self.clock)
-        self.reference_bias = np.zeros(6) if reference_bias is None else np.asarray(reference_bias, dtype=float)
+        self.reference_bias = reference_bias
         self.joint_names = list(joint_names)
         self.bag = BagWriter(path)
         if metadata:
@@ -274,7 +239,7 @@ class BagRecorder:
         if isinstance(event, events.WrenchSamples):
             self._write(self.streams.messages(event))
         elif isinstance(event, events.BiasDrift):
-            self._write(bias_messages(event, self.reference_bias, self.clock, self.streams.encoder))
+            self._write(bias_messages(event, self.reference_bias(), self.clock, self.streams.encoder))
         elif isinstance(event, events.RobotState):
             from drivers.ros2.messages import Header, JointState, Time
 
@@ -292,5 +257,5 @@ class BagRecorder:
         self.bag.close()
 
 
-__all__ = ["Ros2Publisher", "BagRecorder", "OffsetTare", "WindowMean", "StampClock", "DEFAULT_RATE_HZ",
-           "UR_JOINT_NAMES", "TARE_WINDOW_S"]
+__all__ = ["Ros2Publisher", "BagRecorder", "WindowMean", "StampClock", "DEFAULT_RATE_HZ",
+           "UR_JOINT_NAMES"]

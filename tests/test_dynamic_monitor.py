@@ -60,7 +60,7 @@ def test_monitor_removes_the_inertial_wrench_while_the_technician_jogs(tmp_path,
     compensates statically while saying "dynamic" fails (ratio ≈ 1, or no dynamic reads). A loaded machine only
     moves reads into the static fallback, left out of the comparison, and makes the run longer: it stops once
     ENOUGH samples of the inertial wrench were compared (at most 60 s)."""
-    from ftacq.app.commands import monitor as command
+    from ftacq.app import session, sim_technician
     from procedures.monitor import LiveMonitor
 
     truth = CellTruth()
@@ -74,7 +74,7 @@ def test_monitor_removes_the_inertial_wrench_while_the_technician_jogs(tmp_path,
     errors: dict[str, list[np.ndarray]] = {name: [] for name in parts}  # (dynamic, static) error rows per part
     counted = dict.fromkeys(parts, 0)
     done = threading.Event()
-    choose = command._choose_compensator
+    choose = session._live_compensator
 
     def observed(*args, **kwargs):
         live = choose(*args, **kwargs)
@@ -105,11 +105,11 @@ def test_monitor_removes_the_inertial_wrench_while_the_technician_jogs(tmp_path,
         live.compensate = compensate_and_keep
         return live
 
-    run = LiveMonitor.run
-    monkeypatch.setattr(command, "_choose_compensator", observed)
-    monkeypatch.setattr(LiveMonitor, "run", lambda self, duration_s=None, stop=None: run(self, duration_s, done))
-    monkeypatch.setattr(command, "SIM_CONTACT_WRENCH", np.zeros(6))  # the technician never pushes: no contact
-    monkeypatch.setattr(command, "SIM_PHASE_S", 3600.0)  # and jogs all along, however long the start-up takes
+    stream = LiveMonitor.stream
+    monkeypatch.setattr(session, "_live_compensator", observed)
+    monkeypatch.setattr(LiveMonitor, "stream", lambda self, duration_s=None, stop=None: stream(self, duration_s, done))
+    monkeypatch.setattr(sim_technician, "SIM_CONTACT_WRENCH", np.zeros(6))  # the technician never pushes: no contact
+    monkeypatch.setattr(sim_technician, "SIM_PHASE_S", 3600.0)  # and jogs all along, however long the start-up takes
     assert ftacq_main(["monitor", "--sim", "--calibration", str(path), "--seconds", "60",
                        "--save", str(tmp_path / "monitor.rrd")]) == 0
     for name in parts:

@@ -32,7 +32,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from drivers.ros2.cdr import WrenchStampedEncoder  # noqa: E402
 from drivers.ros2.messages import DEFINITIONS, Header, Time, Vector3, Wrench, WrenchStamped  # noqa: E402
-from procedures.ros2_stream import OffsetTare, WindowMean  # noqa: E402
+from procedures.ros2_stream import WindowMean  # noqa: E402
 
 SUBSCRIBER = Path(__file__).with_name("ros2_subscriber.py")
 TYPESTORES = (Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY)
@@ -107,27 +107,6 @@ def test_window_stamps_never_go_back():
         stamps = np.concatenate([t1, t2])
         assert np.all(np.diff(stamps) > 0) if period_s else np.all(np.diff(stamps) >= 0)
         np.testing.assert_allclose(np.concatenate([m1, m2]), 1.0)
-
-
-def test_live_tare_zeroes_the_recent_mean_and_keeps_it():
-    class Constant:
-        def compensate(self, batch, robot):
-            return batch.wrench.copy()
-
-    class Batch:
-        def __init__(self, t, wrench):
-            self.time_s, self.wrench = t, wrench
-
-    tare = OffsetTare(Constant(), window_s=0.1)
-    with pytest.raises(ValueError):
-        tare.tare()
-    for k in range(30):  # 3 s of 10 ms batches; the wrench steps from 1 to 3 N at 2.9 s
-        t = k * 0.1 + np.arange(10) * 0.01
-        tare.compensate(Batch(t, np.where(t[:, None] >= 2.9, 3.0, 1.0) * np.ones((10, 6))), None)
-    offset = tare.tare()
-    np.testing.assert_allclose(offset, 3.0)  # the last 0.1 s only
-    out = tare.compensate(Batch(np.array([3.0, 3.01]), np.full((2, 6), 3.5)), None)
-    np.testing.assert_allclose(out, 0.5)
 
 
 # ------------------------------------------------------------------------------------------------ end to end
@@ -213,8 +192,11 @@ def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_pat
     reply = received["tare_replies"][0]
     assert reply["success"], reply
     assert (reply["guid"], reply["seq"]) == (received["request_guid"], 1)
-    offset = re.fullmatch(r"tared: offset applied F \[(.*)\] N, T \[(.*)\] N·m", reply["message"])
-    assert offset is not None and len((offset[1] + ", " + offset[2]).split(", ")) == 6
+    change = re.fullmatch(r"tared: biases changed by F \[(.*)\] N, T \[(.*)\] N·m", reply["message"])
+    assert change is not None and len((change[1] + ", " + change[2]).split(", ")) == 6
+    # the calibration in force after the tare was latched again: its biases moved by the change announced
+    before, after = (json.loads(entry["data"]) for entry in (received["calibration"][0], received["calibration"][-1]))
+    assert len(received["calibration"]) == 2 and before != after
 
     # the bag: ROS 2 profile, full definitions; two independent readers agree with each other and with the wire
     with open(bag, "rb") as handle:

@@ -33,21 +33,24 @@ def add_budget_args(parser: argparse.ArgumentParser) -> None:
                              "1 in 5 at 7 kHz; 0 = every sample, about 4 GB/h); a live viewer gets every sample")
 
 
-def apply_budget(args: argparse.Namespace, sensor_rate_hz: float, dashboard: Any, saved: bool) -> tuple[int, list[str]]:
-    """Thin the saved dashboard recording (``saved``: ``dashboard`` writes to a file) and return (k for the CSV
-    record, the lines saying what each file keeps and its size per hour)."""
-    lines = []
-    record_every = 1
-    if getattr(args, "record", None) is not None:
-        record_every = every_for(sensor_rate_hz, CSV_BYTES_PER_SAMPLE, args.record_rate)
-        lines.append(f"--record {args.record}: {size_text(sensor_rate_hz, record_every, CSV_BYTES_PER_SAMPLE)}"
-                     + ("" if args.record_rate is not None else " (--record-rate to change)"))
-    if saved:
-        save_every = every_for(sensor_rate_hz, RRD_BYTES_PER_SAMPLE, getattr(args, "save_rate", None))
-        dashboard.thin_wrenches(save_every)
-        lines.append(f"--save {getattr(args, 'save', None) or '(the saved recording)'}: {size_text(sensor_rate_hz, save_every, RRD_BYTES_PER_SAMPLE)}"
-                     + ("" if getattr(args, "save_rate", None) is not None else " (--save-rate to change)"))
-    return record_every, lines
+def record_budget(sensor_rate_hz: float, record_rate_hz: float | None) -> tuple[int, str]:
+    """Return (k: keep every k-th sample of the CSV record, the line saying what it keeps and its size per hour)
+    for ``record_rate_hz`` (None: as many as fit the budget; 0: every sample)."""
+    every = every_for(sensor_rate_hz, CSV_BYTES_PER_SAMPLE, record_rate_hz)
+    return every, (size_text(sensor_rate_hz, every, CSV_BYTES_PER_SAMPLE)
+                   + ("" if record_rate_hz is not None else " (--record-rate to change)"))
 
 
-__all__ = ["add_budget_args", "apply_budget"]
+def apply_save_budget(args: argparse.Namespace, sensor_rate_hz: float, dashboard: Any, saved: bool) -> list[str]:
+    """Thin the saved dashboard recording (``saved``: ``dashboard`` writes to a file); return the line saying what
+    it keeps and its size per hour (none when nothing is saved)."""
+    if not saved:
+        return []
+    save_every = every_for(sensor_rate_hz, RRD_BYTES_PER_SAMPLE, getattr(args, "save_rate", None))
+    dashboard.thin_wrenches(save_every)
+    return [f"--save {getattr(args, 'save', None) or '(the saved recording)'}: "
+            f"{size_text(sensor_rate_hz, save_every, RRD_BYTES_PER_SAMPLE)}"
+            + ("" if getattr(args, "save_rate", None) is not None else " (--save-rate to change)")]
+
+
+__all__ = ["add_budget_args", "record_budget", "apply_save_budget"]

@@ -11,7 +11,7 @@ import argparse
 import contextlib
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ftacq.errors import ConfigError
 
@@ -96,36 +96,46 @@ def _domain_id(args: argparse.Namespace) -> int:
     return int(value)
 
 
-def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config: Any, calibration: Any,
-                   tare: Any, metadata: dict[str, str]) -> tuple[list, list[str]]:
-    """The listeners for ``--ros2`` and ``--record X.mcap`` (none without either), closed by ``stack``: the bag
-    finished after the stream, the node closed. ``config`` the CellConfig or None (--sim); ``tare`` the stream's
-    :class:`procedures.ros2_stream.OffsetTare` or None (no calibration). Also returns a list that the run's last
-    lines are appended to once ``stack`` has closed (what was published and recorded)."""
+def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibration: Callable[[], Any],
+                   tare: Callable[[], Any] | None) -> tuple[list, list[str]]:
+    """The listeners for ``--ros2`` and ``--record X.mcap`` (none without either), closed by ``stack`` (after the
+    stream: the bag finished, the node closed). ``calibration()`` the calibration in force (None: raw only; it
+    changes with a tare); ``tare()`` the session's live tare (:meth:`ftacq.app.session.Cell.tare`, a
+    :class:`procedures.tare.TareResult`), or None. Also returns a list that the run's last lines are appended to
+    once ``stack`` has closed (what was published and recorded)."""
     report: list[str] = []
     if not (args.ros2 or is_bag(args.record)):
         return [], report
     import numpy as np
 
+    from ftacq.calfile import calibration_json_text
     from ftacq.settings import SensorConfig
     from procedures.delivery import BackgroundListener
     from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher, StampClock
 
-    sensor = config.sensor if config is not None else SensorConfig()
+    if args.config is not None:
+        from ftacq.app.config import load_config
+
+        sensor = load_config(args.config).sensor
+    else:
+        sensor = SensorConfig()
     namespace = args.ros2_namespace if args.ros2_namespace is not None else sensor.ros2_namespace
     frame_id = args.ros2_frame_id or sensor.frame
     rate_hz = DEFAULT_RATE_HZ if args.ros2_rate is None else args.ros2_rate
-    calibration_json = reference_bias = None
-    if calibration is not None:
-        from ftacq.calfile import calibration_json_text
 
-        calibration_json = calibration_json_text(calibration)
-        reference_bias = np.concatenate([calibration.force_bias, calibration.torque_bias])
+    def calibration_json() -> str | None:
+        now = calibration()
+        return None if now is None else calibration_json_text(now)
+
+    def reference_bias() -> np.ndarray:
+        now = calibration()
+        return np.zeros(6) if now is None else np.concatenate([now.force_bias, now.torque_bias])
+
     listeners = []
     clock = StampClock()  # one for both: the bag holds the very messages the topics carry
     if is_bag(args.record):
-        recorder = BagRecorder(args.record, namespace, frame_id, rate_hz, calibration_json, reference_bias,
-                               metadata=metadata, clock=clock)
+        recorder = BagRecorder(args.record, namespace, frame_id, rate_hz, calibration_json(), reference_bias,
+                               metadata={"source": "ftacq monitor"}, clock=clock)
         bag_queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
                                        name="ftacq-mcap", direct=True)
         stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or
@@ -139,14 +149,14 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, config
         node = Ros2Node(namespace, _domain_id(args))
         stack.callback(node.close)
         publisher = Ros2Publisher(node, frame_id, rate_hz, args.ros2_reliable, calibration_json, reference_bias,
-                                  tare=None if tare is None else tare.tare, clock=clock)
+                                  tare=None if tare is None else (lambda: tare().estimate.change), clock=clock)
         dds_queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
                                        name="ftacq-ros2", direct=True)
         stack.callback(lambda: report.append(
             _failed("ROS 2", dds_queue)
             or f"ROS 2: published under {node.namespace or '/'} on domain {node.domain_id}: "
             + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
-            + (f"; {tare.tares} tares" if tare is not None else "")))
+            + f"; {publisher.tares} tares"))
         stack.callback(dds_queue.close)
         listeners.append(dds_queue)
     return listeners, report

@@ -177,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         if args.check:
             return _check(client, robot, plan, model, calibration)
         if cell is not None:
-            from ftacq.app.commands.monitor import SimulatedTechnician
+            from ftacq.app.sim_technician import SimulatedTechnician
 
             stack.callback(SimulatedTechnician(cell).start().close)
         return _feed(args, stack, sensor_url, client, robot, plan, calibration, model)
