@@ -52,8 +52,11 @@ def _help_of(action: argparse.Action, parser: argparse.ArgumentParser) -> str:
     return " ".join(text.split()).replace("|", "\\|")
 
 
-def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
+def _option_rows(parser: argparse.ArgumentParser, path: str, seen: dict[str, str]) -> list[str]:
+    """The options table's rows; an option already described alike under an earlier command is named in one row
+    that points there (``seen``: row → the command that described it first)."""
     rows = []
+    repeated: dict[str, list[str]] = {}
     for action in parser._actions:
         if isinstance(action, (argparse._HelpAction, argparse._SubParsersAction)) or action.help == argparse.SUPPRESS:
             continue
@@ -64,18 +67,28 @@ def _option_rows(parser: argparse.ArgumentParser) -> list[str]:
             name = ", ".join(f"`{o}{metavar}`" for o in action.option_strings)
         else:
             name = f"`{parser._get_formatter()._format_args(action, action.dest)}`"
-        rows.append(f"| {name} | {_help_of(action, parser)} |")
+        row = f"| {name} | {_help_of(action, parser)} |"
+        if row in seen:
+            repeated.setdefault(seen[row], []).append(name)
+            continue
+        seen[row] = path
+        rows.append(row)
+    rows += [f"| {', '.join(names)} | as for `{first}` |" for first, names in repeated.items()]
     return rows
 
 
-def _section(path: str, parser: argparse.ArgumentParser, level: int) -> list[str]:
-    usage = " ".join(parser.format_usage().split())
-    usage = usage.removeprefix("usage: ")
+def _section(path: str, parser: argparse.ArgumentParser, level: int, seen: dict[str, str]) -> list[str]:
+    # the synopsis: the positionals in order, the options in the table below
+    formatter = parser._get_formatter()
+    positionals = [formatter._format_args(a, a.dest) if not isinstance(a, argparse._SubParsersAction) else "ACTION"
+                   for a in parser._actions if not a.option_strings]
+    has_options = any(a.option_strings and not isinstance(a, argparse._HelpAction) for a in parser._actions)
+    usage = " ".join([parser.prog, *(["[options]"] if has_options else []), *positionals])
     lines = [f"{'#' * level} {path}", ""]
     if parser.description:
         lines += [" ".join(parser.description.split()), ""]
     lines += ["```", usage, "```", ""]
-    rows = _option_rows(parser)
+    rows = _option_rows(parser, path, seen)
     if rows:
         lines += ["| option | meaning |", "|---|---|", *rows, ""]
     if parser.epilog:
@@ -83,7 +96,7 @@ def _section(path: str, parser: argparse.ArgumentParser, level: int) -> list[str
         if example_lines:
             lines += ["```bash", *example_lines, "```", ""]
     for name, sub in _subcommands(parser).items():
-        lines += _section(f"{path} {name}", sub, level + 1)
+        lines += _section(f"{path} {name}", sub, level + 1, seen)
     return lines
 
 
@@ -95,10 +108,12 @@ def render_pages(parser: argparse.ArgumentParser | None = None) -> dict[str, str
     if missing:
         raise ValueError(f"commands on no reference page (add them to PAGES): {sorted(missing)}")
     pages = {}
+    seen: dict[str, str] = {}
     for file_name, (title, lead, names) in PAGES.items():
-        lines = [f"# {title}", "", lead, "", INTRO, "", EXIT_STATUS_TEXT, ""]
+        common = [INTRO, "", EXIT_STATUS_TEXT, ""] if file_name == "cli.md" else []  # once, on the first page
+        lines = [f"# {title}", "", lead, "", *common]
         for name in names:
-            lines += _section(f"ftacq {name}", commands[name], 2)
+            lines += _section(f"ftacq {name}", commands[name], 2, seen)
         pages[file_name] = "\n".join(lines).rstrip() + "\n"
     return pages
 
