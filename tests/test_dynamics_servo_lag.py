@@ -11,21 +11,17 @@ while q and q̇ were the arm's: the inertia came out several σ off.
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from drivers.ur_ft_input import ControllerCycle
 from ftacq.dynamics import identify_dynamics
 from ftacq.dynamics.acceleration import estimate_servo_lag
 from ftacq.dynamics.motionfile import read_motion_csv, write_motion_csv
 from ftacq.kinematics import ur_model
-from procedures.bridge import CycleStates
-from procedures.dynamic_compensation import DynamicCompensator
 from procedures.excitation import plan_excitation
 from procedures.plan import PlanSettings, home_configuration_rad
-from tests.fakes.lagging_motion import chain_of_moves, record_excitation_offline
+from tests.fakes.lagging_motion import chain_of_moves, record_excitation_offline, replay_live
 from tests.fakes.world import CellTruth
 
 pytest.importorskip("pinocchio")
@@ -115,36 +111,6 @@ def test_the_inertias_sigma_covers_its_error_over_seeds():
     assert np.mean(normalised ** 2) > 0.1, normalised
 
 
-def compensate_live(recording, calibration, servo_lag_s: float, transport_lag_s: float) -> np.ndarray:
-    """Feed the recording to the live compensator (RTDE states and 10 ms sensor batches interleaved by time, as
-    the monitor reads them); return the compensated wrench of the samples compensated dynamically (NaN otherwise)."""
-    record = recording.record
-    states = CycleStates()
-    dynamics = dict(calibration.metadata.get("dynamics", {}), servo_lag_ms=1e3 * servo_lag_s,
-                    lag_ms=1e3 * transport_lag_s)
-    calibration = replace(calibration, metadata=dict(calibration.metadata, dynamics=dynamics))
-    compensator = DynamicCompensator(calibration, MODEL, states)
-    out = np.full_like(record.wrench, np.nan)
-    host = 80.0
-    robot_t, next_row = record.robot_time_s, 0
-    for start in range(0, len(record.sensor_time_s) - 70, 70):
-        chunk = slice(start, start + 70)
-        newest = record.sensor_time_s[chunk][-1]
-        while next_row < len(robot_t) and robot_t[next_row] <= newest:
-            k = next_row
-            states.append(ControllerCycle(
-                timestamp_s=float(robot_t[k]), q=record.q[k], qd=record.qd[k], tcp_force=np.zeros(6),
-                runtime_state=2, safety_status_bits=1, received_s=host + float(robot_t[k]), tcp_pose=np.zeros(6),
-                target_qd=recording.target_qd[k], target_qdd=recording.target_qdd[k]))
-            next_row += 1
-        batch = SimpleNamespace(time_s=host + record.sensor_time_s[chunk], device_time_s=np.full(70, np.nan),
-                                wrench=record.wrench[chunk])
-        got = compensator.compensate(batch, None)
-        if got is not None and compensator.static_batches == 0:
-            out[chunk] = got
-    return out
-
-
 def test_live_compensation_with_the_arm_behind_its_target_is_within_1_5_times_the_noise():
     truth = heavy_truth()
     recording = lagging_record(seed=5, servo_lag_s=0.004, moves=4)
@@ -153,7 +119,7 @@ def test_live_compensation_with_the_arm_behind_its_target_is_within_1_5_times_th
     moving = np.linalg.norm(np.asarray(noise), axis=1) > 0  # every sample (the comparison is over the motion)
 
     def ratios(servo_lag_s: float) -> np.ndarray:
-        error = compensate_live(recording, calibration, servo_lag_s, recording.transport_lag_s)
+        error = replay_live(recording, calibration, servo_lag_s, recording.transport_lag_s)
         used = np.isfinite(error[:, 0]) & moving
         assert used.mean() > 0.95
         rms = np.sqrt(np.mean(error[used] ** 2, axis=0))  # the contact wrench: truly zero

@@ -9,7 +9,8 @@ Also gives the true physical states at the robot's times, for an efficient (orac
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -106,3 +107,42 @@ def record_excitation_offline(truth: CellTruth, model: URModel, plan: list[tuple
     record = MotionRecord(sensor_t + transport_lag_s, wrench, robot_t, actual_q, qd, record_qdd,
                           metadata={"servo_lag_s": measured_servo_lag})
     return LaggingRecording(record, servo_lag_s, transport_lag_s, q, qd, qdd, target_qd, target_qdd, noise)
+
+
+def replay_live(recording: LaggingRecording, calibration, servo_lag_s: float, transport_lag_s: float,
+                batch_samples: int = 70) -> np.ndarray:
+    """Feed ``recording`` to the live compensator (procedures/dynamic_compensation.py) as the monitor reads it:
+    RTDE states (``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``) and sensor batches of
+    ``batch_samples`` interleaved by time, with ``servo_lag_s`` and ``transport_lag_s`` as the calibration's
+    measured lags. Returns the contact wrench (N, 6) of the samples compensated dynamically (NaN otherwise)."""
+    from drivers.ur_ft_input import ControllerCycle
+    from ftacq.kinematics import ur_model
+    from procedures.bridge import CycleStates
+    from procedures.dynamic_compensation import DynamicCompensator
+
+    record = recording.record
+    states = CycleStates()
+    dynamics = dict(calibration.metadata.get("dynamics", {}), servo_lag_ms=1e3 * servo_lag_s,
+                    lag_ms=1e3 * transport_lag_s)
+    calibration = replace(calibration, metadata=dict(calibration.metadata, dynamics=dynamics))
+    compensator = DynamicCompensator(calibration, ur_model(record.metadata.get("model", "UR5e")), states)
+    out = np.full_like(record.wrench, np.nan)
+    host_s = 80.0
+    robot_t, next_row = record.robot_time_s, 0
+    for start in range(0, len(record.sensor_time_s) - batch_samples, batch_samples):
+        chunk = slice(start, start + batch_samples)
+        newest = record.sensor_time_s[chunk][-1]
+        while next_row < len(robot_t) and robot_t[next_row] <= newest:
+            k = next_row
+            states.append(ControllerCycle(
+                timestamp_s=float(robot_t[k]), q=record.q[k], qd=record.qd[k], tcp_force=np.zeros(6),
+                runtime_state=2, safety_status_bits=1, received_s=host_s + float(robot_t[k]), tcp_pose=np.zeros(6),
+                target_qd=recording.target_qd[k], target_qdd=recording.target_qdd[k]))
+            next_row += 1
+        batch = SimpleNamespace(time_s=host_s + record.sensor_time_s[chunk],
+                                device_time_s=np.full(batch_samples, np.nan), wrench=record.wrench[chunk])
+        static_before = compensator.static_batches
+        got = compensator.compensate(batch, None)
+        if got is not None and compensator.static_batches == static_before:
+            out[chunk] = got
+    return out
