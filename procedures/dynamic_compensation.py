@@ -72,6 +72,19 @@ TAIL_ROWS = 16
 five per 10 ms batch)."""
 
 
+def measured_lags_ms(calibration: Calibration) -> tuple[float | None, float | None]:
+    """(the sensor's lag behind the arm, the arm's behind its target), ms, as the identification stored them
+    (``metadata['dynamics']``, or ``metadata['quick']`` for a calibration from ``--quick``); None where not known."""
+    lags: list[float | None] = [None, None]
+    for key in ("dynamics", "quick"):
+        section = calibration.metadata.get(key)
+        if isinstance(section, dict):
+            for i, name in enumerate(("lag_ms", "servo_lag_ms")):
+                if lags[i] is None and section.get(name) is not None:
+                    lags[i] = float(section[name])
+    return lags[0], lags[1]
+
+
 class DynamicCompensator:
     """Compensates gravity and the tool's inertial wrench (calibration with inertia) with the RTDE state stream.
 
@@ -99,11 +112,8 @@ class DynamicCompensator:
         self.stream = stream
         self.dynamics = SensorDynamics.for_calibration(robot, calibration)
         self.predictor = WrenchPredictor(self.dynamics, calibration)
-        measured = calibration.metadata.get("dynamics", {}).get("lag_ms") if isinstance(
-            calibration.metadata.get("dynamics"), dict) else None
+        measured, servo = measured_lags_ms(calibration)
         self.lag_s = float(lag_s if lag_s is not None else (measured or 0.0) / 1e3)
-        servo = calibration.metadata.get("dynamics", {}).get("servo_lag_ms") if isinstance(
-            calibration.metadata.get("dynamics"), dict) else None
         self.servo_lag_s = float(servo_lag_s if servo_lag_s is not None else (servo or 0.0) / 1e3)
         """How far the arm follows its target, s: q̈ is target_qdd of this long before each state."""
         self._history = history_rows(self.servo_lag_s)

@@ -46,8 +46,6 @@ LAG_SEARCH_S = 0.03
 LAG_STEP_S = 0.0005
 LAG_COARSE_STEP_S = 0.002
 """The lag's first grid, s (the model's fit changes smoothly over ms: the fine grid of LAG_STEP_S follows)."""
-STEP_FRACTION = 0.1
-"""A change of q̈ between two robot samples above this fraction of the joint's largest |q̈| is a step."""
 MIN_ROWS = 50
 """Fewest robot samples (with sensor samples around them) an identification accepts."""
 _NOISE_FLOOR = 1e-12
@@ -165,19 +163,13 @@ def aligned_rows(record: MotionRecord, lag_s: float) -> tuple[np.ndarray, np.nda
     return keep, mean[keep]
 
 
-def acceleration_steps(qdd: np.ndarray, fraction: float = STEP_FRACTION) -> np.ndarray:
-    """Robot samples (M,) next to a step of q̈: a change over one period of more than ``fraction`` of the largest
-    |q̈| on some joint (a moveJ's switches). The sensor samples averaged around such a state straddle the step, so
-    the state's own q̈ does not describe them (an error of half the step's wrench, a few N with a heavy tool)."""
-    qdd = np.asarray(qdd, dtype=float)
-    if qdd.shape[0] < 2:
-        return np.zeros(qdd.shape[0], dtype=bool)
-    scale = np.abs(qdd).max(axis=0)
-    jump = np.any(np.abs(np.diff(qdd, axis=0)) > fraction * np.where(scale > 0, scale, np.inf), axis=1)
-    steps = np.zeros(qdd.shape[0], dtype=bool)
-    steps[:-1] |= jump
-    steps[1:] |= jump
-    return steps
+def acceleration_steps(qdd: np.ndarray) -> np.ndarray:
+    """(M,) True next to a step of q̈ (a moveJ's switches): the sensor samples averaged around such a state straddle
+    the step, an error of half the step's wrench (a few N with a heavy tool) that no parameter explains. The quick
+    run's rule (:func:`ftacq.dynamics.joint._near_acceleration_steps`), shared."""
+    from ftacq.dynamics.joint import _near_acceleration_steps  # joint imports this module
+
+    return _near_acceleration_steps(np.asarray(qdd, dtype=float))
 
 
 def _channel_weights(residual: np.ndarray) -> np.ndarray:

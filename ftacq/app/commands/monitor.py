@@ -331,8 +331,9 @@ def _choose_compensator(calibration, model, robot_host: str, stack: contextlib.E
 
     compensator = DynamicCompensator(calibration, model, stream, clock=sample_clock, state_wait_s=STATE_WAIT_S)
     print(f"ftacq monitor: dynamic compensation (tool inertia from the calibration; sensor lag "
-          f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the controller's "
-          "trajectory, else a filtered derivative of actual_qd", file=sys.stderr)
+          f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd {1e3 * compensator.servo_lag_s:.2f} ms "
+          "earlier (the arm's lag behind its target) while the arm follows the controller's trajectory, else a "
+          "filtered derivative of actual_qd", file=sys.stderr)
     return compensator
 
 
