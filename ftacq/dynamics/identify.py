@@ -12,14 +12,18 @@ of mass very well (at rest, many poses). So:
    whether the motion adds information; the motion's estimate replaces the static one only where its 1σ is
    at least :data:`IMPROVEMENT_RATIO` smaller (Kubus, Kröger & Wahl 2008 identify all ten from motion alone; at
    rest ftacq's static estimate is usually better).
-3. Inertia: with m and c fixed, the six inertia parameters by weighted least squares (each channel weighted by
-   its residual scatter). If the solution is not a physical body (the pseudo-inertia of Wensing, Kim & Slotine
-   2017 not positive definite: a non-positive principal moment or a broken triangle inequality), it is solved
-   again over Σ_c = L Lᵀ (Σ_c = ½ tr(I_c) 𝟙 − I_c, L lower-triangular), which is consistent by construction
+3. Inertia: with m and c fixed, the six inertia parameters beside six bias offsets and a residual lag, each row
+   weighted by its noise (:mod:`ftacq.dynamics.inertia_fit`); robot samples next to a step of q̈ left out. If the
+   solution is not a physical body (the pseudo-inertia of Wensing, Kim & Slotine 2017 not positive definite), it is
+   solved again over Σ_c = L Lᵀ (Σ_c = ½ tr(I_c) 𝟙 − I_c, L lower-triangular), consistent by construction
    (Traversaro et al. 2016 and Nadeau et al. 2022 constrain the same set).
-4. 1σ from the weighted normal equations (scaled by the residual χ² per degree of freedom); the regressor's
-   condition number (columns scaled to unit norm); the error of the static and of the dynamic model on the last
-   :data:`HELD_OUT_FRACTION` of the motion, which the fit never saw.
+4. 1σ from a block sandwich covariance with the static m, c 1σ propagated (:mod:`ftacq.dynamics.inertia_fit`
+   says why the weighted normal equations were too small); the regressor's condition number (columns scaled to unit
+   norm); the error of the static and of the dynamic model on the last :data:`HELD_OUT_FRACTION` of the motion,
+   which the fit never saw.
+
+The record's kinematics are the physical arm's (``actual_q``, ``actual_qd``, ``target_qdd`` of the servo lag
+earlier: :mod:`ftacq.dynamics.acceleration`); the servo lag measured at recording is reported beside the sensor's.
 """
 
 from __future__ import annotations
