@@ -2,12 +2,14 @@
 (and the controller bridge's, procedures/bridge.py).
 
 Per sensor batch (≈ 10 ms, 70 samples at 7 kHz in the monitor; 2 ms, 14 samples in the bridge): the samples are put
-on the host clock through the device's own sample times (:class:`ftacq.dynamics.clock.SampleClock`: the
+on the host clock through the device's own sample times (:class:`ftacq.timebase.SampleClock`: the
 minimum-delay line, docs/dynamics.md "How the clocks are aligned"), shifted by the lag the identification measured, and compensated as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model
 (:class:`ftacq.dynamics.model.WrenchPredictor`, Pinocchio's RNEA) is evaluated once per new 500 Hz robot state from
 :class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring of :data:`PREDICTION_WINDOW_S`, not recomputed for the next batch) and
-interpolated onto the samples. The acceleration is target_qdd while the arm tracks the controller's trajectory, else
-a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new states only.
+interpolated onto the samples. The state is the physical arm's: ``actual_q``, ``actual_qd`` and, while the arm tracks
+the controller's trajectory, ``target_qdd`` of the servo lag earlier (the lag the identification measured,
+``dynamics.servo_lag_ms``), else a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new
+states only.
 
 A batch whose newest samples are newer than the newest robot state (the RTDE reader thread was held off, a state
 package is still on its way) waits for the states of its time, at most ``state_wait_s`` (:data:`STATE_WAIT_S` in
@@ -39,9 +41,9 @@ import time
 import numpy as np
 
 from ftacq.calibration import Calibration
-from ftacq.dynamics.acceleration import DERIVATIVE_HALF_WIDTH, joint_acceleration
+from ftacq.dynamics.acceleration import DERIVATIVE_HALF_WIDTH, history_rows, joint_acceleration
 from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
-from ftacq.dynamics.clock import SampleClock
+from ftacq.timebase import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import URModel
 from procedures.flange_orientation import (
@@ -70,15 +72,29 @@ TAIL_ROWS = 16
 five per 10 ms batch)."""
 
 
+def measured_lags_ms(calibration: Calibration) -> tuple[float | None, float | None]:
+    """(the sensor's lag behind the arm, the arm's behind its target), ms, as the identification stored them
+    (``metadata['dynamics']``, or ``metadata['quick']`` for a calibration from ``--quick``); None where not known."""
+    lags: list[float | None] = [None, None]
+    for key in ("dynamics", "quick"):
+        section = calibration.metadata.get(key)
+        if isinstance(section, dict):
+            for i, name in enumerate(("lag_ms", "servo_lag_ms")):
+                if lags[i] is None and section.get(name) is not None:
+                    lags[i] = float(section[name])
+    return lags[0], lags[1]
+
+
 class DynamicCompensator:
     """Compensates gravity and the tool's inertial wrench (calibration with inertia) with the RTDE state stream.
 
     Args: calibration (``has_dynamics``), robot (the arm's model), stream (a started URStateStream, or anything with
     its ``window(last=…)``), lag_s (the sensor's lag behind the robot stream; default the one the identification
-    measured), clock (the samples' :class:`~ftacq.dynamics.clock.SampleClock`, shared with the monitor or the
+    measured), clock (the samples' :class:`~ftacq.timebase.SampleClock`, shared with the monitor or the
     bridge so that each batch is observed once; default its own), window_s (how far back predictions are kept, s;
     default :data:`PREDICTION_WINDOW_S`), state_wait_s (longest wait for the states of a batch's newest samples, s;
-    0: never wait, hold the newest prediction).
+    0: never wait, hold the newest prediction), servo_lag_s (how far the arm follows its target; default the one
+    the identification measured, else 0).
 
     Per batch it reads the newest :data:`TAIL_ROWS` states (all ``window_rows`` when the new ones reach
     into their first :data:`~ftacq.dynamics.acceleration.DERIVATIVE_HALF_WIDTH`: the derivative needs that many
@@ -89,16 +105,18 @@ class DynamicCompensator:
 
     def __init__(self, calibration: Calibration, robot: URModel, stream, lag_s: float | None = None,
                  clock: SampleClock | None = None, window_s: float = PREDICTION_WINDOW_S,
-                 state_wait_s: float = 0.0) -> None:
+                 state_wait_s: float = 0.0, servo_lag_s: float | None = None) -> None:
         if not calibration.has_dynamics:
             raise ValueError("the calibration has no inertia: use the static GravityCompensator")
         self.calibration = calibration
         self.stream = stream
         self.dynamics = SensorDynamics.for_calibration(robot, calibration)
         self.predictor = WrenchPredictor(self.dynamics, calibration)
-        measured = calibration.metadata.get("dynamics", {}).get("lag_ms") if isinstance(
-            calibration.metadata.get("dynamics"), dict) else None
+        measured, servo = measured_lags_ms(calibration)
         self.lag_s = float(lag_s if lag_s is not None else (measured or 0.0) / 1e3)
+        self.servo_lag_s = float(servo_lag_s if servo_lag_s is not None else (servo or 0.0) / 1e3)
+        """How far the arm follows its target, s: q̈ is target_qdd of this long before each state."""
+        self._history = history_rows(self.servo_lag_s)
         self.clock = clock if clock is not None else SampleClock()
         self.orientations = FlangeOrientations(robot, stream)
         """The static fallback's flange orientation at the samples' time (slerp between the states around them)."""
@@ -153,19 +171,21 @@ class DynamicCompensator:
             return
         size = len(window)
         first = size - fresh
-        if new[first] and (first >= DERIVATIVE_HALF_WIDTH or size < TAIL_ROWS) and (fresh == 1 or new[first:].all()):
+        history = self._history
+        if new[first] and (first >= history or size < TAIL_ROWS) and (fresh == 1 or new[first:].all()):
             rows: list[int] = list(range(first, size))  # the usual case: the newest few states are the new ones
-            low = max(first - DERIVATIVE_HALF_WIDTH, 0)
+            low = max(first - history, 0)
         else:  # many new states (the first batch, a stall): the whole window, as before
             window = self.stream.window(last=self.window_rows)
             new = window.controller_time_s > self._last_controller_time
             rows = np.flatnonzero(new).tolist()
             size = len(window)
             contiguous = rows[-1] - rows[0] == len(rows) - 1
-            low = max(rows[0] - DERIVATIVE_HALF_WIDTH, 0) if contiguous else 0
-        # q̈ of the new states and of the older neighbours their derivative reaches: row by row as over the window
+            low = max(rows[0] - history, 0) if contiguous else 0
+        # q̈ of the new states and of the older neighbours their derivative (or the servo lag) reaches: row by row
+        # as over the window
         qdd, tracking = joint_acceleration(window.time_s[low:], window.qd[low:], window.target_qd[low:],
-                                           window.qdd[low:])
+                                           window.qdd[low:], servo_lag_s=self.servo_lag_s)
         self.derivative_states += len(rows) - int(np.count_nonzero(tracking[[row - low for row in rows]]))
         q, qd, time_s = window.q, window.qd, window.time_s
         ring_times, ring_predicted, predict = self._ring_times, self._ring_predicted, self.predictor.predict_one
@@ -213,7 +233,7 @@ class DynamicCompensator:
         (q̈ over them with their neighbours, as for new states; the ring is left as it is). Returns the kept ones
         unchanged when the stream has none older."""
         rate_hz = float(getattr(self.stream, "frequency_hz", None) or DEFAULT_STATE_RATE_HZ)
-        wanted = int((float(state_times[-1]) - float(times[0])) * rate_hz * 1.25) + 4 * DERIVATIVE_HALF_WIDTH + 8
+        wanted = int((float(state_times[-1]) - float(times[0])) * rate_hz * 1.25) + 4 * self._history + 8
         window = self.stream.window(last=wanted)
         # (half a period below the oldest kept one: its own row, mapped again with a newer line, is not taken twice)
         older = window.time_s < state_times[0] - 0.5 / rate_hz
@@ -223,9 +243,9 @@ class DynamicCompensator:
             return state_times, predicted
         rows = np.arange(first, min(last + 1, len(window)))
         rows = rows[older[rows]]
-        low, high = max(first - DERIVATIVE_HALF_WIDTH, 0), min(int(rows[-1]) + DERIVATIVE_HALF_WIDTH + 1, len(window))
+        low, high = max(first - self._history, 0), min(int(rows[-1]) + DERIVATIVE_HALF_WIDTH + 1, len(window))
         qdd, _ = joint_acceleration(window.time_s[low:high], window.qd[low:high], window.target_qd[low:high],
-                                    window.qdd[low:high])
+                                    window.qdd[low:high], servo_lag_s=self.servo_lag_s)
         self.catch_up_batches += 1
         earlier = self.predictor(window.q[rows], window.qd[rows], qdd[rows - low])
         return np.concatenate([window.time_s[rows], state_times]), np.vstack([earlier, predicted])

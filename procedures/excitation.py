@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ftacq.dynamics.acceleration import joint_acceleration
+from ftacq.dynamics.acceleration import physical_acceleration
 from ftacq.dynamics.identify import MotionRecord
 from ftacq.timebase import device_to_host_clock
 from ftacq.errors import PlanError
@@ -204,8 +204,10 @@ def _assemble(batches: list, stream, first_robot: int) -> MotionRecord:
     # both streams through the minimum-delay line of the whole recording (the live line's height is the newest
     # seconds', its slope error would tilt the recording's start against the sensor's)
     robot_times = device_to_host_clock(window.controller_time_s, window.arrival_s) if len(window) else window.time_s
-    qdd, _ = joint_acceleration(robot_times, window.qd, window.target_qd, window.qdd)
+    # q̈ of the physical arm, as q and q̇ (actual_*): target_qdd of the servo lag earlier, measured here
+    qdd, servo_lag_s = physical_acceleration(robot_times, window.qd, window.target_qd, window.qdd)
     times = device_to_host_clock(device, arrival)
     return MotionRecord(times, wrench, robot_times, window.q, window.qd, qdd,
                         metadata={"robot_samples": len(window), "sensor_samples": int(arrival.size),
+                                  "servo_lag_s": servo_lag_s,
                                   "sensor_clock": "device" if np.isfinite(device).any() else "arrival"})

@@ -507,8 +507,9 @@ def _live_compensator(cell: Cell, calibration, model, sample_clock) -> Any:
 
     compensator = DynamicCompensator(calibration, model, stream, clock=sample_clock, state_wait_s=STATE_WAIT_S)
     cell.notes.append(f"dynamic compensation (tool inertia from the calibration; sensor lag "
-                      f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd while the arm follows the "
-                      "controller's trajectory, else a filtered derivative of actual_qd")
+                      f"{1e3 * compensator.lag_s:.2f} ms): acceleration from target_qdd "
+                      f"{1e3 * compensator.servo_lag_s:.2f} ms earlier (the arm's lag behind its target) while the arm "
+                      "follows the controller's trajectory, else a filtered derivative of actual_qd")
     return compensator
 
 

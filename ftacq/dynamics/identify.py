@@ -12,14 +12,18 @@ of mass very well (at rest, many poses). So:
    whether the motion adds information; the motion's estimate replaces the static one only where its 1σ is
    at least :data:`IMPROVEMENT_RATIO` smaller (Kubus, Kröger & Wahl 2008 identify all ten from motion alone; at
    rest ftacq's static estimate is usually better).
-3. Inertia: with m and c fixed, the six inertia parameters by weighted least squares (each channel weighted by
-   its residual scatter). If the solution is not a physical body (the pseudo-inertia of Wensing, Kim & Slotine
-   2017 not positive definite: a non-positive principal moment or a broken triangle inequality), it is solved
-   again over Σ_c = L Lᵀ (Σ_c = ½ tr(I_c) 𝟙 − I_c, L lower-triangular), which is consistent by construction
+3. Inertia: with m and c fixed, the six inertia parameters beside six bias offsets and a residual lag, each row
+   weighted by its noise (:mod:`ftacq.dynamics.inertia_fit`); robot samples next to a step of q̈ left out. If the
+   solution is not a physical body (the pseudo-inertia of Wensing, Kim & Slotine 2017 not positive definite), it is
+   solved again over Σ_c = L Lᵀ (Σ_c = ½ tr(I_c) 𝟙 − I_c, L lower-triangular), consistent by construction
    (Traversaro et al. 2016 and Nadeau et al. 2022 constrain the same set).
-4. 1σ from the weighted normal equations (scaled by the residual χ² per degree of freedom); the regressor's
-   condition number (columns scaled to unit norm); the error of the static and of the dynamic model on the last
-   :data:`HELD_OUT_FRACTION` of the motion, which the fit never saw.
+4. 1σ from a block sandwich covariance with the static m, c 1σ propagated (:mod:`ftacq.dynamics.inertia_fit`
+   says why the weighted normal equations were too small); the regressor's condition number (columns scaled to unit
+   norm); the error of the static and of the dynamic model on the last :data:`HELD_OUT_FRACTION` of the motion,
+   which the fit never saw.
+
+The record's kinematics are the physical arm's (``actual_q``, ``actual_qd``, ``target_qdd`` of the servo lag
+earlier: :mod:`ftacq.dynamics.acceleration`); the servo lag measured at recording is reported beside the sensor's.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2
 from ftacq.calibration import Calibration
+from ftacq.dynamics.inertia_fit import fit_inertia, fixed_sensitivity, noise_weights
 from ftacq.dynamics.model import SensorDynamics, gravity_vector, pseudo_inertia
 from ftacq.dynamics.timing import box_average
 from ftacq.errors import InputError
@@ -43,6 +48,8 @@ IMPROVEMENT_RATIO = 0.9
 LAG_SEARCH_S = 0.03
 """The lag between sensor and robot streams is searched within ± this, s."""
 LAG_STEP_S = 0.0005
+LAG_COARSE_STEP_S = 0.002
+"""The lag's first grid, s (the model's fit changes smoothly over ms: the fine grid of LAG_STEP_S follows)."""
 MIN_ROWS = 50
 """Fewest robot samples (with sensor samples around them) an identification accepts."""
 _NOISE_FLOOR = 1e-12
@@ -91,6 +98,10 @@ class DynamicsResult:
         constrained: the unconstrained solution was not a physical body; the consistent one was kept.
         condition_number: of the inertia regressor, columns scaled to unit norm.
         lag_s: the sensor stream's lag behind the robot stream (host clock), as measured or given.
+        servo_lag_s: how far the arm followed its target (``actual_*`` behind ``target_*``), measured when the motion
+            was recorded (None: not known, e.g. an imported record); the record's q̈ is the physical arm's.
+        bias_offset: the biases during the motion minus the calibration's (6,), N and N·m (fitted beside the
+            inertia: drift since the static poses).
         rows, held_out_rows: robot samples used for the fit and for validation.
         held_out_rms_static, held_out_rms_dynamic, held_out_max_static, held_out_max_dynamic: (6,) error of the
             compensated wrench [N, N·m] on the held-out motion with each model.
@@ -114,11 +125,15 @@ class DynamicsResult:
     held_out_rms_dynamic: np.ndarray
     held_out_max_static: np.ndarray
     held_out_max_dynamic: np.ndarray
+    servo_lag_s: float | None = None
+    bias_offset: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     def summary(self) -> dict[str, Any]:
         """JSON-serialisable figures for ``metadata['dynamics']`` and the report."""
         return {
-            "lag_ms": 1e3 * self.lag_s, "rows": self.rows, "held_out_rows": self.held_out_rows,
+            "lag_ms": 1e3 * self.lag_s,
+            "servo_lag_ms": None if self.servo_lag_s is None else 1e3 * self.servo_lag_s,
+            "bias_offset": self.bias_offset.tolist(), "rows": self.rows, "held_out_rows": self.held_out_rows,
             "condition_number": self.condition_number, "constrained": self.constrained,
             "mass_from_motion": self.mass_from_motion, "com_from_motion": self.com_from_motion,
             "mass_sigma_kg": {"static": self.mass_sigma_static, "motion": self.mass_sigma_motion},
@@ -152,6 +167,15 @@ def aligned_rows(record: MotionRecord, lag_s: float) -> tuple[np.ndarray, np.nda
     return keep, mean[keep]
 
 
+def acceleration_steps(qdd: np.ndarray) -> np.ndarray:
+    """(M,) True next to a step of q̈ (a moveJ's switches): the sensor samples averaged around such a state straddle
+    the step, an error of half the step's wrench (a few N with a heavy tool) that no parameter explains. The quick
+    run's rule (:func:`ftacq.dynamics.joint._near_acceleration_steps`), shared."""
+    from ftacq.dynamics.joint import _near_acceleration_steps  # joint imports this module
+
+    return _near_acceleration_steps(np.asarray(qdd, dtype=float))
+
+
 def _channel_weights(residual: np.ndarray) -> np.ndarray:
     scatter = np.sqrt(np.mean(residual ** 2, axis=0))
     return 1.0 / np.maximum(scatter, _NOISE_FLOOR * max(float(scatter.max()), 1.0))
@@ -171,22 +195,31 @@ def _weighted_lstsq(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarra
 def estimate_lag(record: MotionRecord, regressor: np.ndarray, bias: np.ndarray, search_s: float = LAG_SEARCH_S,
                  step_s: float = LAG_STEP_S) -> float:
     """Return the lag (s) of the sensor stream behind the robot stream: the shift of the sensor samples that the
-    ten-parameter model fits best (grid of ``step_s``, refined by a parabola through the best three)."""
-    shifts = np.arange(-search_s, search_s + 0.5 * step_s, step_s)
-    costs = np.full(shifts.shape, np.inf)
-    for i, shift in enumerate(shifts):
+    ten-parameter model fits best (a grid of :data:`LAG_COARSE_STEP_S` over ± ``search_s``, then of ``step_s``
+    around its best, refined by a parabola through the best three)."""
+
+    smooth = ~acceleration_steps(record.qdd)
+
+    def cost(shift: float) -> float:
         keep, wrench = aligned_rows(record, shift)
+        keep, wrench = keep[smooth[keep]], wrench[smooth[keep]]
         if keep.size < MIN_ROWS:
-            continue
+            return np.inf
         a = regressor[keep].reshape(-1, 10)
         b = (wrench - bias).reshape(-1)
         scale = 1.0 / np.maximum(np.std(wrench - bias, axis=0), _NOISE_FLOOR)
         weights = np.tile(scale, keep.size)
         x, *_ = np.linalg.lstsq(a * weights[:, None], b * weights, rcond=None)
-        costs[i] = float(np.mean(((b - a @ x) * weights) ** 2))
-    best = int(np.argmin(costs))
-    if not np.isfinite(costs[best]):
+        return float(np.mean(((b - a @ x) * weights) ** 2))
+
+    coarse = np.arange(-search_s, search_s + 0.5 * LAG_COARSE_STEP_S, LAG_COARSE_STEP_S)
+    coarse_costs = np.array([cost(shift) for shift in coarse])
+    if not np.isfinite(coarse_costs).any():
         raise InputError("motion record: the sensor and robot samples do not overlap in time")
+    centre = float(coarse[int(np.argmin(coarse_costs))])
+    shifts = centre + np.arange(-LAG_COARSE_STEP_S, LAG_COARSE_STEP_S + 0.5 * step_s, step_s)
+    costs = np.array([cost(shift) for shift in shifts])
+    best = int(np.argmin(costs))
     if 0 < best < len(shifts) - 1 and np.all(np.isfinite(costs[best - 1:best + 2])):
         c0, c1, c2 = costs[best - 1:best + 2]
         curvature = c0 - 2 * c1 + c2
@@ -218,6 +251,28 @@ def _consistent_inertia(a: np.ndarray, b: np.ndarray, start: np.ndarray, mass_kg
     return inertia_about_sensor(fit.x)
 
 
+def _fixed_covariance(fit, regressor: np.ndarray, mass_kg: float, com_m: np.ndarray, mass_sigma_kg: float,
+                      com_sigma_m: np.ndarray) -> np.ndarray:
+    """Covariance (6, 6) of the inertia about the centre of mass (vech) that the 1σ of the fixed mass and centre of
+    mass cause: through the fit (:func:`ftacq.dynamics.inertia_fit.fixed_sensitivity`) and the parallel-axis
+    term, by first differences."""
+    sensitivity = fixed_sensitivity(fit, regressor)  # d I_S / d (m, m c)
+
+    def inertia_c(values: np.ndarray) -> np.ndarray:
+        m, c = values[0], values[1:]
+        shift = np.concatenate([[m], m * c]) - np.concatenate([[mass_kg], mass_kg * com_m])
+        return fit.inertia_s + sensitivity @ shift - _matrix_to_vech(_steiner(m, c))
+
+    centre = np.concatenate([[mass_kg], com_m])
+    sigma = np.concatenate([[mass_sigma_kg], np.broadcast_to(com_sigma_m, (3,))])
+    jacobian = np.empty((6, 4))
+    for i in range(4):
+        step = np.zeros(4)
+        step[i] = max(float(sigma[i]), 1e-9)
+        jacobian[:, i] = (inertia_c(centre + step) - inertia_c(centre - step)) / (2 * step[i])
+    return jacobian @ np.diag(sigma ** 2) @ jacobian.T
+
+
 def identify_dynamics(calibration: Calibration, record: MotionRecord, robot: URModel, *,
                       sensor_offset_m: np.ndarray | None = None, lag_s: float | None = None,
                       held_out_fraction: float = HELD_OUT_FRACTION) -> DynamicsResult:
@@ -237,6 +292,8 @@ def identify_dynamics(calibration: Calibration, record: MotionRecord, robot: URM
     if lag_s is None:
         lag_s = estimate_lag(record, regressor, bias)
     keep, wrench = aligned_rows(record, lag_s)
+    smooth = ~acceleration_steps(record.qdd)[keep]  # a box of sensor samples straddling a step of q̈: left out
+    keep, wrench = keep[smooth], wrench[smooth]
     if keep.size < MIN_ROWS:
         raise InputError(f"motion record: only {keep.size} robot samples have sensor samples around them "
                          f"(need {MIN_ROWS}); record a longer motion")
@@ -278,11 +335,21 @@ def identify_dynamics(calibration: Calibration, record: MotionRecord, robot: URM
         com = fused_h / fused_mass
     del fused_cov
 
-    # 3. the inertia with m, c fixed
+    # 3. the inertia with m, c fixed, beside bias offsets and a residual lag; rows weighted by their noise; a
+    #    block sandwich covariance and the 1σ of m, c propagated (ftacq.dynamics.inertia_fit)
     fixed = np.concatenate([[mass], mass * com])
-    a_inertia = (r_train[:, :, 4:] * weights[None, :, None]).reshape(-1, 6)
-    b_inertia = ((y_train - r_train[:, :, :4] @ fixed) * weights).reshape(-1)
-    inertia_s, covariance, condition = _weighted_lstsq(a_inertia, b_inertia)
+    train_rows = keep[train]
+    first_residual = y_train - r_train @ x_first
+    row_weights = noise_weights(first_residual, np.linalg.norm(record.qd[train_rows], axis=1))
+    train_time = np.asarray(record.robot_time_s, dtype=float)[train_rows]
+    lag_column = np.gradient(r_train @ x_first, train_time, axis=0)
+    fit = fit_inertia(r_train, y_train, fixed, row_weights, lag_column, train_time)
+    inertia_s = fit.inertia_s
+    a_inertia = fit.design[:, :, :6].reshape(-1, 6)
+    b_inertia = (fit.target - fit.design[:, :, 6:] @ np.concatenate([fit.bias_offset, [fit.lag_correction_s]])
+                 ).reshape(-1)
+    norms = np.linalg.norm(a_inertia, axis=0)
+    condition = float(np.linalg.cond(a_inertia / np.where(norms > 0, norms, 1.0)))
     parameters = np.concatenate([fixed, inertia_s])
     constrained = bool(np.linalg.eigvalsh(pseudo_inertia(parameters)).min() <= 0.0)
     if constrained:
@@ -290,6 +357,9 @@ def identify_dynamics(calibration: Calibration, record: MotionRecord, robot: URM
         parameters = np.concatenate([fixed, inertia_s])
     inertia = _vech_to_matrix(inertia_s) - _steiner(mass, com)
     inertia = 0.5 * (inertia + inertia.T)
+    mass_sigma = mass_sigma_motion if mass_from_motion else mass_sigma_static
+    com_sigma = com_sigma_motion if com_from_motion else com_sigma_static
+    covariance = fit.covariance + _fixed_covariance(fit, r_train, mass, com, mass_sigma, com_sigma)
     inertia_sigma = _vech_to_matrix(np.sqrt(np.maximum(np.diag(covariance), 0.0)))
 
     # 4. held-out motion: static and dynamic compensation error
@@ -316,7 +386,9 @@ def identify_dynamics(calibration: Calibration, record: MotionRecord, robot: URM
         condition_number=condition, lag_s=float(lag_s), rows=keep.size - held, held_out_rows=held,
         held_out_rms_static=np.sqrt(np.mean(error_static ** 2, axis=0)),
         held_out_rms_dynamic=np.sqrt(np.mean(error_dynamic ** 2, axis=0)),
-        held_out_max_static=np.abs(error_static).max(axis=0), held_out_max_dynamic=np.abs(error_dynamic).max(axis=0))
+        held_out_max_static=np.abs(error_static).max(axis=0), held_out_max_dynamic=np.abs(error_dynamic).max(axis=0),
+        servo_lag_s=None if record.metadata.get("servo_lag_s") is None else float(record.metadata["servo_lag_s"]),
+        bias_offset=fit.bias_offset)
     metadata = dict(calibration.metadata)
     metadata["dynamics"] = result.summary()
     final = replace(calibration, gravity_base=gravity_base, center_of_mass=com, inertia=inertia, sensor_offset=offset,

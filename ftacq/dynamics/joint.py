@@ -346,6 +346,8 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     sigma = _propagate(model, optimum, covariance)
     summary = {"method": "quick (joint fit of the motion)", "lag_ms": 1e3 * float(lag_s),
                "lag_sigma_ms": 1e3 * lag_sigma, "rows": int(keep.size),
+               "servo_lag_ms": None if record.metadata.get("servo_lag_s") is None
+               else 1e3 * float(record.metadata["servo_lag_s"]),
                "sigma_inflation_max": float(inflation.max()),
                "condition_number": condition, "chi2_per_dof": chi2,
                "residual_rms": np.sqrt(np.mean(residual ** 2, axis=0)).tolist(),

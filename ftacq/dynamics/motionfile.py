@@ -1,13 +1,15 @@
 """The motion record file (``motion.csv``): a recorded excitation, sensor and robot samples in one CSV.
 
-Layout (docs/dynamics.md): an optional first line ``# ftacq motion record, model UR5e`` (the arm's model), then a
-header and one row per sample, oldest first within each source::
+Layout (docs/dynamics.md): an optional first line ``# ftacq motion record, servo lag 4.012 ms, model UR5e`` (the
+arm's lag behind its target as measured at recording, and its model; either may be left out), then a header and one
+row per sample, oldest first within each source::
 
     source,time_s,fx_n,fy_n,fz_n,tx_nm,ty_nm,tz_nm,q1_rad,…,q6_rad,qd1_rad_s,…,qd6_rad_s,qdd1_rad_s2,…,qdd6_rad_s2
 
 - ``source`` ``sensor``: a raw sensor sample, sensor frame, N and N·m; the joint columns are empty.
 - ``source`` ``robot``: a robot state: joint positions (rad), speeds (rad/s), accelerations (rad/s²) (RTDE
-  ``actual_q``, ``actual_qd``, ``target_qdd``); the wrench columns are empty.
+  ``actual_q``, ``actual_qd``, and the physical arm's q̈: ``target_qdd`` of the servo lag earlier,
+  :mod:`ftacq.dynamics.acceleration`); the wrench columns are empty.
 - ``time_s``: seconds on one clock for both sources (ftacq writes the host's monotonic clock, after aligning each
   device's clock: :mod:`ftacq.dynamics.timing`); only differences matter.
 """
@@ -30,15 +32,20 @@ JOINT_COLUMNS = (tuple(f"q{i}_rad" for i in range(1, 7)) + tuple(f"qd{i}_rad_s" 
                  + tuple(f"qdd{i}_rad_s2" for i in range(1, 7)))
 COLUMNS = ("source", "time_s") + WRENCH_COLUMNS + JOINT_COLUMNS
 _MODEL_LINE = re.compile(r"^#.*\bmodel\s+(\S+)")
+_SERVO_LAG = re.compile(r"\bservo lag\s+([-+0-9.eE]+)\s*ms")
+_HEADER_LINE = re.compile(r"^#")
 
 
 def write_motion_csv(path: str | os.PathLike, record: MotionRecord, model: str | None = None) -> None:
     """Write ``record`` (atomically) as a motion record CSV."""
     empty_joints = "," * len(JOINT_COLUMNS)
     empty_wrench = "," * len(WRENCH_COLUMNS)
+    servo_lag_s = record.metadata.get("servo_lag_s")
+    notes = ([f"servo lag {1e3 * float(servo_lag_s):.4f} ms"] if servo_lag_s is not None else []) + (
+        [f"model {model}"] if model else [])
     with atomic_write(path) as handle:
-        if model:
-            handle.write(f"# ftacq motion record, model {model}\n")
+        if notes:
+            handle.write("# ftacq motion record, " + ", ".join(notes) + "\n")
         handle.write(",".join(COLUMNS) + "\n")
         for t, w in zip(np.asarray(record.sensor_time_s), np.asarray(record.wrench)):
             handle.write(f"sensor,{t:.7f}," + ",".join(f"{v:.7g}" for v in w) + empty_joints + "\n")
@@ -56,15 +63,17 @@ def read_motion_csv(path: str | os.PathLike) -> tuple[MotionRecord, str | None]:
         handle = path.open(newline="", encoding="utf-8")
     except OSError as error:
         raise InputError(f"{path}: cannot read: {error}") from error
-    model = None
+    model, servo_lag_s = None, None
     sensor_rows: list[list[float]] = []
     robot_rows: list[list[float]] = []
     with handle:
         lines = iter(handle)
         first = next(lines, "")
-        match = _MODEL_LINE.match(first)
-        if match:
-            model = match.group(1)
+        comment = bool(_HEADER_LINE.match(first))
+        if comment:
+            match, lag = _MODEL_LINE.match(first), _SERVO_LAG.search(first)
+            model = match.group(1) if match else None
+            servo_lag_s = 1e-3 * float(lag.group(1)) if lag else None
             first = next(lines, "")
         reader = csv.reader([first])
         header = [h.strip() for h in next(reader, [])]
@@ -72,7 +81,7 @@ def read_motion_csv(path: str | os.PathLike) -> tuple[MotionRecord, str | None]:
             raise InputError(f"{path}: header must be {','.join(COLUMNS)} (see docs/dynamics.md), got {','.join(header)}")
         wrench_cols = slice(2, 8)
         joint_cols = slice(8, 8 + len(JOINT_COLUMNS))
-        for line_number, row in enumerate(csv.reader(lines), start=3 if model else 2):
+        for line_number, row in enumerate(csv.reader(lines), start=3 if comment else 2):
             if not row:
                 continue
             if len(row) != len(COLUMNS):
@@ -98,7 +107,7 @@ def read_motion_csv(path: str | os.PathLike) -> tuple[MotionRecord, str | None]:
     sensor = sensor[np.argsort(sensor[:, 0], kind="stable")]
     robot = robot[np.argsort(robot[:, 0], kind="stable")]
     record = MotionRecord(sensor[:, 0], sensor[:, 1:7], robot[:, 0], robot[:, 1:7], robot[:, 7:13], robot[:, 13:19],
-                          metadata={"file": str(path)})
+                          metadata={"file": str(path)} | ({"servo_lag_s": servo_lag_s} if servo_lag_s is not None else {}))
     return record, model
 
 

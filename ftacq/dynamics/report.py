@@ -39,7 +39,12 @@ def format_dynamics(result: DynamicsResult, truth_inertia: np.ndarray | None = N
     if truth_mass_kg is not None and truth_com_m is not None:
         lines.append(f"  true (simulation): mass {truth_mass_kg:.5f} kg, centre of mass "
                      + " ".join(f"{1e3 * v:+.3f}" for v in truth_com_m) + " mm")
-    lines.append(f"sensor lag behind the robot stream: {1e3 * result.lag_s:+.2f} ms (measured from the motion); "
+    servo = ("" if result.servo_lag_s is None else
+             f"; the arm followed its target {1e3 * result.servo_lag_s:.2f} ms late (actual_qd against target_qd)")
+    lines.append(f"sensor lag behind the arm: {1e3 * result.lag_s:+.2f} ms (measured from the motion){servo}")
+    lines.append("biases during the motion minus the static ones: F "
+                 + " ".join(f"{v:+.4f}" for v in result.bias_offset[:3]) + " N, T "
+                 + " ".join(f"{v:+.5f}" for v in result.bias_offset[3:]) + " N·m (fitted beside the inertia); "
                  f"regressor condition number {result.condition_number:.3g}; {result.rows} robot samples fitted")
     lines.append(f"held-out motion ({result.held_out_rows} robot samples, the last part of the excitation), "
                  "compensated wrench RMS (max):")

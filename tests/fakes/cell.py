@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ftacq.kinematics import ur_model
-from tests.fakes.ur_simulator import ENCODER_NOISE_RAD
+from tests.fakes.ur_simulator import ENCODER_NOISE_RAD, SERVO_LAG_S
 from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
 
 SENSORS = ("netft", "can")
@@ -101,6 +101,8 @@ class SimulatedCell:
         seed: seed of the sensor noise. initial_q: start joint angles (rad); default the plan's home.
         encoder_noise_rad: 1σ jitter of the joint angles the controller reports, rad; default
             :data:`tests.fakes.ur_simulator.ENCODER_NOISE_RAD` (as a real arm), 0 = exact.
+        servo_lag_s: how far the physical arm (actual_q, actual_qd, the tool's physics) follows the controller's
+            target, s; default :data:`tests.fakes.ur_simulator.SERVO_LAG_S` (as a real arm), 0 = none.
         realtime_priority: SCHED_FIFO priority of the controller process's threads and of the Net F/T's sending
             thread (0: normal scheduling). Real devices keep their cycle whatever the computer does; on a loaded
             computer the simulated ones, at normal priority, stall for 100 ms and more (ftacq bridge --sim).
@@ -114,6 +116,7 @@ class SimulatedCell:
                  mount: str = "floor", time_scale: float = 1.0, rate_hz: float = DEFAULT_SENSOR_RATE_HZ,
                  seed: int = 0, initial_q: np.ndarray | None = None,
                  encoder_noise_rad: float = ENCODER_NOISE_RAD, realtime_priority: int = 0,
+                 servo_lag_s: float = SERVO_LAG_S,
                  clocks: SimClocks | None = None, sensor_process: bool = False) -> None:
         if sensor not in SENSORS:
             raise ValueError(f"sensor {sensor!r}: must be one of {', '.join(SENSORS)}")
@@ -138,6 +141,7 @@ class SimulatedCell:
             initial_q = home_configuration_rad(mount)
         self.initial_q = np.asarray(initial_q, dtype=float)
         self.encoder_noise_rad = float(encoder_noise_rad)
+        self.servo_lag_s = float(servo_lag_s)
         self.shared_pose: SharedPose | None = None
         self.physics: SensorPhysics | None = None
         self.controller = None
@@ -202,6 +206,7 @@ class SimulatedCell:
     def _controller_args(self) -> list[str]:
         """The controller's options beyond those URControllerProcess takes: the encoder jitter (seeded by ``seed``)."""
         return ["--seed", str(self.seed), "--encoder-noise-rad", repr(self.encoder_noise_rad),
+                "--servo-lag-s", repr(self.servo_lag_s),
                 *self.clocks.controller_args()]
 
     def _close_shared_pose(self) -> None:

@@ -59,7 +59,7 @@ import numpy as np
 from ftacq.kinematics import ur_model
 from tests.fakes import rtde_protocol as rp
 from tests.fakes.ur_dashboard_server import GREETING, dashboard_server_reply
-from tests.fakes.ur_simulator import ENCODER_NOISE_RAD, Fault, URSimulator
+from tests.fakes.ur_simulator import ENCODER_NOISE_RAD, SERVO_LAG_S, Fault, URSimulator
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 TICK_HZ = 500.0
@@ -695,6 +695,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help=f"1σ jitter of the reported joint angles, rad (default 0: exact; a real UR5e "
                              f"{ENCODER_NOISE_RAD:g})")
     parser.add_argument("--seed", type=int, default=None, help="seed of the encoder jitter")
+    parser.add_argument("--servo-lag-s", type=float, default=0.0, metavar="S",
+                        help=f"the physical arm (actual_q, actual_qd, the tool's physics) follows the target S s "
+                             f"late (default 0: exact; the simulated cell {SERVO_LAG_S:g})")
     parser.add_argument("--clock-rate-error", type=float, default=0.0, metavar="E",
                         help="the controller's clock rate against the host's, minus one (e.g. -30e-6): RTDE "
                              "timestamp runs (1 + E) s per host second (default 0)")
@@ -711,7 +714,7 @@ def main(argv: list[str] | None = None) -> int:
     sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version,
                       initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
                       serial_number=args.serial_number, encoder_noise_rad=args.encoder_noise_rad, seed=args.seed,
-                      clock_rate_error=args.clock_rate_error)
+                      clock_rate_error=args.clock_rate_error, servo_lag_s=args.servo_lag_s)
     server = ControllerServer(sim, args.host, args.pose_shm, send_jitter_s=args.send_jitter_s, seed=args.seed)
     try:
         server.bind()

@@ -67,6 +67,12 @@ rest, independent per joint and per cycle. The motion itself (``q``, ``target_q`
 stays exact. The simulated cell (:class:`tests.fakes.cell.SimulatedCell`: the procedure's tests, ``--sim``) turns
 it on by default; a bare controller (the protocol tests, which compare angles exactly) reports exact angles unless
 given ``encoder_noise_rad``."""
+SERVO_LAG_S = 0.004
+"""How far the physical arm follows the controller's target, s (motion time): a real UR's joints track
+``target_q`` a few ms late (servo tracking). ``actual_q``, ``actual_qd``, the actual TCP pose and speed, the tool
+accelerometer and the tool's physics the simulated sensor feels are the target's of this long ago; ``target_*``
+are the profile's now. The simulated cell (``--sim``, the tests, the benchmarks) turns it on by default; a bare
+controller (the protocol tests) has none unless given ``servo_lag_s``."""
 STANDARD_GRAVITY_M_S2 = 9.81
 MOUNT_GRAVITY_M_S2 = {"floor": (0.0, 0.0, -STANDARD_GRAVITY_M_S2), "wall": (-STANDARD_GRAVITY_M_S2, 0.0, 0.0),
                       "ceiling": (0.0, 0.0, STANDARD_GRAVITY_M_S2)}
@@ -135,8 +141,13 @@ class URSimulator:
 
     def __init__(self, model: URModel, *, time_scale: float = 1.0, version: tuple[int, int, int, int] = (5, 11, 1, 108318),
                  initial_q: np.ndarray | None = None, mount: str = "floor", serial_number: str = "20235500123",
-                 encoder_noise_rad: float = 0.0, seed: int | None = None, clock_rate_error: float = 0.0) -> None:
+                 encoder_noise_rad: float = 0.0, seed: int | None = None, clock_rate_error: float = 0.0,
+                 servo_lag_s: float = 0.0) -> None:
         self.lock = threading.RLock()
+        if not 0.0 <= servo_lag_s <= 0.05:
+            raise ValueError(f"servo_lag_s {servo_lag_s!r}: a servo follows its target by ms (0 to 0.05 s)")
+        self.servo_lag_s = float(servo_lag_s)
+        """The physical arm's lag behind the target, s of motion time (:data:`SERVO_LAG_S`)."""
         if not -0.01 < clock_rate_error < 0.01:
             raise ValueError(f"clock_rate_error {clock_rate_error!r}: a controller's clock is off by ppm, not percent")
         self.clock_rate_error = float(clock_rate_error)
@@ -682,46 +693,69 @@ class URSimulator:
             self._halt_motion()
             self.runtime_state = RUNTIME_PAUSED
 
-    def _poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(flange pose, TCP pose) of the current q, cached while q and the TCP offset do not change."""
-        key = (self.q.tobytes(), self.tcp_offset.tobytes())
+    def _poses(self, q: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(flange pose, TCP pose) of ``q`` (default the target's), cached while q and the TCP offset do not
+        change."""
+        q = self.q if q is None else q
+        key = (q.tobytes(), self.tcp_offset.tobytes())
         if self._pose_cache_key != key:
             self._pose_cache_key = key
-            self._pose_cache = (self.flange_pose(), self.tcp_pose())
+            self._pose_cache = (flange_pose(self.model, q), self.tcp_pose_for(q, self.tcp_offset))
         return self._pose_cache
 
-    def tool_motion(self) -> tuple[np.ndarray, np.ndarray]:
+    def actual_joints(self, now: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, q̇, q̈) of the physical arm at ``now``: the target's :attr:`servo_lag_s` of motion time ago (the
+        profile followed back exactly, :meth:`tests.fakes.world.JointState.at`); the target itself without a lag,
+        with instant moves, or at rest."""
+        if self.servo_lag_s <= 0.0 or self.motion_time_scale() <= 0.0:
+            return self.q, self.qd, self.qdd
+        state = self.joint_state(now)
+        if state.at_rest:
+            return self.q, self.qd, self.qdd
+        q, qd, qdd = state.at(np.array([now]))
+        return q[0], qd[0], qdd[0]
+
+    def tool_motion(self, joints: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
         """Return (TCP speed [v (m/s), ω (rad/s)] in the base frame, the tool accelerometer (m/s², flange frame)).
 
-        Both from the joint state (q, q̇, q̈) of the motion profile, exactly: v_tcp = v_E + ω × (base_R_flange t),
-        and the accelerometer, at the flange origin, reads the specific force base_R_flangeᵀ (a_E − g) (+g up at
-        rest, as an accelerometer does)."""
+        Both from the joint state (q, q̇, q̈) of the physical arm (``joints``, default the target's), exactly:
+        v_tcp = v_E + ω × (base_R_flange t), and the accelerometer, at the flange origin, reads the specific force
+        base_R_flangeᵀ (a_E − g) (+g up at rest, as an accelerometer does)."""
         gravity = np.array(mount_gravity_m_s2(self.mount))
-        if not (np.any(self.qd) or np.any(self.qdd)):
-            base_R_flange = rotation_from_rotvec(self._poses()[0][3:6])
+        q, qd, qdd = (self.q, self.qd, self.qdd) if joints is None else joints
+        if not (np.any(qd) or np.any(qdd)):
+            base_R_flange = rotation_from_rotvec(self._poses(q)[0][3:6])
             return np.zeros(6), base_R_flange.T @ -gravity
-        motion = flange_motion(self.model, self.q, self.qd, self.qdd)
+        motion = flange_motion(self.model, q, qd, qdd)
         base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
         tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
         return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
 
     def joint_state(self, now: float) -> JointState:
-        """The joint state at ``now`` for the simulated sensor (see :class:`tests.fakes.world.JointState`)."""
+        """The joint state at ``now`` for the simulated sensor (see :class:`tests.fakes.world.JointState`): the
+        target's, stamped :attr:`servo_lag_s` (of motion time) later, so that the sensor feels the physical arm."""
         scale = self.motion_time_scale()
-        return JointState(now, scale, self.q.copy(), self.qd.copy(), self.qdd.copy(),
+        stamp_s = now + self.servo_lag_s / scale if scale > 0.0 else now
+        return JointState(stamp_s, scale, self.q.copy(), self.qd.copy(), self.qdd.copy(),
                           self.qdd_switch_in_s.copy(), self.qdd_next.copy(),
                           max(now - self.qdd_switched_at_s, 0.0) * scale, self.qdd_before.copy())
 
     def snapshot(self, now: float, dt: float) -> dict:
-        flange, tcp = self._poses()
+        joints = self.actual_joints(now)
+        lagging = joints[0] is not self.q
+        target_tcp = self._poses()[1] if lagging else None
+        flange, tcp = self._poses(joints[0])
+        if target_tcp is None:
+            target_tcp = tcp
         if self.tool_motion_outputs:
-            self.tcp_speed, accelerometer = self.tool_motion()
+            self.tcp_speed, accelerometer = self.tool_motion(joints)
         else:
             self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
         q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
-        actual_q = q
+        actual_q, actual_qd = tuple(joints[0].tolist()), tuple(joints[1].tolist())
         if self.encoder_noise_rad > 0.0:  # the encoders' jitter: reported angles only
-            actual_q = tuple((self.q + self._encoder_rng.normal(0.0, self.encoder_noise_rad, 6)).tolist())
+            actual_q = tuple((joints[0] + self._encoder_rng.normal(0.0, self.encoder_noise_rad, 6)).tolist())
         moving = self.motion is not None
         running = self.robot_mode == ROBOT_MODE_RUNNING
         joint_mode = 253 if running else (255 if self.robot_mode == ROBOT_MODE_IDLE else 239)
@@ -733,8 +767,8 @@ class URSimulator:
                                                    self.payload_kg, self.payload_cog, np.array(gravity))
         fields = {
             "timestamp": self.controller_time_s(now),
-            "actual_q": actual_q, "target_q": q, "actual_qd": qd, "target_qd": qd, "target_qdd": qdd,
-            "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(tcp.tolist()),
+            "actual_q": actual_q, "target_q": q, "actual_qd": actual_qd, "target_qd": qd, "target_qdd": qdd,
+            "actual_TCP_pose": tuple(tcp.tolist()), "target_TCP_pose": tuple(target_tcp.tolist()),
             "actual_TCP_force": tcp_force,
             "actual_TCP_speed": tuple(self.tcp_speed.tolist()), "target_TCP_speed": tuple(self.tcp_speed.tolist()),
             "tcp_offset": tuple(self.tcp_offset.tolist()),
