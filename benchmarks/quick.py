@@ -206,7 +206,7 @@ def offline_full(truth: CellTruth, seed: int) -> tuple[dict, float]:
     return errors_and_sigmas(result.calibration, truth, float(mids[-1])), float(mids[-1])
 
 
-def offline_grid(seeds: int, json_path: Path | None) -> dict:
+def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0, 1)) -> dict:
     """Quick (synthesized recordings, tests/fakes/quick_records.py, the quick stage's analysis) beside the offline
     full run over seeds × :data:`OFFLINE_DRIFTS` × :data:`OFFLINE_RINGS`, the 4 kg tool on the tilted base; and the
     same recordings with a 0.2 kg part during the validation holds (the verdict must be FAIL). Prints one table row
@@ -228,37 +228,39 @@ def offline_grid(seeds: int, json_path: Path | None) -> dict:
     print(f"plan designed in {plan_s:.1f} s; motion {plan.estimated_duration_s:.1f} s planned")
     base = CASES["4kg-tilted"]
     rows: dict = {}
-    for drift_n, drift_nm in OFFLINE_DRIFTS:
-        for ring_n, tau in OFFLINE_RINGS:
-            key = f"drift {drift_n:g} N/h {drift_nm:g} N·m/h, ring {ring_n:g} N τ {tau:g} s"
-            runs = []
-            for seed in range(seeds):
-                rng = np.random.default_rng([seed, 37])
-                direction = rng.standard_normal(6)
-                direction[:3] /= np.linalg.norm(direction[:3])
-                direction[3:] /= np.linalg.norm(direction[3:])
-                truth = replace(base, drift_n_per_s=tuple(direction[:3] * drift_n / 3600),
-                                drift_nm_per_s=tuple(direction[3:] * drift_nm / 3600), ringdown_force_n=ring_n,
-                                ringdown_torque_nm=0.06 * ring_n, ringdown_time_constant_s=tau)
-                recording = synthesize_recording(plan, truth, settings.ur, seed=seed)
-                analysing = time.monotonic()
-                analysis = analyse_quick(recording, plan, settings.ur, np.array(truth.sensor_offset_m),
-                                         np.array(mount_of("floor").down_base), completed=True)
-                wall = time.monotonic() - analysing
-                wrong = synthesize_recording(plan, truth, settings.ur, seed=seed, wrong_tool_kg=0.2)
-                wrong_verdict = quick_verdict(analysis.result, wrong, plan, settings.ur, True, analysis.drift)
-                quick = errors_and_sigmas(analysis.result.calibration, truth, analysis.drift.reference_s)
-                full, _ = offline_full(truth, seed)
-                runs.append({"status": analysis.verdict.status, "wrong": wrong_verdict.status, "wall": wall,
-                             "quick": _lists(quick), "full": _lists(full), "drift": analysis.drift.modelled,
-                             "load": os.getloadavg()[0]})
-                print(f"  {key}, seed {seed}: {analysis.verdict.status} (wrong tool {wrong_verdict.status}), drift "
-                      f"{'modelled' if analysis.drift.modelled else 'not modelled'}, analysis {wall:.1f} s, load "
-                      f"{os.getloadavg()[0]:.1f}", flush=True)
-            rows[key] = runs
-            if json_path:
-                write_json(json_path, rows)
-            print_offline_row(key, runs)
+    conditions = [(d, r) for d in OFFLINE_DRIFTS for r in OFFLINE_RINGS]
+    for index, ((drift_n, drift_nm), (ring_n, tau)) in enumerate(conditions):
+        if index % part[1] != part[0]:
+            continue
+        key = f"drift {drift_n:g} N/h {drift_nm:g} N·m/h, ring {ring_n:g} N τ {tau:g} s"
+        runs = []
+        for seed in range(seeds):
+            rng = np.random.default_rng([seed, 37])
+            direction = rng.standard_normal(6)
+            direction[:3] /= np.linalg.norm(direction[:3])
+            direction[3:] /= np.linalg.norm(direction[3:])
+            truth = replace(base, drift_n_per_s=tuple(direction[:3] * drift_n / 3600),
+                            drift_nm_per_s=tuple(direction[3:] * drift_nm / 3600), ringdown_force_n=ring_n,
+                            ringdown_torque_nm=0.06 * ring_n, ringdown_time_constant_s=tau)
+            recording = synthesize_recording(plan, truth, settings.ur, seed=seed)
+            analysing = time.monotonic()
+            analysis = analyse_quick(recording, plan, settings.ur, np.array(truth.sensor_offset_m),
+                                     np.array(mount_of("floor").down_base), completed=True)
+            wall = time.monotonic() - analysing
+            wrong = synthesize_recording(plan, truth, settings.ur, seed=seed, wrong_tool_kg=0.2)
+            wrong_verdict = quick_verdict(analysis.result, wrong, plan, settings.ur, True, analysis.drift)
+            quick = errors_and_sigmas(analysis.result.calibration, truth, analysis.drift.reference_s)
+            full, _ = offline_full(truth, seed)
+            runs.append({"status": analysis.verdict.status, "wrong": wrong_verdict.status, "wall": wall,
+                         "quick": _lists(quick), "full": _lists(full), "drift": analysis.drift.modelled,
+                         "load": os.getloadavg()[0]})
+            print(f"  {key}, seed {seed}: {analysis.verdict.status} (wrong tool {wrong_verdict.status}), drift "
+                  f"{'modelled' if analysis.drift.modelled else 'not modelled'}, analysis {wall:.1f} s, load "
+                  f"{os.getloadavg()[0]:.1f}", flush=True)
+        rows[key] = runs
+        if json_path:
+            write_json(json_path, rows)
+        print_offline_row(key, runs)
     return rows
 
 
@@ -299,6 +301,8 @@ def main() -> int:
     parser.add_argument("--offline", action="store_true",
                         help="synthesized recordings, no sockets, faster than real time: seeds × drift × ring-down "
                              "(OFFLINE_DRIFTS, OFFLINE_RINGS), the full run offline too")
+    parser.add_argument("--part", default="0/1", metavar="K/N",
+                        help="--offline: only the conditions K, K+N, K+2N, … (to share the grid among processes)")
     args = parser.parse_args()
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds}: must be at least 1")
@@ -312,7 +316,8 @@ def main() -> int:
     print(f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at start, "
           f"{args.burners} CPU burners")
     if args.offline:
-        offline_grid(args.seeds, args.json)
+        k, n = (int(v) for v in args.part.split("/"))
+        offline_grid(args.seeds, args.json, (k, n))
         load = os.getloadavg()
         print(f"\nload average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
         return 0

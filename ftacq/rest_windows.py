@@ -101,7 +101,7 @@ def settled_starts(time_s: np.ndarray, values: np.ndarray, rests: list[tuple[flo
     """
     time_s = np.asarray(time_s, dtype=float)
     values = np.asarray(values, dtype=float)
-    boxes = []
+    boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
     for t0, t1 in rests:
         lo, hi = np.searchsorted(time_s, [t0, t1])
         index = np.floor((time_s[lo:hi] - t0) / box_s).astype(int)

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-from dataclasses import dataclass
 import logging
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -66,11 +67,11 @@ class Rest:
 class QuickAnalysis:
     """What :func:`analyse_quick` found: the joint fit, the drift, the holds' settling, the verdict, the rows fitted."""
 
-    result: object
-    drift: object
+    result: Any
+    drift: Any
     rests: list[Rest]
     ring_allowance: np.ndarray
-    verdict: object
+    verdict: Any
     rows: np.ndarray
 
     def settle_summary(self) -> dict:
@@ -247,7 +248,7 @@ def _g(values) -> str:
     return "[" + ", ".join(f"{v:.2g}" for v in np.ravel(values)) + "]"
 
 
-def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None) -> Path:
+def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None, analysis=None) -> Path:
     """report.md of a quick run (atomically): parameters with 1σ, the truth beside them on the simulated cell,
     the fit's figures, the verdict."""
     from ftacq.fileio import atomic_write
@@ -274,8 +275,14 @@ def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=
              f"{_g(np.diag(np.array(sigma['inertia_kg_m2'])))} |", "",
              f"Fit: {result.rows} robot rows, lag {1e3 * result.lag_s:.2f} ms, condition number "
              f"{result.condition_number:.3g}, residual RMS "
-             + " ".join(f"{v:.3g}" for v in result.residual_rms) + " (N, N·m).", "",
-             "Wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in wall_s.items()), ""]
+             + " ".join(f"{v:.3g}" for v in result.residual_rms) + " (N, N·m).", ""]
+    if analysis is not None:
+        rate = analysis.drift.rate
+        lines += [f"Drift: {analysis.drift.chosen}; rates " + " ".join(f"{v:.3g}" for v in rate)
+                  + " (N/h, N·m/h), 1σ " + _g(analysis.drift.rate_sigma) + ".",
+                  "Holds used from their settling (ring-down after the stop), s after the rest began: "
+                  + " ".join(f"{r.settled_s:.2f}" for r in analysis.rests) + ".", ""]
+    lines += ["Wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in wall_s.items()), ""]
     if truth is not None:
         from procedures.run_report import format_truth_comparison
 
@@ -450,7 +457,7 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         metadata["verdict"] = verdict.to_dict()
         calibration = replace(calibration, metadata=metadata)
         truth = None if cell is None else replace(cell.truth.calibration(), inertia=cell.truth.inertia)
-        report = write_quick_report(folder.path, result, verdict, plan, wall, truth)
+        report = write_quick_report(folder.path, result, verdict, plan, wall, truth, analysis)
         print("", flush=True)
         print(f"motion recorded in {wall['motion']:.1f} s ({len(recording.record.sensor_time_s)} sensor samples, "
               f"{len(recording.record.robot_time_s)} robot states) -> {motion_path}", flush=True)
