@@ -206,7 +206,8 @@ def offline_full(truth: CellTruth, seed: int) -> tuple[dict, float]:
     return errors_and_sigmas(result.calibration, truth, float(mids[-1])), float(mids[-1])
 
 
-def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0, 1)) -> dict:
+def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0, 1),
+                 only: list[int] | None = None, plan_path: Path | None = None, first_seed: int = 0) -> dict:
     """Quick (synthesized recordings, tests/fakes/quick_records.py, the quick stage's analysis) beside the offline
     full run over seeds × :data:`OFFLINE_DRIFTS` × :data:`OFFLINE_RINGS`, the 4 kg tool on the tilted base; and the
     same recordings with a 0.2 kg part during the validation holds (the verdict must be FAIL). Prints one table row
@@ -217,24 +218,29 @@ def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0,
     from ftacq.app.commands.quick_stage import analyse_quick, quick_verdict
     from ftacq.mounts import mount_of
     from procedures.plan import home_configuration_rad, make_plan
-    from procedures.quick import design_quick
+    from procedures.quick import QuickPlan, design_quick
     from tests.fakes.quick_records import synthesize_recording
 
     settings = config_for_sim().plan_settings()
     start = home_configuration_rad("floor")
     started = time.monotonic()
-    plan = design_quick(settings, start, make_plan(settings, start))
+    if plan_path is not None and plan_path.is_file():
+        plan = QuickPlan.from_json(plan_path.read_text())
+    else:
+        plan = design_quick(settings, start, make_plan(settings, start))
+        if plan_path is not None:
+            plan_path.write_text(plan.to_json())
     plan_s = time.monotonic() - started
     print(f"plan designed in {plan_s:.1f} s; motion {plan.estimated_duration_s:.1f} s planned")
     base = CASES["4kg-tilted"]
     rows: dict = {}
     conditions = [(d, r) for d in OFFLINE_DRIFTS for r in OFFLINE_RINGS]
     for index, ((drift_n, drift_nm), (ring_n, tau)) in enumerate(conditions):
-        if index % part[1] != part[0]:
+        if index % part[1] != part[0] or (only is not None and index not in only):
             continue
         key = f"drift {drift_n:g} N/h {drift_nm:g} N·m/h, ring {ring_n:g} N τ {tau:g} s"
         runs = []
-        for seed in range(seeds):
+        for seed in range(first_seed, first_seed + seeds):
             rng = np.random.default_rng([seed, 37])
             direction = rng.standard_normal(6)
             direction[:3] /= np.linalg.norm(direction[:3])
@@ -257,9 +263,9 @@ def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0,
             print(f"  {key}, seed {seed}: {analysis.verdict.status} (wrong tool {wrong_verdict.status}), drift "
                   f"{'modelled' if analysis.drift.modelled else 'not modelled'}, analysis {wall:.1f} s, load "
                   f"{os.getloadavg()[0]:.1f}", flush=True)
-        rows[key] = runs
-        if json_path:
-            write_json(json_path, rows)
+            rows[key] = runs
+            if json_path:
+                write_json(json_path, rows)
         print_offline_row(key, runs)
     return rows
 
@@ -301,6 +307,9 @@ def main() -> int:
     parser.add_argument("--offline", action="store_true",
                         help="synthesized recordings, no sockets, faster than real time: seeds × drift × ring-down "
                              "(OFFLINE_DRIFTS, OFFLINE_RINGS), the full run offline too")
+    parser.add_argument("--first-seed", type=int, default=0, metavar="S", help="--offline: seeds S..S+N−1")
+    parser.add_argument("--conditions", metavar="I,J", help="--offline: only these conditions (0-5: drift-major)")
+    parser.add_argument("--plan", type=Path, metavar="FILE", help="--offline: the design read from (or kept in) FILE")
     parser.add_argument("--part", default="0/1", metavar="K/N",
                         help="--offline: only the conditions K, K+N, K+2N, … (to share the grid among processes)")
     args = parser.parse_args()
@@ -317,7 +326,8 @@ def main() -> int:
           f"{args.burners} CPU burners")
     if args.offline:
         k, n = (int(v) for v in args.part.split("/"))
-        offline_grid(args.seeds, args.json, (k, n))
+        only = [int(v) for v in args.conditions.split(",")] if args.conditions else None
+        offline_grid(args.seeds, args.json, (k, n), only, args.plan, args.first_seed)
         load = os.getloadavg()
         print(f"\nload average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
         return 0
