@@ -150,7 +150,7 @@ def test_sim_quick_passes_and_saves_the_calibration_with_its_drift_model(tmp_pat
     0, calibration.json saved with its inertia, the drift model's decision and each hold's settling."""
     import json
 
-    done = run_cli(tmp_path, "--sim", "--quick", "--yes", timeout_s=600.0)
+    done = run_cli(tmp_path, "--sim", "--quick", "--yes", timeout_s=1200.0)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "verdict: PASS" in done.stdout
     (folder,) = (tmp_path / "runs").iterdir()
