@@ -404,10 +404,12 @@ class SensorPhysics:
         elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
         return self.tool_wrench(q, qd, qdd) + self.bias_at(elapsed) + self.contact_wrench
 
-    def ringdown_at(self, times_s: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    def ringdown_at(self, times_s: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                    time_scale: float = 1.0) -> np.ndarray:
         """The ring-down (S, 6) at the samples of one call (times (S,) in order, joint states (S, 6)): a stop is a
         sample at rest after a moving one (remembered across calls); its directions are those of the tool's
-        inertial wrench of the deceleration that ended there (:func:`ringdown`)."""
+        inertial wrench of the deceleration that ended there (:func:`ringdown`); it rings in motion time (clock
+        seconds × ``time_scale``, as the physics of a time-lapse cell)."""
         out = np.zeros((len(times_s), 6))
         if self.truth.ringdown_force_n == 0.0 and self.truth.ringdown_torque_nm == 0.0 or not len(times_s):
             return out
@@ -427,7 +429,7 @@ class SensorPhysics:
                     self._last_moving = None
             if self._stop is not None:
                 at, force, torque = self._stop
-                out[begin:end] = ringdown(self.truth, times_s[begin:end] - at, force, torque)
+                out[begin:end] = ringdown(self.truth, (times_s[begin:end] - at) * time_scale, force, torque)
         if moving.any():
             last = int(np.flatnonzero(moving)[-1])
             if last == len(times_s) - 1:
@@ -460,7 +462,7 @@ class SensorPhysics:
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
-            mean = mean + self.ringdown_at(times, q, qd, qdd)
+            mean = mean + self.ringdown_at(times, q, qd, qdd, state.time_scale)
         sigma = self._noise_sigma * (1.0 + self.truth.motion_noise_gain * joint_speed)
         with self._lock:
             noise = self._rng.standard_normal((n, 6))
