@@ -60,10 +60,13 @@ class DriftFit:
     reference_s: float
     span_h: float
 
-    def to_metadata(self, warn: tuple[float, float]) -> dict[str, Any]:
-        """The calibration's ``drift_model`` (the full run's keys; the rates only when modelled)."""
+    def to_metadata(self, warn: tuple[float, float], clock_offset_s: float = 0.0) -> dict[str, Any]:
+        """The calibration's ``drift_model`` (the full run's keys; the rates only when modelled); its ``reference``
+        the end of the recording + ``clock_offset_s`` (UNIX time − the recording's host monotonic clock, so a pose
+        record's UNIX times are placed on the same axis, :func:`ftacq.identification.trend.bias_drift_at`)."""
         out: dict[str, Any] = {"model": "linear" if self.modelled else "none", "chosen": self.chosen,
-                               "source": "robot time of the motion", "unit": "h", "reference": self.reference_s,
+                               "source": "robot time of the motion", "unit": "h",
+                               "reference": self.reference_s + clock_offset_s,
                                "span": self.span_h, "warn_force_n": float(warn[0]), "warn_torque_nm": float(warn[1]),
                                "test": {"chi2": self.chi2, "p_value": self.p_value,
                                         "rate": self.rate.tolist(), "rate_sigma": self.rate_sigma.tolist()}}

@@ -452,8 +452,9 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         metadata["quick"] = {**metadata.get("quick", {}), "plan": plan.to_json(), "motion_file": MOTION_CSV,
                              "sensor_offset_source": offset_source, "wall_time_s": wall,
                              "fit_holds": len(hold_windows(recording, FIT, plan)), **analysis.settle_summary()}
-        metadata["drift_model"] = analysis.drift.to_metadata((config.sampling.drift_warn_force_n,
-                                                              config.sampling.drift_warn_torque_nm))
+        metadata["drift_model"] = analysis.drift.to_metadata(
+            (config.sampling.drift_warn_force_n, config.sampling.drift_warn_torque_nm),
+            clock_offset_s=time.time() - time.monotonic())  # the recording's host clock is time.monotonic()
         metadata["verdict"] = verdict.to_dict()
         calibration = replace(calibration, metadata=metadata)
         truth = None if cell is None else replace(cell.truth.calibration(), inertia=cell.truth.inertia)
