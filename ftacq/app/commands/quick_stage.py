@@ -6,6 +6,10 @@ Run folder: run.json (the plan and status), motion.csv (the recording, both stre
 calibration.json once saved (the same file as the full run's, with inertia). A stopped run (Ctrl-C, a
 protective stop) keeps motion.csv and says how to restart: a continuous motion is not resumed halfway, it is
 run again (about a minute).
+
+The analysis (:func:`analyse_quick`: each hold from its settling, the fit with the drift when the data ask, the
+verdict with what it allows for) is here beside the command that runs it, and the benchmark calls it too: just
+over 500 lines; it would move to ``procedures/`` as a module of its own if another command needed it.
 """
 
 from __future__ import annotations
