@@ -7,6 +7,7 @@
     .venv/bin/python benchmarks/quick.py --case 4kg-tilted --seeds 3 --json runs.json   # three noise seeds
     .venv/bin/python benchmarks/quick.py --case 4kg-tilted --seeds 3 --no-quick --json full.json
     .venv/bin/python benchmarks/quick.py --case 4kg-tilted --seeds 3 --full-from full.json   # full runs reused
+    .venv/bin/python benchmarks/quick.py --offline --seeds 3 --json grid.json   # drift × ring-down grid, offline
 
 Per case, one simulated cell (UR5e controller at time scale 1, Net F/T at 1 kHz, the truth's noise, the default
 simulated clocks: sensor +50 ppm in bursts with skips under load, controller −30 ppm with send jitter) calibrated
@@ -23,6 +24,11 @@ quick and full on the same seed; the summary gives per parameter the RMS over se
 full, their ratio (the statistic the goal means: one draw over another is not), the mean reported 1σ ratio, and
 the largest |error|/σ of each. The full run does not depend on the quick run's design, so its results can be
 kept (``--json``) and reused (``--full-from``) while the quick run changes.
+
+``--offline`` (issue 37) synthesizes the quick recordings from the simulated cell's physics along the designed
+trajectory (tests/fakes/quick_records.py: drift, ring-down after every stop, speed-dependent noise; the streams on
+one clock) and runs the quick stage's analysis on them; the full run beside it is offline too (48 settled poses'
+means over a 200 s run with the same drift, ``--drift auto``). It covers the drift × ring-down grid in minutes.
 
 Goals: quick wall ≤ 90 s; every parameter's error ≤ 1.5× the full run's and |error| ≤ 3σ.
 """
@@ -68,9 +74,18 @@ def config_for(cell: SimulatedCell):
                              "sensor": {"url": cell.sensor_url}}, "<benchmark>")
 
 
-def errors_and_sigmas(calibration, truth: CellTruth) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per parameter: (error vector, its 1σ vector) against the truth (rotation in the sensor frame, rad)."""
+def errors_and_sigmas(calibration, truth: CellTruth,
+                      bias_time_s: float | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per parameter: (error vector, its 1σ vector) against the truth (rotation in the sensor frame, rad); the biases
+    against the truth's at ``bias_time_s`` after the cell started (a drifting sensor; None: at the start)."""
     t = truth.calibration()
+    if bias_time_s is not None:
+        from dataclasses import replace
+
+        from tests.fakes.world import SensorPhysics, SettablePose
+
+        bias = SensorPhysics(truth, SettablePose(), start_time_s=0.0).bias_at(bias_time_s)
+        t = replace(t, force_bias=bias[:3], torque_bias=bias[3:])
     u = calibration.uncertainty
     out = {
         "rotation (mrad)": (1e3 * rotvec_from_rotation(calibration.sensor_rotation @ t.sensor_rotation.T),
@@ -110,12 +125,11 @@ def run_quick(truth: CellTruth, folder: Path, seed: int = 0) -> tuple[dict, dict
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
     from drivers.ur_stream import URStateStream
-    from ftacq.app.commands.quick_stage import hold_windows, quick_verdict
+    from ftacq.app.commands.quick_stage import analyse_quick
     from ftacq.calfile import save_calibration
-    from ftacq.dynamics.joint import identify_joint
     from ftacq.mounts import mount_of
     from procedures.plan import make_plan
-    from procedures.quick import VALIDATE, check_quick, design_quick, record_quick
+    from procedures.quick import check_quick, design_quick, record_quick
 
     with SimulatedCell(truth=truth, time_scale=1.0, seed=seed) as cell:
         config = config_for(cell)
@@ -139,13 +153,10 @@ def run_quick(truth: CellTruth, folder: Path, seed: int = 0) -> tuple[dict, dict
             wall["motion"] = time.monotonic() - moving
             wall["motion planned"] = plan.estimated_duration_s
             identifying = time.monotonic()
-            rows = np.ones(len(recording.record.robot_time_s), dtype=bool)
-            for a, b in hold_windows(recording, VALIDATE, plan):
-                rows[a:b] = False
-            result = identify_joint(recording.record, settings.ur, np.array(truth.sensor_offset_m),
-                                    np.array(mount_of(settings.mount).down_base), rows=rows)
+            analysis = analyse_quick(recording, plan, settings.ur, np.array(truth.sensor_offset_m),
+                                     np.array(mount_of(settings.mount).down_base), completed=True)
+            result, verdict, rows = analysis.result, analysis.verdict, analysis.rows
             wall["identify"] = time.monotonic() - identifying
-            verdict = quick_verdict(result, recording, plan, settings.ur, completed=True)
             save_calibration(folder / "quick.json", result.calibration)
             if SAVE_MOTION is not None:
                 from ftacq.dynamics.motionfile import write_motion_csv
@@ -165,6 +176,123 @@ def run_quick(truth: CellTruth, folder: Path, seed: int = 0) -> tuple[dict, dict
     return errors_and_sigmas(result.calibration, truth), wall, status
 
 
+OFFLINE_DRIFTS = ((0.0, 0.0), (5.0, 0.2), (30.0, 1.0))
+"""--offline: bias drift rates (N/h, N·m/h; the norm, along a random direction per seed)."""
+OFFLINE_RINGS = ((0.3, 0.05), (1.0, 0.15))
+"""--offline: ring-down amplitude (N; the torque's 0.06 N·m per N) and time constant (s), at 9 Hz."""
+FULL_RUN_S = 200.0
+"""--offline: the full run's length (its poses evenly spread over it), s."""
+
+
+def offline_full(truth: CellTruth, seed: int) -> tuple[dict, float]:
+    """The full run on the same synthesized cell, offline: the 24 special poses and 24 in a 40° cone, each a 0.5 s
+    mean at 1 kHz of a settled pose (tests/fakes/pose_records.py), the biases drifting over a run of
+    :data:`FULL_RUN_S`, identified with ``--drift auto``. Returns (errors and 1σ, the reference time s)."""
+    from dataclasses import replace
+
+    from ftacq.identification import identify
+    from tests.fakes.pose_records import example_record
+    from tests.fakes.world import SensorPhysics, SettablePose
+
+    record = example_record(truth, seed=seed, samples_per_pose=500)
+    n = len(record.labels)
+    ends = np.linspace(FULL_RUN_S / n, FULL_RUN_S, n)
+    physics = SensorPhysics(truth, SettablePose(), start_time_s=0.0)
+    mids = ends - 0.25
+    drift = physics.bias_at(mids[:, None]) - physics.bias_at(0.0)
+    record = replace(record, wrench=record.wrench + drift, extra={**record.extra, "t_start_s": ends - 0.5,
+                                                                  "t_end_s": ends})
+    result = identify(record, mount="floor", drift="auto")
+    return errors_and_sigmas(result.calibration, truth, float(mids[-1])), float(mids[-1])
+
+
+def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0, 1),
+                 only: list[int] | None = None, plan_path: Path | None = None, first_seed: int = 0) -> dict:
+    """Quick (synthesized recordings, tests/fakes/quick_records.py, the quick stage's analysis) beside the offline
+    full run over seeds × :data:`OFFLINE_DRIFTS` × :data:`OFFLINE_RINGS`, the 4 kg tool on the tilted base; and the
+    same recordings with a 0.2 kg part during the validation holds (the verdict must be FAIL). Prints one table row
+    per condition: PASS rate, wrong-tool FAIL rate, per parameter the RMS error ratio quick/full and the quick run's
+    largest |error|/σ, the analysis's wall time."""
+    from dataclasses import replace
+
+    from ftacq.app.commands.quick_stage import analyse_quick, quick_verdict
+    from ftacq.mounts import mount_of
+    from procedures.plan import home_configuration_rad, make_plan
+    from procedures.quick import QuickPlan, design_quick
+    from tests.fakes.quick_records import synthesize_recording
+
+    settings = config_for_sim().plan_settings()
+    start = home_configuration_rad("floor")
+    started = time.monotonic()
+    if plan_path is not None and plan_path.is_file():
+        plan = QuickPlan.from_json(plan_path.read_text())
+    else:
+        plan = design_quick(settings, start, make_plan(settings, start))
+        if plan_path is not None:
+            plan_path.write_text(plan.to_json())
+    plan_s = time.monotonic() - started
+    print(f"plan designed in {plan_s:.1f} s; motion {plan.estimated_duration_s:.1f} s planned")
+    base = CASES["4kg-tilted"]
+    rows: dict = {}
+    conditions = [(d, r) for d in OFFLINE_DRIFTS for r in OFFLINE_RINGS]
+    for index, ((drift_n, drift_nm), (ring_n, tau)) in enumerate(conditions):
+        if index % part[1] != part[0] or (only is not None and index not in only):
+            continue
+        key = f"drift {drift_n:g} N/h {drift_nm:g} N·m/h, ring {ring_n:g} N τ {tau:g} s"
+        runs = []
+        for seed in range(first_seed, first_seed + seeds):
+            rng = np.random.default_rng([seed, 37])
+            direction = rng.standard_normal(6)
+            direction[:3] /= np.linalg.norm(direction[:3])
+            direction[3:] /= np.linalg.norm(direction[3:])
+            truth = replace(base, drift_n_per_s=tuple(direction[:3] * drift_n / 3600),
+                            drift_nm_per_s=tuple(direction[3:] * drift_nm / 3600), ringdown_force_n=ring_n,
+                            ringdown_torque_nm=0.06 * ring_n, ringdown_time_constant_s=tau)
+            recording = synthesize_recording(plan, truth, settings.ur, seed=seed)
+            analysing = time.monotonic()
+            analysis = analyse_quick(recording, plan, settings.ur, np.array(truth.sensor_offset_m),
+                                     np.array(mount_of("floor").down_base), completed=True)
+            wall = time.monotonic() - analysing
+            wrong = synthesize_recording(plan, truth, settings.ur, seed=seed, wrong_tool_kg=0.2)
+            wrong_verdict = quick_verdict(analysis.result, wrong, plan, settings.ur, True, analysis.drift)
+            quick = errors_and_sigmas(analysis.result.calibration, truth, analysis.drift.reference_s)
+            full, _ = offline_full(truth, seed)
+            runs.append({"status": analysis.verdict.status, "wrong": wrong_verdict.status, "wall": wall,
+                         "quick": _lists(quick), "full": _lists(full), "drift": analysis.drift.modelled,
+                         "load": os.getloadavg()[0]})
+            print(f"  {key}, seed {seed}: {analysis.verdict.status} (wrong tool {wrong_verdict.status}), drift "
+                  f"{'modelled' if analysis.drift.modelled else 'not modelled'}, analysis {wall:.1f} s, load "
+                  f"{os.getloadavg()[0]:.1f}", flush=True)
+            rows[key] = runs
+            if json_path:
+                write_json(json_path, rows)
+        print_offline_row(key, runs)
+    return rows
+
+
+def print_offline_row(key: str, runs: list[dict]) -> None:
+    """One condition: PASS rate, wrong-tool FAIL rate, per parameter RMS error ratio quick/full and max |e|/σ."""
+    passed = sum(r["status"] == "PASS" for r in runs)
+    failed = sum(r["wrong"] == "FAIL" for r in runs)
+    print(f"\n{key}: PASS {passed}/{len(runs)}, wrong tool FAIL {failed}/{len(runs)}, analysis "
+          f"{min(r['wall'] for r in runs):.0f}-{max(r['wall'] for r in runs):.0f} s")
+    for name in runs[0]["quick"]:
+        q = [np.array(r["quick"][name][0]) for r in runs]
+        f = [np.array(r["full"][name][0]) for r in runs if name in r["full"]]
+        z = max(float(np.max(np.abs(np.array(r["quick"][name][0])) / np.maximum(np.array(r["quick"][name][1]),
+                                                                               1e-15))) for r in runs)
+        q_rms = float(np.sqrt(np.mean([np.sum(e ** 2) for e in q])))
+        ratio = (f"{q_rms / max(float(np.sqrt(np.mean([np.sum(e ** 2) for e in f]))), 1e-15):.2f}"
+                 if len(f) == len(q) else "—")
+        print(f"  {name:<22} error ratio quick/full {ratio:>5}   quick max |e|/σ {z:.2f}")
+
+
+def config_for_sim():
+    from ftacq.app.config import config_from_dict
+
+    return config_from_dict({"robot": {"host": "x", "model": "UR5e", "mount": "floor"}}, "<benchmark>")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--case", choices=tuple(CASES), action="append", help="case(s) to run (default all)")
@@ -176,6 +304,14 @@ def main() -> int:
                         help="take the full runs from a previous --json (same case and seed) instead of running them")
     parser.add_argument("--save-motion", type=Path, metavar="DIR", help="keep the quick runs' motion CSVs there")
     parser.add_argument("--burners", type=int, default=0, help="CPU-burning processes beside the runs")
+    parser.add_argument("--offline", action="store_true",
+                        help="synthesized recordings, no sockets, faster than real time: seeds × drift × ring-down "
+                             "(OFFLINE_DRIFTS, OFFLINE_RINGS), the full run offline too")
+    parser.add_argument("--first-seed", type=int, default=0, metavar="S", help="--offline: seeds S..S+N−1")
+    parser.add_argument("--conditions", metavar="I,J", help="--offline: only these conditions (0-5: drift-major)")
+    parser.add_argument("--plan", type=Path, metavar="FILE", help="--offline: the design read from (or kept in) FILE")
+    parser.add_argument("--part", default="0/1", metavar="K/N",
+                        help="--offline: only the conditions K, K+N, K+2N, … (to share the grid among processes)")
     args = parser.parse_args()
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds}: must be at least 1")
@@ -188,6 +324,13 @@ def main() -> int:
     load = os.getloadavg()
     print(f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at start, "
           f"{args.burners} CPU burners")
+    if args.offline:
+        k, n = (int(v) for v in args.part.split("/"))
+        only = [int(v) for v in args.conditions.split(",")] if args.conditions else None
+        offline_grid(args.seeds, args.json, (k, n), only, args.plan, args.first_seed)
+        load = os.getloadavg()
+        print(f"\nload average at the end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+        return 0
     runs: dict = {}
     with burners(args.burners):
         for name in args.case or tuple(CASES):

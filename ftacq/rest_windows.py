@@ -5,6 +5,9 @@ are summarised: mean, sample std, count, and the least-squares slope of each cha
 standard error from the residual scatter: a hand on the tool changes within a window, drift does not). Motion
 discards the open window. Two windows share the calibration's per-pose model error when their flange orientations
 agree within ``SAME_ORIENTATION_RAD``.
+
+:func:`settled_starts` judges offline, from the samples, when each rest of a recorded motion has settled (the quick
+calibration's holds: the tool rings after each stop).
 """
 
 from __future__ import annotations
@@ -72,6 +75,69 @@ def same_orientation(a: np.ndarray | None, b: np.ndarray | None, tolerance_rad: 
     return math.acos(min(1.0, max(-1.0, cos))) < tolerance_rad
 
 
+SETTLE_BOX_S = 0.02
+"""Box over which :func:`settled_starts` averages the samples, s (a ring of 5-50 Hz still shows between boxes)."""
+SETTLE_Z = 4.0
+"""A change between consecutive box means beyond this many of its noise σ is the rest still moving ..."""
+SETTLE_QUIET_S = 0.15
+"""... and a rest has settled at the first box after which no change exceeds it for this long, s (over a period of a
+ring of 7 Hz and more)."""
+
+
+def settled_starts(time_s: np.ndarray, values: np.ndarray, rests: list[tuple[float, float]],
+                   box_s: float = SETTLE_BOX_S, z: float = SETTLE_Z,
+                   quiet_s: float = SETTLE_QUIET_S) -> tuple[list[float], np.ndarray]:
+    """When each rest [t0, t1) s of samples (N,) s, (N, 6) has settled, judged from the data as the full run's settle
+    check does (the sensor still, not only the arm), with thresholds from the samples' own noise.
+
+    The samples of each rest are averaged in boxes of ``box_s``; the change between consecutive box means, over
+    its noise σ √(1/n_j + 1/n_j+1) (σ per channel: the median absolute change over every rest, robust to the
+    ringing minority, so correlated or filtered noise sets its own scale), must stay within ``z`` in every channel
+    for ``quiet_s``; the rest has settled at the end of the first box from which it does (t1 if never). A slow
+    drift moves a box mean by far less than its noise; a decaying oscillation does not.
+
+    Returns (the settled time of each rest, s; the largest ring amplitude that can pass unseen (6,), z σ for a
+    box: what a verdict allows for what is left of it).
+    """
+    time_s = np.asarray(time_s, dtype=float)
+    values = np.asarray(values, dtype=float)
+    boxes: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
+    for t0, t1 in rests:
+        lo, hi = np.searchsorted(time_s, [t0, t1])
+        index = np.floor((time_s[lo:hi] - t0) / box_s).astype(int)
+        if hi - lo < 2 or index[-1] < 2:
+            boxes.append(None)
+            continue
+        count = np.bincount(index)
+        sums = np.stack([np.bincount(index, values[lo:hi, c], minlength=len(count)) for c in range(6)], axis=1)
+        full = count >= 3
+        starts = t0 + box_s * np.arange(len(count))
+        boxes.append((starts[full], sums[full] / count[full, None], count[full]))
+    scaled = [np.diff(m, axis=0) / np.sqrt(1.0 / n[:-1] + 1.0 / n[1:])[:, None]
+              for b in boxes if b is not None for _, m, n in [b] if len(n) > 1]
+    if not scaled:
+        return [float(t1) for _, t1 in rests], np.zeros(6)
+    pooled = np.concatenate(scaled)
+    sigma = np.maximum(1.4826 * np.median(np.abs(pooled), axis=0) / np.sqrt(2.0), 1e-300)  # one sample's σ
+    settled = []
+    quiet = max(int(round(quiet_s / box_s)), 1)
+    typical = float(np.median(np.concatenate([b[2] for b in boxes if b is not None])))
+    for (t0, t1), b in zip(rests, boxes):
+        if b is None or len(b[2]) < 2:
+            settled.append(float(t1))
+            continue
+        starts, means, count = b
+        change = np.abs(np.diff(means, axis=0)) / (sigma * np.sqrt(1.0 / count[:-1] + 1.0 / count[1:])[:, None])
+        loud = np.max(change, axis=1) > z
+        at = float(t1)
+        for j in range(len(loud)):
+            if not loud[j:j + quiet].any() and (j + quiet <= len(loud) or not loud[j:].any()):
+                at = float(starts[j] + box_s) if j > 0 or loud[0] else float(t0)
+                break
+        settled.append(min(at, float(t1)))
+    return settled, z * sigma * np.sqrt(2.0 / max(typical, 1.0))
+
+
 class RestWindows:
     """Cuts batches of residual samples into rest windows (module docstring, step 1)."""
 
@@ -115,4 +181,5 @@ class RestWindows:
         return out
 
 
-__all__ = ["RestWindow", "RestWindows", "summarise_window", "same_orientation", "SAME_ORIENTATION_RAD"]
+__all__ = ["RestWindow", "RestWindows", "summarise_window", "same_orientation", "settled_starts", "SAME_ORIENTATION_RAD",
+           "SETTLE_BOX_S", "SETTLE_Z", "SETTLE_QUIET_S"]

@@ -383,12 +383,13 @@ def _matrix_text(matrix) -> str:
 
 
 def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=None, *, motion=None, robot=None,
-                       saved: bool | None = None) -> Path:
+                       saved: bool | None = None, analysis=None) -> Path:
     """Write ``report.md`` and its PNGs for a quick run (:class:`ftacq.dynamics.joint.JointResult` ``result``)
     with the full run's sections: the verdict first (``saved`` False: "not saved" above it; None: not decided
     yet), parameters with 1σ (the rotation included), the truth beside them on the simulated cell, validation on
     the still holds (the verdict's errors and test), and raw vs compensated over the motion (``motion``: the
-    :class:`ftacq.dynamics.motionfile.MotionRecord`, ``robot``: its :class:`ftacq.kinematics.URModel`)."""
+    :class:`ftacq.dynamics.motionfile.MotionRecord`, ``robot``: its :class:`ftacq.kinematics.URModel`); with the
+    quick analysis (``analysis``: its ``drift`` and ``rests``), the drift decision and each hold's settling."""
     folder = Path(folder)
     cal, sigma = result.calibration, result.sigma
     lines = ["# ftacq quick calibration" + (" (simulated cell)" if truth is not None else ""), ""]
@@ -404,6 +405,10 @@ def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=
               f"- fit: {result.rows} robot rows, lag {1e3 * result.lag_s:.2f} ms, condition number "
               f"{result.condition_number:.3g}, residual RMS " + " ".join(f"{x:.3g}" for x in result.residual_rms)
               + " (N, N·m)",
+              *([f"- drift: {analysis.drift.chosen}; rates " + " ".join(f"{v:.3g}" for v in analysis.drift.rate)
+                 + " (N/h, N·m/h), 1σ " + " ".join(f"{v:.2g}" for v in analysis.drift.rate_sigma),
+                 "- holds used from their settling (ring-down after the stop), s after the rest began: "
+                 + " ".join(f"{r.settled_s:.2f}" for r in analysis.rests)] if analysis is not None else []),
               "- wall time (s): " + ", ".join(f"{k} {x:.1f}" for k, x in wall_s.items()),
               "- calibration: " + ("calibration.json" if saved else "not written"), "",
               "## Identified parameters (value ± 1σ)", ""] + _quick_parameters(cal, sigma)

@@ -93,7 +93,7 @@ def test_a_quick_run_folder_is_restarted_not_resumed(tmp_path):
         refuse_resume(Folder())
 
 
-def run_cli(tmp_path, *args: str):
+def run_cli(tmp_path, *args: str, timeout_s: float = 300.0):  # a hang guard (the suite's own limit), not a timing assert
     import os
     import subprocess
     import sys
@@ -102,7 +102,7 @@ def run_cli(tmp_path, *args: str):
     root = Path(__file__).resolve().parents[1]
     env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.run([sys.executable, "-m", "ftacq.app.cli", "calibrate", *args, "--out", str(tmp_path / "runs")],
-                          cwd=root, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=120)
+                          cwd=root, env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=timeout_s)
 
 
 def test_dry_run_prints_the_checked_quick_plan_and_moves_nothing(tmp_path):
@@ -143,6 +143,24 @@ def test_sim_quick_with_a_wrong_tool_fails_is_not_saved_and_is_replayed(tmp_path
     # the tool's weight is in the raw force and compensated out (but for the part during the validation holds)
     assert np.median(np.linalg.norm(raw, axis=1)) > 5.0
     assert np.median(np.linalg.norm(compensated, axis=1)) < 0.5
+
+
+def test_sim_quick_passes_and_saves_the_calibration_with_its_drift_model(tmp_path):
+    """The whole command at real time on the default simulated cell (its tool rings after every stop): PASS, exit
+    0, calibration.json saved with its inertia, the drift model's decision and each hold's settling."""
+    import json
+
+    done = run_cli(tmp_path, "--sim", "--quick", "--yes", timeout_s=1200.0)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "verdict: PASS" in done.stdout
+    (folder,) = (tmp_path / "runs").iterdir()
+    saved = json.loads((folder / "calibration.json").read_text())
+    metadata = saved  # the metadata keys follow the model keys (ftacq/calfile.py)
+    assert metadata["drift_model"]["model"] in ("linear", "none") and metadata["drift_model"]["chosen"]
+    delays = metadata["quick"]["settle_delay_s"]
+    assert len(delays) == len(json.loads(metadata["quick"]["plan"])["hold_s"])
+    assert max(delays) > 0.1  # the ring-down after each stop was seen and left out
+    assert json.loads((folder / "run.json").read_text())["status"] == "done"
 
 
 def test_ctrl_c_stops_keeps_the_motion_and_says_how_to_restart(tmp_path):

@@ -64,7 +64,7 @@ def test_a_hold_is_found_in_the_sensor_samples_at_any_rdt_rate(rate_hz):
     assert abs(np.median(steps) * rate_hz - 1.0) < 0.01
     # the validation hold: at rest, and its sensor samples read the tool's weight at that pose (a window misplaced
     # in time would average the move before it: the wrist turned by 0.8 rad)
-    q, mean, standard_error, _ = validation_poses(recording, plan, lag_s=0.0)
+    q, mean, standard_error, *_ = validation_poses(recording, plan, lag_s=0.0)
     assert q.shape == (1, 6)
     a, b = recording.hold_rows[1]
     assert np.max(np.abs(record.qd[b - 10:b])) <= REST_SPEED_RAD_S

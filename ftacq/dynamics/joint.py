@@ -47,6 +47,7 @@ import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calibration import Calibration
+from ftacq.dynamics.drift_terms import drift_columns
 from ftacq.dynamics.identify import MIN_ROWS, MotionRecord, aligned_rows
 from ftacq.dynamics.model import SensorDynamics
 from ftacq.dynamics.timing import box_average
@@ -155,6 +156,7 @@ class JointModel:
         self.rotation0 = np.asarray(rotation0, dtype=float)
         self.down0 = np.asarray(down0, dtype=float) / np.linalg.norm(down0)
         self.tangent = _tangent_basis(self.down0)
+        self.drift_time_h: np.ndarray | None = None  # per robot row: a linear bias drift's 6 columns (drift_terms.py)
 
     def rotation(self, theta: np.ndarray) -> np.ndarray:
         """sensor_R_flange = exp([δr]×) R₀ (the increment in the sensor frame, as the full run's covariance)."""
@@ -170,10 +172,12 @@ class JointModel:
         a_o[:, :3, 0] += gravity_o
         a_o[:, 3:, 1:4] -= _skew(gravity_o)
         r = self.rotation(theta)
-        out = np.empty((a_o.shape[0], 6, LINEAR))
+        extra = drift_columns(self.drift_time_h, rows, a_o.shape[0])
+        out = np.empty((a_o.shape[0], 6, LINEAR + extra.shape[2]))
         np.matmul(r, a_o[:, :3], out=out[:, :3, :10])
         np.matmul(r, a_o[:, 3:], out=out[:, 3:, :10])
-        out[:, :, 10:] = np.eye(6)
+        out[:, :, 10:LINEAR] = np.eye(6)
+        out[:, :, LINEAR:] = extra
         return out
 
     def recentre(self, theta: np.ndarray) -> None:
@@ -196,7 +200,7 @@ class JointModel:
         R [m ġ_O; h × ġ_O]."""
         a = self.regressor(np.zeros(NONLINEAR), rows)
         wrench = a[:, :, :10] @ x[:10]  # R y_O (N, 6)
-        jacobian = np.empty((a.shape[0], 6, NONLINEAR + LINEAR))
+        jacobian = np.empty((a.shape[0], 6, NONLINEAR + a.shape[2]))
         jacobian[:, :3, :3] = -_skew(wrench[:, :3])
         jacobian[:, 3:, :3] = -_skew(wrench[:, 3:])
         r = self.rotation0
@@ -224,7 +228,7 @@ class JointModel:
 
 def _solve_linear(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted least squares of y ≈ A x (rows (N, 6), weights (N, 6)) by scaled normal equations."""
-    aw = (a * w[:, :, None]).reshape(-1, LINEAR)
+    aw = (a * w[:, :, None]).reshape(-1, a.shape[2])
     yw = (y * w).reshape(-1)
     scale = np.linalg.norm(aw, axis=0)
     scale[scale == 0] = 1.0
@@ -263,12 +267,14 @@ def _row_weights(residual: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, n
 
 def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.ndarray, nominal_down: np.ndarray, *,
                    rows: np.ndarray | None = None, lag_s: float | None = None,
-                   rotation_start: np.ndarray | None = None, metadata: dict | None = None) -> JointResult:
+                   rotation_start: np.ndarray | None = None, metadata: dict | None = None,
+                   drift_time_h: np.ndarray | None = None) -> JointResult:
     """Identify every parameter of ``record`` (module docstring).
 
     ``nominal_down``: the mount's unit gravity direction in the base frame (the start of the tilt).
     ``rows``: a boolean mask over the robot samples to fit (default all; the stage leaves the validation holds
     out). ``lag_s`` None measures it. ``rotation_start`` skips the quasi-static start of the rotation.
+    ``drift_time_h`` (M,) per robot sample: a linear bias drift is fitted too (:mod:`ftacq.dynamics.drift_terms`).
     Raises InputError when the record is too short or does not excite every parameter.
     """
     if len(record.robot_time_s) < MIN_ROWS:
@@ -276,6 +282,7 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     mask = np.ones(len(record.robot_time_s), dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
     model = JointModel(robot, sensor_offset_m, record.q, record.qd, record.qdd,
                        np.eye(3) if rotation_start is None else rotation_start, nominal_down)
+    model.drift_time_h = drift_time_h
     mask = mask & ~_near_acceleration_steps(record.qdd)
 
     def align(lag: float) -> tuple[np.ndarray, np.ndarray]:
@@ -341,7 +348,7 @@ def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.nda
     robust = inverse @ (blocks.T @ blocks) @ inverse
     inflation = np.sqrt(np.maximum(np.diag(robust) / np.maximum(np.diag(full_covariance), 1e-300), 1.0))
     full_covariance = full_covariance * np.outer(inflation, inflation)
-    covariance = full_covariance[:NONLINEAR + LINEAR, :NONLINEAR + LINEAR]
+    covariance = full_covariance[:NONLINEAR + x.size, :NONLINEAR + x.size]
     lag_sigma = float(np.sqrt(max(full_covariance[-1, -1], 0.0))) if fit_lag else 0.0
     sigma = _propagate(model, optimum, covariance)
     summary = {"method": "quick (joint fit of the motion)", "lag_ms": 1e3 * float(lag_s),

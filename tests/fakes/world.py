@@ -77,6 +77,10 @@ class CellTruth:
         sensor_gain_error: the sensor's own calibration off by E (6×6, rows and columns Fx Fy Fz Tx Ty Tz): it
             reports (I + E) @ the applied wrench, plus the biases (E[2, 2] = 0.01: Fz reads 1 % high; E[1, 0] =
             0.007: 0.7 % of Fx appears on Fy). None: a perfect sensor.
+        ringdown_force_n, ringdown_torque_nm: amplitude of the tool's ring-down after every stop of the arm (the
+            tool on its compliant mount oscillating after the deceleration), along the stop's inertial wrench:
+            A exp(−u/τ) sin(2π f u), u the time since the stop (:func:`ringdown`); 0 turns it off.
+        ringdown_time_constant_s, ringdown_frequency_hz: its τ and f.
     """
 
     sensor_rotation_zyx_deg: tuple[float, float, float] = (30.0, -20.0, 75.0)
@@ -114,6 +118,10 @@ class CellTruth:
             return wrench
         bias = np.array(self.force_bias_n + self.torque_bias_nm) if bias is None else bias
         return (np.asarray(wrench, dtype=float) - bias) @ self.sensor_gain.T + bias
+    ringdown_force_n: float = 0.5
+    ringdown_torque_nm: float = 0.03
+    ringdown_time_constant_s: float = 0.1
+    ringdown_frequency_hz: float = 9.0
 
     @property
     def sensor_rotation(self) -> np.ndarray:
@@ -152,6 +160,28 @@ class CellTruth:
         from ftacq.mounts import mount_of
 
         return replace(self, base_tilt_deg=tuple(mount_of(mount).tilt_deg))
+
+
+RINGDOWN_SPAN = 10.0
+"""A ring-down is followed for this many time constants after its stop (then below 5e-5 of its amplitude)."""
+
+
+def ringdown(truth: CellTruth, since_stop_s: np.ndarray, force_direction: np.ndarray,
+             torque_direction: np.ndarray) -> np.ndarray:
+    """The tool's ring-down (S, 6) [N, N·m] at ``since_stop_s`` (S,) after a stop (0 before it): the amplitudes of
+    the truth along the unit directions (3,) each, times exp(−u/τ) sin(2π f u)."""
+    u = np.asarray(since_stop_s, dtype=float)
+    tau = max(float(truth.ringdown_time_constant_s), 1e-9)
+    shape = np.where((u >= 0.0) & (u < RINGDOWN_SPAN * tau),
+                     np.exp(-np.clip(u, 0.0, None) / tau) * np.sin(2 * np.pi * truth.ringdown_frequency_hz * u), 0.0)
+    amplitude = np.concatenate([truth.ringdown_force_n * np.asarray(force_direction, dtype=float),
+                                truth.ringdown_torque_nm * np.asarray(torque_direction, dtype=float)])
+    return shape[:, None] * amplitude
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    norm = float(np.linalg.norm(v))
+    return v / norm if norm > 0 else np.zeros_like(v)
 
 
 class PoseSource(Protocol):
@@ -345,6 +375,8 @@ class SensorPhysics:
         self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
         self._next_sample_s: float | None = None
         self.timeline_restarts = 0
+        self._last_moving: tuple[float, np.ndarray, np.ndarray] | None = None  # (time, q, q̈) of the last moving sample
+        self._stop: tuple[float, np.ndarray, np.ndarray] | None = None  # (time, force, torque direction) of the last stop
 
     def _sample_times(self, n: int, now: float) -> np.ndarray:
         """Times of the ``n`` samples of one call: a stream's chunks (n > 1) continue one regular timeline at
@@ -397,6 +429,40 @@ class SensorPhysics:
         elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
         return (self.tool_wrench(q, qd, qdd) + self.contact_wrench) @ self.truth.sensor_gain.T + self.bias_at(elapsed)
 
+    def ringdown_at(self, times_s: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                    time_scale: float = 1.0) -> np.ndarray:
+        """The ring-down (S, 6) at the samples of one call (times (S,) in order, joint states (S, 6)): a stop is a
+        sample at rest after a moving one (remembered across calls); its directions are those of the tool's
+        inertial wrench of the deceleration that ended there (:func:`ringdown`); it rings in motion time (clock
+        seconds × ``time_scale``, as the physics of a time-lapse cell)."""
+        out = np.zeros((len(times_s), 6))
+        if self.truth.ringdown_force_n == 0.0 and self.truth.ringdown_torque_nm == 0.0 or not len(times_s):
+            return out
+        moving = np.max(np.abs(qd), axis=1) > 1e-9
+        previous = np.concatenate([[self._last_moving is not None], moving[:-1]])
+        stops = np.flatnonzero(previous & ~moving)
+        segments = [0, *stops.tolist(), len(times_s)]
+        for begin, end in zip(segments[:-1], segments[1:]):
+            if begin in stops:
+                if begin > 0:
+                    self._last_moving = (float(times_s[begin - 1]), q[begin - 1], qdd[begin - 1])
+                if self._last_moving is not None:
+                    _t, q_stop, qdd_stop = self._last_moving
+                    jolt = self.tool_wrench(q_stop[None], np.zeros((1, 6)), qdd_stop[None])[0] \
+                        - self.tool_wrench(q_stop[None], np.zeros((1, 6)), np.zeros((1, 6)))[0]
+                    self._stop = (float(times_s[begin]), _unit(jolt[:3]), _unit(jolt[3:]))
+                    self._last_moving = None
+            if self._stop is not None:
+                at, force, torque = self._stop
+                out[begin:end] = ringdown(self.truth, (times_s[begin:end] - at) * time_scale, force, torque)
+        if moving.any():
+            last = int(np.flatnonzero(moving)[-1])
+            if last == len(times_s) - 1:
+                self._last_moving = (float(times_s[last]), q[last], qdd[last])
+            else:
+                self._last_moving = None
+        return out
+
     def sample(self, n: int, start_time_s: float | None = None, period_s: float | None = None) -> np.ndarray:
         """Return ``n`` noisy samples (n, 6) at the current pose and time (the arm's motion followed per sample,
         at ``start_time_s`` + k × ``period_s`` (host seconds; default 1 / rate_hz) when the caller knows when the
@@ -414,12 +480,14 @@ class SensorPhysics:
         else:
             times = start_time_s + np.arange(n) * (1.0 / self.rate_hz if period_s is None else period_s)
         if state is None or self.robot is None or state.at_rest:
+            self._last_moving = None
             mean = self.noiseless_wrench(pose, elapsed)
             if start_time_s is not None:  # the drift at each sample's own time
                 mean = mean - self.bias_at(elapsed) + self.bias_at((times - self.start_time_s)[:, None])
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
+            mean = mean + self.ringdown_at(times, q, qd, qdd, state.time_scale)
         sigma = self._noise_sigma * (1.0 + self.truth.motion_noise_gain * joint_speed)
         with self._lock:
             noise = self._rng.standard_normal((n, 6))
