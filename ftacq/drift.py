@@ -213,6 +213,7 @@ class DriftTracker:
         """The step standing against the track (None once windows agree with it again)."""
         self._refused: list[RestWindow] = []
         self._reference_std: list[np.ndarray] = []
+        self._reference_median: np.ndarray | None = None  # of _reference_std: read every batch, changed per window
         self._model_cache: tuple[bytes, np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ state
@@ -223,13 +224,17 @@ class DriftTracker:
         s = self.settings
         rate_sq = np.minimum(x[:, 1] ** 2 + P[:, 1, 1], s.max_rate**2)
         q_rate = s.q_rate + rate_sq / s.warmup_time_constant_s  # adaptive rate walk (module docstring, step 3)
-        F = np.eye(4)
-        F[0, 1] = dt
-        Q = np.zeros((6, 4, 4))
-        Q[:, 0, 0] = s.q_bias * dt + q_rate * dt**3 / 3.0
-        Q[:, 0, 1] = Q[:, 1, 0] = q_rate * dt**2 / 2.0
-        Q[:, 1, 1] = q_rate * dt
-        return x @ F.T, F @ P @ F.T + Q
+        # F = I with F[0, 1] = dt (offset += dt · rate): x F^T and F P F^T + Q written out, per channel
+        x_next = x.copy()
+        x_next[:, 0] += dt * x[:, 1]
+        P_next = P.copy()
+        P_next[:, 0, :] += dt * P[:, 1, :]
+        P_next[:, :, 0] += dt * P_next[:, :, 1]
+        P_next[:, 0, 0] += s.q_bias * dt + q_rate * dt**3 / 3.0
+        P_next[:, 0, 1] += q_rate * dt**2 / 2.0
+        P_next[:, 1, 0] += q_rate * dt**2 / 2.0
+        P_next[:, 1, 1] += q_rate * dt
+        return x_next, P_next
 
     def _state_at(self, time_s: float | None) -> tuple[np.ndarray, np.ndarray]:
         if self.time_s is None or time_s is None:
@@ -266,7 +271,9 @@ class DriftTracker:
         """(6,) the sensor's per-sample noise (median std of recent accepted windows), or None before any."""
         if not self._reference_std:
             return None
-        return np.median(np.array(self._reference_std), axis=0)
+        if self._reference_median is None:
+            self._reference_median = np.median(np.array(self._reference_std), axis=0)
+        return self._reference_median
 
     def model_variance(self, flange_R_base: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """The calibration's model variance at this orientation (biases excluded), (6,) each: the parameters'
@@ -366,6 +373,7 @@ class DriftTracker:
         self._refused.clear()
         self._reference_std.append(window.std)
         del self._reference_std[:-REFERENCE_NOISE_WINDOWS]
+        self._reference_median = None
 
     def _judge_refused(self, window: RestWindow) -> Judgement | None:
         """Keep the refused window; when those at its orientation (consecutive) span ``reacquire_after_s``, test

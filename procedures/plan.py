@@ -45,7 +45,7 @@ from ftacq.mounts import mount_of
 from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
 from procedures.collision import CollisionChecker
-from ftacq.kinematics.ik import Branch, IKResult, branch_of, solve_ik_branches
+from ftacq.kinematics.ik import Branch, IKResult, branch_of, solve_ik_batch
 from procedures.plan_settings import PlanSettings
 from procedures.poses import PoseSet, explicit_poses, random_cone_poses, special_poses, tool_down_rotation
 from procedures.tour import (
@@ -330,7 +330,7 @@ def _evaluate(settings: PlanSettings, center: np.ndarray, start_q: np.ndarray) -
     checker = collision_checker(settings, planning=True)
     poses = build_pose_set(settings, center)
     per_branch: dict[Branch, tuple[list, list]] = {b: ([], []) for b in Branch.all()}
-    results = [solve_ik_branches(model, pose, start_q) for pose in poses.poses]
+    results = solve_ik_batch(model, poses.poses, start_q)
     solved = [r.q_rad for by_branch in results for r in by_branch.values() if r.ok]
     clear = iter(_clear_at(checker, np.array(solved).reshape(-1, 6)))  # one batched check of every solution
     for by_branch in results:

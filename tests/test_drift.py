@@ -42,9 +42,11 @@ class Feeder:
         n = int(RATE_HZ * BATCH_S)
         flange_R_base = rotation_from_rotvec(pose[3:6]).T
         end = self.t + seconds
+        # the still tool's load at this pose (SensorPhysics.noiseless_wrench less its biases), once per call
+        load = self.physics.noiseless_wrench(pose, 0.0) - self.physics.bias_at(0.0)
         while self.t < end - 1e-9:
             t = self.t + np.arange(n) / RATE_HZ
-            wrench = self.physics.noiseless_wrench(pose, self.t) + self.rng.standard_normal((n, 6)) \
+            wrench = load + self.physics.bias_at(self.t) + self.rng.standard_normal((n, 6)) \
                 * self.physics._noise_sigma
             if contact is not None:
                 wrench = wrench + contact(t)

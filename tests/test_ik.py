@@ -9,7 +9,8 @@ import pytest
 
 from ftacq.kinematics import UR_MODELS, flange_pose, forward_kinematics, ur_model
 from ftacq.kinematics.ik import (
-    Branch, analytic_ik, branch_of, pose_error, singularity_reason, solve_ik, solve_ik_branches, wrap_near,
+    Branch, analytic_ik, branch_of, pose_error, singularity_reason, solve_ik, solve_ik_batch, solve_ik_branches,
+    wrap_near,
 )
 
 ROUND_TRIP_TOLERANCE = 1e-9
@@ -39,6 +40,31 @@ def test_round_trip_fk_of_ik_is_the_pose(name):
             assert branch_of(model, result.q_rad) == branch
         # the solution in the original branch, wrapped near the original, is the original configuration
         np.testing.assert_allclose(solved[branch_of(model, q_true)].q_rad, q_true, atol=1e-9)
+
+
+def test_a_batch_of_poses_solves_as_each_pose_alone():
+    """The planner solves a whole pose set at once: every pose, reachable or not, near a singularity or a limit,
+    gets in the batch exactly the branches, solutions and reasons it gets alone (none taken from a neighbour)."""
+    model = ur_model("UR5e")
+    rng = np.random.default_rng(4)
+    q = rng.uniform(-np.pi, np.pi, (40, 6))
+    q[::5, 4] = 0.01  # near the wrist singularity
+    q[1::5, 2] = 0.02  # near the elbow singularity
+    poses = np.array([flange_pose(model, qi) for qi in q])
+    poses[2::5, :3] *= 3.0  # out of reach
+    reference = rng.uniform(-np.pi, np.pi, 6)
+    batch = solve_ik_batch(model, poses, reference)
+    assert len(batch) == len(poses)
+    kinds = set()
+    for pose, together in zip(poses, batch):
+        alone = solve_ik_branches(model, pose, reference)
+        assert list(together) == list(alone)
+        for branch, result in alone.items():
+            assert together[branch].reason == result.reason and together[branch].branch == result.branch
+            if result.ok:
+                np.testing.assert_array_equal(together[branch].q_rad, result.q_rad)
+            kinds.add(result.reason.split(" ")[0] if result.reason else "ok")
+    assert {"ok", "out", "wrist", "elbow", "joint"} <= kinds  # each outcome is in the batch
 
 
 def test_eight_distinct_branches_for_a_generic_pose():

@@ -36,14 +36,14 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri, gammaincinv  # χ² tails: scipy.stats's own functions, without its 1 s import
 
 CHANNELS = 6
 WEIGHT_QUANTILE = 0.99
 """χ²₆ quantile below which a pose keeps full weight."""
 OUTLIER_FAMILY_ALPHA = 0.01
 """Probability that a clean record of N poses has any pose named an outlier (Bonferroni over N)."""
-CHI2_1_MEDIAN = float(chi2.ppf(0.5, 1))
+CHI2_1_MEDIAN = float(2.0 * gammaincinv(0.5, 0.5))  # χ²₁ ppf
 """Median of χ²₁ (≈ 0.4549): the median of r²/σ² for Gaussian residuals."""
 NOISE_FLOOR_RELATIVE = 1e-13
 """σ never goes below this fraction of a channel's signal range (+ an absolute 1e-15): exact data stay finite."""
@@ -62,7 +62,7 @@ RESOLUTION_MIN_VALUES = 6
 """Fewer distinct values than this in a channel say nothing about its resolution."""
 
 
-_WEIGHT_THRESHOLD = float(chi2.ppf(WEIGHT_QUANTILE, CHANNELS))
+_WEIGHT_THRESHOLD = float(2.0 * gammaincinv(CHANNELS / 2, WEIGHT_QUANTILE))  # χ²₆ ppf
 
 
 def weight_threshold() -> float:
@@ -73,7 +73,7 @@ def weight_threshold() -> float:
 @functools.lru_cache(maxsize=256)
 def outlier_threshold(n_poses: int) -> float:
     """Return the d² above which a pose is named an outlier (χ²₆ at level OUTLIER_FAMILY_ALPHA / N)."""
-    return float(chi2.isf(OUTLIER_FAMILY_ALPHA / max(n_poses, 1), CHANNELS))
+    return float(chdtri(CHANNELS, OUTLIER_FAMILY_ALPHA / max(n_poses, 1)))
 
 
 def resolution_step(values: np.ndarray) -> float:

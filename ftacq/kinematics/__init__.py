@@ -16,11 +16,13 @@ from ftacq.kinematics.ik import (
     Branch,
     IKResult,
     analytic_ik,
+    analytic_ik_batch,
     branch_of,
     pose_error,
     refine_ik,
     singularity_reason,
     solve_ik,
+    solve_ik_batch,
     solve_ik_branches,
     wrap_near,
 )
@@ -53,5 +55,5 @@ __all__ = ["URModel", "UR_MODELS", "ur_model", "JOINT_LIMIT_MARGIN_RAD", "MEASUR
            "planning_limits_rad", "middle_equivalent", "dh_matrix", "dh_step", "dh_transforms", "dh_transforms_batch",
            "forward_kinematics", "flange_pose", "FLANGE_FRAME", "dh_frame_name", "dh_chain_model", "pinocchio_model",
            "FlangeRotation", "pinocchio_model_from_urdf", "pinocchio_dh_frames", "IK_TOLERANCE", "TWO_PI", "Branch",
-           "IKResult", "analytic_ik", "branch_of", "singularity_reason", "wrap_near", "refine_ik", "solve_ik_branches",
-           "solve_ik", "pose_error"]
+           "IKResult", "analytic_ik", "analytic_ik_batch", "branch_of", "singularity_reason", "wrap_near", "refine_ik",
+           "solve_ik_branches", "solve_ik_batch", "solve_ik", "pose_error"]

@@ -33,7 +33,14 @@ from functools import lru_cache
 import numpy as np
 
 from ftacq.kinematics.pinocchio_models import FLANGE_FRAME, pinocchio_model
-from ftacq.kinematics.ur import URModel, dh_step, dh_transforms, forward_kinematics, planning_limits_rad
+from ftacq.kinematics.ur import (
+    URModel,
+    dh_step,
+    dh_transforms,
+    dh_transforms_batch,
+    forward_kinematics,
+    planning_limits_rad,
+)
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 
 TWO_PI = 2.0 * np.pi
@@ -97,9 +104,19 @@ def _as_transform(pose_or_transform: np.ndarray) -> np.ndarray:
         return arr
     if arr.shape != (6,):
         raise ValueError(f"expected a pose (6,) or a transform (4, 4), got shape {arr.shape}")
-    out = np.eye(4)
-    out[:3, :3] = rotation_from_rotvec(arr[3:])
-    out[:3, 3] = arr[:3]
+    return _as_transforms(arr[None])[0]
+
+
+def _as_transforms(poses_or_transforms: np.ndarray) -> np.ndarray:
+    """Accept flange poses (N, 6) or base_T_flange transforms (N, 4, 4); return the (N, 4, 4)."""
+    arr = np.asarray(poses_or_transforms, dtype=float)
+    if arr.ndim == 3 and arr.shape[1:] == (4, 4):
+        return arr
+    if arr.ndim != 2 or arr.shape[1] != 6:
+        raise ValueError(f"expected poses (N, 6) or transforms (N, 4, 4), got shape {arr.shape}")
+    out = np.broadcast_to(np.eye(4), (len(arr), 4, 4)).copy()
+    out[:, :3, :3] = rotation_from_rotvec(arr[:, 3:])
+    out[:, :3, 3] = arr[:, :3]
     return out
 
 
@@ -127,54 +144,85 @@ def singularity_reason(model: URModel, q_rad: np.ndarray) -> str:
     return ""
 
 
+def _near_singularity(model: URModel, q_rad: np.ndarray) -> np.ndarray:
+    """Whether each configuration (M, 6) is within a margin of :func:`singularity_reason` (M,), vectorised."""
+    q = np.asarray(q_rad, dtype=float)
+    p5 = np.zeros((len(q), 3))
+    if len(q):
+        frames = dh_transforms_batch(model, q)
+        p5 = frames[:, 5, :3, 3] - model.d[5] * frames[:, 5, :3, 2]
+    r = np.hypot(p5[:, 0], p5[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shoulder = (r <= 0.0) | ((r - abs(model.d[3])) / r < SHOULDER_SINGULAR_MARGIN + 1e-9)  # slack: rounding; the reason confirms
+    return (np.abs(np.sin(q[:, 4])) < WRIST_SINGULAR_SIN_Q5) | (np.abs(np.sin(q[:, 2])) < ELBOW_SINGULAR_SIN_Q3) | shoulder
+
+
+_BRANCHES = tuple(Branch(s, e, w) for s in (1, -1) for w in (1, -1) for e in (1, -1))
+"""The eight branches in the order :func:`analytic_ik` lists them (shoulder, then wrist, then elbow)."""
+
+
 def analytic_ik(model: URModel, pose_or_transform: np.ndarray) -> list[tuple[Branch, np.ndarray | None, str]]:
     """Return the eight closed-form IK branches of a flange pose as ``(branch, q (6,) in (−π, π], reason)``.
 
     ``q`` is None with a ``reason`` ("out of reach …") for a branch that does not exist for this pose. No joint
     limits, singularity margins or refinement are applied here (see :func:`solve_ik`).
     """
-    t06 = _as_transform(pose_or_transform)
+    q, reasons = analytic_ik_batch(model, _as_transform(pose_or_transform)[None])
+    return [(b, None if reasons[0][k] else q[0, k], reasons[0][k]) for k, b in enumerate(_BRANCHES)]
+
+
+def analytic_ik_batch(model: URModel, transforms: np.ndarray) -> tuple[np.ndarray, list[list[str]]]:
+    """:func:`analytic_ik` of N flange poses at once (base_T_flange (N, 4, 4)), vectorised over poses and branches.
+
+    Returns q (N, 8, 6) in (−π, π] (NaN where a branch does not exist) and the reasons (N lists of 8 strings,
+    "" for a branch that exists), branches in :data:`_BRANCHES` order.
+    """
+    t06 = np.asarray(transforms, dtype=float)
+    n = len(t06)
     d4, d6 = model.d[3], model.d[5]
     a2, a3 = model.a[1], model.a[2]
-    p6, z6 = t06[:3, 3], t06[:3, 2]
+    p6, z6 = t06[:, :3, 3], t06[:, :3, 2]
     p5 = p6 - d6 * z6
-    r = float(np.hypot(p5[0], p5[1]))
-    out: list[tuple[Branch, np.ndarray | None, str]] = []
-    if r <= abs(d4):
-        reason = f"out of reach: wrist centre {r:.3f} m from the base axis, inside the shoulder offset {abs(d4):.3f} m"
-        return [(b, None, reason) for b in Branch.all()]
-    psi = np.arctan2(p5[1], p5[0])
-    shoulder_angle = np.arcsin(d4 / r)
-    for shoulder in (1, -1):
-        q1 = psi + shoulder_angle if shoulder == 1 else psi + np.pi - shoulder_angle
-        s1, c1 = np.sin(q1), np.cos(q1)
-        z1 = np.array([s1, -c1, 0.0])
-        cos_q5 = float(np.clip(z6 @ z1, -1.0, 1.0))
-        for wrist in (1, -1):
-            q5 = wrist * np.arccos(cos_q5)
-            s5 = np.sin(q5)
-            w = t06[:3, :3].T @ z1
-            if abs(s5) < 1e-12:  # exactly singular: q6 is free; take 0 (the caller rejects the singularity)
-                q6 = 0.0
-            else:
-                q6 = np.arctan2(-w[1] / s5, w[0] / s5)
-            t14 = (np.linalg.inv(dh_step(model, 0, q1)) @ t06 @ np.linalg.inv(dh_step(model, 5, q6))
-                   @ np.linalg.inv(dh_step(model, 4, q5)))
-            x, y = t14[0, 3], t14[1, 3]
-            cos_q3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
-            for elbow in (1, -1):
-                branch = Branch(shoulder, elbow, wrist)
-                if abs(cos_q3) > 1.0 + 1e-12:
-                    dist = float(np.hypot(x, y))
-                    out.append((branch, None, f"out of reach: shoulder-to-wrist distance {dist:.3f} m outside "
-                                              f"[{abs(abs(a2) - abs(a3)):.3f}, {abs(a2) + abs(a3):.3f}] m"))
-                    continue
-                q3 = elbow * np.arccos(np.clip(cos_q3, -1.0, 1.0))
-                q2 = np.arctan2(y, x) - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
-                q4 = np.arctan2(t14[1, 0], t14[0, 0]) - q2 - q3
-                q = np.array([q1, q2, q3, q4, q5, q6])
-                out.append((branch, np.angle(np.exp(1j * q)), ""))  # wrap to (−π, π]
-    return out
+    r = np.hypot(p5[:, 0], p5[:, 1])  # (N,)
+    reachable = r > abs(d4)
+    psi = np.arctan2(p5[:, 1], p5[:, 0])
+    shoulder_angle = np.arcsin(d4 / np.where(reachable, r, 2.0 * abs(d4) + 1.0))
+    q1 = np.stack([psi + shoulder_angle, psi + np.pi - shoulder_angle], axis=1)  # (N, 2): shoulder +1, −1
+    s1, c1 = np.sin(q1), np.cos(q1)
+    z1 = np.stack([s1, -c1, np.zeros_like(s1)], axis=-1)  # (N, 2, 3)
+    cos_q5 = np.clip(np.einsum("ni,nsi->ns", z6, z1), -1.0, 1.0)
+    q5 = np.arccos(cos_q5)[:, :, None] * np.array([1.0, -1.0])  # (N, 2, 2): wrist +1, −1
+    s5 = np.sin(q5)
+    w = np.einsum("nji,nsj->nsi", t06[:, :3, :3], z1)[:, :, None, :]  # flange_R_base z1 (N, 2, 1, 3)
+    singular = np.abs(s5) < 1e-12  # exactly singular: q6 is free; take 0 (the caller rejects the singularity)
+    safe_s5 = np.where(singular, 1.0, s5)
+    q6 = np.where(singular, 0.0, np.arctan2(-w[..., 1] / safe_s5, w[..., 0] / safe_s5))
+    q1b = np.broadcast_to(q1[:, :, None], q5.shape)
+    t14 = (np.linalg.inv(dh_step(model, 0, q1b)) @ t06[:, None, None] @ np.linalg.inv(dh_step(model, 5, q6))
+           @ np.linalg.inv(dh_step(model, 4, q5)))  # (N, 2, 2, 4, 4)
+    x, y = t14[..., 0, 3], t14[..., 1, 3]
+    cos_q3 = (x * x + y * y - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
+    q3 = np.arccos(np.clip(cos_q3, -1.0, 1.0))[..., None] * np.array([1.0, -1.0])  # (N, 2, 2, 2): elbow +1, −1
+    q2 = np.arctan2(y, x)[..., None] - np.arctan2(a3 * np.sin(q3), a2 + a3 * np.cos(q3))
+    q4 = np.arctan2(t14[..., 1, 0], t14[..., 0, 0])[..., None] - q2 - q3
+    q = np.stack(np.broadcast_arrays(q1b[..., None], q2, q3, q4, q5[..., None], q6[..., None]), axis=-1)
+    q = np.angle(np.exp(1j * q)).reshape(n, 8, 6)  # wrap to (−π, π]
+    too_far = np.broadcast_to((np.abs(cos_q3) > 1.0 + 1e-12)[..., None], q3.shape).reshape(n, 8)
+    reasons: list[list[str]] = []
+    for i in range(n):
+        if not reachable[i]:
+            reasons.append([f"out of reach: wrist centre {r[i]:.3f} m from the base axis, inside the shoulder "
+                            f"offset {abs(d4):.3f} m"] * 8)
+            continue
+        row = [""] * 8
+        for k in np.flatnonzero(too_far[i]):
+            dist = float(np.hypot(x.reshape(n, 4)[i, k // 2], y.reshape(n, 4)[i, k // 2]))
+            row[k] = (f"out of reach: shoulder-to-wrist distance {dist:.3f} m outside "
+                      f"[{abs(abs(a2) - abs(a3)):.3f}, {abs(a2) + abs(a3):.3f}] m")
+        reasons.append(row)
+    q[~reachable] = np.nan
+    q[too_far] = np.nan
+    return q, reasons
 
 
 def wrap_near(q_rad: np.ndarray, reference_rad: np.ndarray, lower_rad: np.ndarray,
@@ -183,6 +231,13 @@ def wrap_near(q_rad: np.ndarray, reference_rad: np.ndarray, lower_rad: np.ndarra
 
     Returns None if some joint has no equivalent inside its limits.
     """
+    out, inside = _wrap_near_rows(np.asarray(q_rad, dtype=float)[None], reference_rad, lower_rad, upper_rad)
+    return out[0] if inside[0] else None
+
+
+def _wrap_near_rows(q_rad: np.ndarray, reference_rad: np.ndarray, lower_rad: np.ndarray,
+                    upper_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`wrap_near` of configurations (M, 6): (wrapped (M, 6), whether each row has every joint inside (M,))."""
     q = np.asarray(q_rad, dtype=float)
     ref = np.asarray(reference_rad, dtype=float)
     lower, upper = np.asarray(lower_rad, dtype=float), np.asarray(upper_rad, dtype=float)
@@ -191,9 +246,8 @@ def wrap_near(q_rad: np.ndarray, reference_rad: np.ndarray, lower_rad: np.ndarra
     for _ in range(2):  # step back inside the limits if the nearest equivalent is outside
         out = np.where(out > upper + 1e-12, out - TWO_PI, out)
         out = np.where(out < lower - 1e-12, out + TWO_PI, out)
-    if np.any(out > upper + 1e-12) or np.any(out < lower - 1e-12):
-        return None
-    return np.clip(out, lower, upper)
+    inside = ~(np.any(out > upper + 1e-12, axis=1) | np.any(out < lower - 1e-12, axis=1))
+    return np.clip(out, lower, upper), inside
 
 
 @lru_cache(maxsize=16)
@@ -235,30 +289,45 @@ def solve_ik_branches(model: URModel, pose_or_transform: np.ndarray,
     Returns a dict branch → :class:`IKResult` (a solution refined on Pinocchio's FK and verified to
     :data:`IK_TOLERANCE`, or why that branch has none: out of reach, joint limit, near a singularity).
     """
+    return solve_ik_batch(model, _as_transform(pose_or_transform)[None], q_reference_rad)[0]
+
+
+def solve_ik_batch(model: URModel, poses_or_transforms: np.ndarray,
+                   q_reference_rad: np.ndarray) -> list[dict[Branch, IKResult]]:
+    """:func:`solve_ik_branches` of N flange poses (N, 6) or transforms (N, 4, 4) at once: the closed form, the
+    joint-limit wrap and the singularity margins vectorised over poses and branches (a plan solves hundreds of
+    poses in eight branches each); only the Pinocchio refinement runs per solution."""
     q_ref = np.asarray(q_reference_rad, dtype=float)
     lower, upper = planning_limits_rad(model)
-    target = _as_transform(pose_or_transform)  # once for the eight branches' refinements
-    out: dict[Branch, IKResult] = {}
-    for branch, q, reason in analytic_ik(model, target):
-        if q is None:
-            out[branch] = IKResult(None, None, reason)
-            continue
-        wrapped = wrap_near(q, q_ref, lower, upper)
-        if wrapped is None:
-            out[branch] = IKResult(None, None, "joint limit: no equivalent of (" + ", ".join(
-                f"{np.degrees(v):.0f}" for v in q) + ") deg within the limits less the planning margin")
-            continue
-        singular = singularity_reason(model, wrapped)
-        if singular:
-            out[branch] = IKResult(None, None, singular)
-            continue
-        refined, error = refine_ik(model, target, wrapped)
-        if error > IK_TOLERANCE:
-            out[branch] = IKResult(None, None, f"IK did not converge (error {error:.1e})")
-        elif np.any(refined < lower - 1e-9) or np.any(refined > upper + 1e-9):
-            out[branch] = IKResult(None, None, "joint limit after refinement")
-        else:
-            out[branch] = IKResult(refined, branch, "")
+    targets = _as_transforms(poses_or_transforms)
+    q_all, reasons = analytic_ik_batch(model, targets)
+    n = len(targets)
+    q_flat = q_all.reshape(-1, 6)
+    exists = ~np.isnan(q_flat[:, 0])
+    wrapped, inside = _wrap_near_rows(np.where(exists[:, None], q_flat, 0.0), q_ref, lower, upper)
+    inside &= exists
+    singular = inside & _near_singularity(model, wrapped)
+    out: list[dict[Branch, IKResult]] = []
+    for i in range(n):
+        by_branch: dict[Branch, IKResult] = {}
+        for k, branch in enumerate(_BRANCHES):
+            j = i * 8 + k
+            if not exists[j]:
+                by_branch[branch] = IKResult(None, None, reasons[i][k])
+            elif not inside[j]:
+                by_branch[branch] = IKResult(None, None, "joint limit: no equivalent of (" + ", ".join(
+                    f"{np.degrees(v):.0f}" for v in q_flat[j]) + ") deg within the limits less the planning margin")
+            elif singular[j] and (reason := singularity_reason(model, wrapped[j])):
+                by_branch[branch] = IKResult(None, None, reason)
+            else:
+                refined, error = refine_ik(model, targets[i], wrapped[j])
+                if error > IK_TOLERANCE:
+                    by_branch[branch] = IKResult(None, None, f"IK did not converge (error {error:.1e})")
+                elif np.any(refined < lower - 1e-9) or np.any(refined > upper + 1e-9):
+                    by_branch[branch] = IKResult(None, None, "joint limit after refinement")
+                else:
+                    by_branch[branch] = IKResult(refined, branch, "")
+        out.append(by_branch)
     return out
 
 
