@@ -2,7 +2,7 @@
 a block sandwich covariance, and the uncertainty of what is held fixed propagated.
 
 Why the plain weighted normal equations (σ² (AᵀA)⁻¹, σ² from χ²/dof) understated the inertia's 1σ 3-6 times
-(issue 37, docs/dynamics.md "How the 1σ is made honest"):
+(issue 37, docs/dynamics.md "The inertia's 1σ"):
 
 - *Heteroscedastic noise.* A sensor on a moving arm is noisier the faster it moves (vibration; the simulated cell's
   ``motion_noise_gain``), and the fast rows are exactly those that carry the inertia (large ω², α). One scatter per
