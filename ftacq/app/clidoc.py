@@ -32,11 +32,8 @@ PAGES: dict[str, tuple[str, str, tuple[str, ...]]] = {
 }
 """Page file name → (title, lead paragraph, commands in order)."""
 
-INTRO = (
-    "Generated from the parsers by `python -m ftacq.app.clidoc` (a test checks it): `ftacq COMMAND --help` "
-    "prints the same. ftacq is installed in `.venv/bin/ftacq` (`source .venv/bin/activate` puts it on your "
-    "PATH); the commands it prints for you to run next name it by its full path when it is not on your PATH."
-)
+INTRO = ("Generated from the parsers (`python -m ftacq.app.clidoc`; a test checks it): `ftacq COMMAND --help` says the "
+         "same. `source .venv/bin/activate` puts `ftacq` on your PATH.")
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
