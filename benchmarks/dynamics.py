@@ -49,7 +49,8 @@ from ftacq.dynamics import compensate_moving, identify_dynamics  # noqa: E402
 from ftacq.dynamics.model import SensorDynamics, predict_moving  # noqa: E402
 from ftacq.dynamics.timing import interpolate_rows  # noqa: E402
 from ftacq.kinematics import ur_model  # noqa: E402
-from procedures.excitation import ExcitationPlan, plan_excitation, record_excitation, trapezoid_duration_s  # noqa: E402
+from ftacq.kinematics.trapezoid import trapezoid_duration_s  # noqa: E402
+from procedures.excitation import ExcitationPlan, plan_excitation, record_excitation  # noqa: E402
 from procedures.plan import PlanSettings, check_path  # noqa: E402
 from tests.fakes.cell import SimulatedCell, fast_config, run_calibration  # noqa: E402
 from tests.fakes.world import CellTruth  # noqa: E402

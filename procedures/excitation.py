@@ -30,6 +30,7 @@ from ftacq.dynamics.acceleration import physical_acceleration
 from ftacq.dynamics.identify import MotionRecord
 from ftacq.timebase import device_to_host_clock
 from ftacq.errors import PlanError
+from ftacq.kinematics.trapezoid import trapezoid_duration_s
 
 if TYPE_CHECKING:
     from drivers.sensor import ForceTorqueSensor, WrenchBatch
@@ -45,15 +46,6 @@ MAX_DRAWS = 200
 SENSOR_READ_TIMEOUT_S = 0.5
 MAX_SILENT_READS = 6
 """Consecutive sensor reads without a sample (3 s) that end the recording as a fault."""
-
-
-def trapezoid_duration_s(distance_rad: float, speed: float, acceleration: float) -> float:
-    """Duration of a rest-to-rest trapezoidal (or triangular) move of the leading joint, s."""
-    if distance_rad <= 0:
-        return 0.0
-    if distance_rad >= speed * speed / acceleration:
-        return distance_rad / speed + speed / acceleration
-    return 2.0 * np.sqrt(distance_rad / acceleration)
 
 
 @dataclass(frozen=True)

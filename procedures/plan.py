@@ -20,7 +20,7 @@ a long detour back to the region the tour has left. Identification and validatio
 
 A little over 500 lines: the pose set, its reachability, collision and speed checks and the choice among
 candidate centres are one search that passes one candidate state around; the tour's order already lives in
-:mod:`procedures.tour`, and the time estimates (``trapezoid_time_s``, ``move_time_s``,
+:mod:`procedures.tour`, and the time estimates (:mod:`ftacq.kinematics.trapezoid`,
 ``estimate_duration_s``) are the next candidate to move apart.
 """
 
@@ -41,6 +41,7 @@ from ftacq.kinematics import (
     planning_limits_rad,
     ur_model,
 )
+from ftacq.kinematics.trapezoid import move_duration_s
 from ftacq.mounts import mount_of
 from ftacq.posesets import IDENTIFICATION_SETS, PLANNED_SETS, RANDOM_SET, SPECIAL_SET, VALIDATION_SET
 from ftacq.so3 import rotation_from_rotvec
@@ -227,22 +228,6 @@ def home_configuration_rad(mount: str = "floor") -> np.ndarray:
     return np.array([np.pi / 2, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 
 
-def trapezoid_time_s(distance_rad: float, speed_rad_s: float, acceleration_rad_s2: float) -> float:
-    """Return the duration of a trapezoidal (or triangular) profile over ``distance_rad``, s."""
-    distance_rad = abs(distance_rad)
-    if distance_rad == 0.0:
-        return 0.0
-    if distance_rad >= speed_rad_s**2 / acceleration_rad_s2:
-        return distance_rad / speed_rad_s + speed_rad_s / acceleration_rad_s2
-    return 2.0 * np.sqrt(distance_rad / acceleration_rad_s2)
-
-
-def move_time_s(q_from: np.ndarray, q_to: np.ndarray, speed_rad_s: float, acceleration_rad_s2: float) -> float:
-    """Return the duration of a moveJ: the leading joint's trapezoid (a UR synchronises the others to it), s."""
-    delta = float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from))))
-    return trapezoid_time_s(delta, speed_rad_s, acceleration_rad_s2)
-
-
 def estimate_duration_s(settings: PlanSettings, start_q: np.ndarray, q_sequence: np.ndarray,
                         revisit_target: np.ndarray | None = None) -> float:
     """Return moves + (settle + averaging) per pose, plus the drift-check revisit of the first pose, s.
@@ -250,13 +235,13 @@ def estimate_duration_s(settings: PlanSettings, start_q: np.ndarray, q_sequence:
     ``revisit_target``: the joint target of the revisit (default the first target).
     """
     all_q = np.vstack([np.asarray(start_q, dtype=float)[None, :], q_sequence])
-    moves = sum(move_time_s(a, b, settings.joint_speed_rad_s, settings.joint_acceleration_rad_s2)
+    moves = sum(move_duration_s(a, b, settings.joint_speed_rad_s, settings.joint_acceleration_rad_s2)
                 for a, b in zip(all_q[:-1], all_q[1:]))
     per_pose = settings.settle_time_s + settings.average_time_s
     total = moves + len(q_sequence) * per_pose
     if settings.drift_check and len(q_sequence):
         target = q_sequence[0] if revisit_target is None else revisit_target
-        total += move_time_s(q_sequence[-1], target, settings.joint_speed_rad_s,
+        total += move_duration_s(q_sequence[-1], target, settings.joint_speed_rad_s,
                              settings.joint_acceleration_rad_s2) + per_pose
     return float(total)
 

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftacq.dynamics.identify import MotionRecord
+from ftacq.kinematics.trapezoid import move_duration_s, move_profile
 from ftacq.dynamics.joint import LINEAR, NONLINEAR
 from ftacq.errors import PlanError
 
@@ -114,39 +115,6 @@ class QuickPlan:
                          float(d["acceleration_rad_s2"]), float(d["estimated_duration_s"]),
                          float(d["information_logdet"]), int(d["candidates"]), int(d.get("seed", 0)),
                          {str(k): float(v) for k, v in d.get("predicted_sigma_ratio", {}).items()})
-
-
-def move_profile(q_from: np.ndarray, q_to: np.ndarray, speed: float, acceleration: float,
-                 t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q, q̇, q̈) (len(t), 6) of a moveJ (the leading joint on a trapezoid, the others in proportion) at times t
-    (s from its start); and its duration is :func:`move_duration_s`."""
-    delta = np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float)
-    length = float(np.max(np.abs(delta)))
-    t = np.asarray(t, dtype=float)
-    if length == 0.0:
-        return np.tile(q_from, (t.size, 1)), np.zeros((t.size, 6)), np.zeros((t.size, 6))
-    direction = delta / length
-    if length >= speed * speed / acceleration:
-        t_acc, peak = speed / acceleration, speed
-        t_cruise = length / speed - speed / acceleration
-    else:
-        t_acc = float(np.sqrt(length / acceleration))
-        peak, t_cruise = acceleration * t_acc, 0.0
-    total = 2 * t_acc + t_cruise
-    tc = np.clip(t, 0.0, total)
-    s = np.where(tc < t_acc, 0.5 * acceleration * tc ** 2,
-                 np.where(tc < t_acc + t_cruise, 0.5 * acceleration * t_acc ** 2 + peak * (tc - t_acc),
-                          length - 0.5 * acceleration * (total - tc) ** 2))
-    v = np.where(tc < t_acc, acceleration * tc, np.where(tc < t_acc + t_cruise, peak, acceleration * (total - tc)))
-    a = np.where(tc < t_acc, acceleration, np.where(tc < t_acc + t_cruise, 0.0, -acceleration))
-    a = np.where((t <= 0) | (t >= total), 0.0, a)
-    return np.asarray(q_from) + np.outer(s, direction), np.outer(v, direction), np.outer(a, direction)
-
-
-def move_duration_s(q_from: np.ndarray, q_to: np.ndarray, speed: float, acceleration: float) -> float:
-    from procedures.plan import trapezoid_time_s
-
-    return trapezoid_time_s(float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from)))), speed, acceleration)
 
 
 def sample_trajectory(start_q: np.ndarray, waypoints: np.ndarray, hold_s: np.ndarray, speed: float,

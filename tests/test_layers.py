@@ -114,7 +114,7 @@ def test_only_the_application_reaches_the_simulator():
 PACKAGE_PARTS = {
     "drivers.netft": {"protocol": 0, "device_time": 1, "sequence": 1, "discovery": 1, "receiver": 1, "driver": 2},
     "drivers.ati_can": {"protocol": 0, "transport": 1, "driver": 2},
-    "ftacq.kinematics": {"ur": 0, "pinocchio_models": 1, "ik": 2},
+    "ftacq.kinematics": {"trapezoid": 0, "ur": 0, "pinocchio_models": 1, "ik": 2},
 }
 """Inside a package split by idea, each part's rank: a part imports only parts of a lower rank (the wire protocol
 first, the driver that puts the parts together last); the package's ``__init__`` re-exports."""

@@ -10,9 +10,9 @@ from ftacq.kinematics import UR_MODELS, forward_kinematics, ur_model
 from ftacq.mounts import MOUNTS
 from ftacq.so3 import rotation_from_rotvec
 from ftacq.kinematics.ik import branch_of
+from ftacq.kinematics.trapezoid import trapezoid_duration_s
 from procedures.plan import (
     Plan, PlanSettings, check_path, default_center_m, format_plan, home_configuration_rad, make_plan,
-    trapezoid_time_s,
 )
 from procedures.tour import nearest_neighbour_order, two_opt
 
@@ -87,9 +87,9 @@ def test_duration_estimate_is_consistent(default_plan):
 
 
 def test_trapezoid_profile():
-    assert trapezoid_time_s(0.0, 1.0, 2.0) == 0.0
-    assert trapezoid_time_s(2.0, 1.0, 2.0) == pytest.approx(2.0 / 1.0 + 1.0 / 2.0)  # cruise phase
-    assert trapezoid_time_s(0.2, 1.0, 2.0) == pytest.approx(2 * np.sqrt(0.2 / 2.0))  # triangular
+    assert trapezoid_duration_s(0.0, 1.0, 2.0) == 0.0
+    assert trapezoid_duration_s(2.0, 1.0, 2.0) == pytest.approx(2.0 / 1.0 + 1.0 / 2.0)  # cruise phase
+    assert trapezoid_duration_s(0.2, 1.0, 2.0) == pytest.approx(2 * np.sqrt(0.2 / 2.0))  # triangular
 
 
 def test_two_opt_untangles_a_line():

@@ -100,10 +100,10 @@ class SimulatedTechnician:
 
 
 def jog_duration_s(q_from: np.ndarray, q_to: np.ndarray) -> float:
-    """Duration (s) of a moveJ with the simulated technician's speed and acceleration (trapezoid or triangle)."""
-    length = float(np.max(np.abs(np.asarray(q_to) - np.asarray(q_from))))
-    v, a = SIM_JOG_SPEED_RAD_S, SIM_JOG_ACCELERATION_RAD_S2
-    return length / v + v / a if length >= v * v / a else 2.0 * np.sqrt(length / a)
+    """Duration (s) of a moveJ at the simulated technician's speed and acceleration."""
+    from ftacq.kinematics.trapezoid import move_duration_s
+
+    return move_duration_s(q_from, q_to, SIM_JOG_SPEED_RAD_S, SIM_JOG_ACCELERATION_RAD_S2)
 
 
 

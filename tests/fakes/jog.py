@@ -28,6 +28,8 @@ import time
 
 import numpy as np
 
+from ftacq.kinematics.trapezoid import trapezoid_duration_s
+
 AMPLITUDE_RAD = np.array([0.3, 0.25, 0.3, 1.0, 1.0, 1.5])
 """Largest excursion of each joint from the start configuration (rad): the wrist most, as a technician jogs."""
 MIN_FRACTION = 0.3
@@ -38,12 +40,6 @@ DEADLINE_MARGIN_S = 30.0
 """--deadline-s default: the plan's duration plus this (connecting, the controller's start-up), s."""
 DEADLINE_EXIT = 2
 
-
-def trapezoid_duration_s(distance_rad: float, speed: float, acceleration: float) -> float:
-    """Duration of a trapezoidal (or triangular) profile over ``distance_rad`` at ``speed`` and ``acceleration``."""
-    if distance_rad <= speed * speed / acceleration:
-        return 2.0 * np.sqrt(distance_rad / acceleration)
-    return distance_rad / speed + speed / acceleration
 
 
 def plan_targets(start: np.ndarray, moves: int, seed: int, model: str, speed: float,
