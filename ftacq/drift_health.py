@@ -14,8 +14,10 @@ from typing import Any
 import numpy as np
 
 from ftacq.calibration import Calibration
-from ftacq.drift import CHANNELS, DriftSettings, DriftTracker, Observation, file_bias_sigma
+from ftacq.channels import AXES
+from ftacq.drift import DriftSettings, DriftTracker, Observation, file_bias_sigma
 from ftacq.rest_windows import RestWindow, RestWindows
+
 
 @dataclass(frozen=True)
 class RestVerdict:
@@ -150,7 +152,7 @@ class BiasHealth:
             if np.any(sigma > bound):
                 worst = int(np.argmax(sigma / np.maximum(bound, 1e-300)))
                 unit = "N" if worst < 3 else "N·m"
-                reason = (f"the offset is no longer known well enough ({CHANNELS[worst]} 1σ {sigma[worst]:.3g} {unit}"
+                reason = (f"the offset is no longer known well enough ({AXES[worst]} 1σ {sigma[worst]:.3g} {unit}"
                           f" > one sample's noise {bound[worst]:.3g} {unit}, {time_s - (tracker.time_s or 0.0):.0f} s "
                           "since the last rest window used)")
         trusted = not reason
@@ -208,7 +210,7 @@ class BiasHealth:
                    "rest); if nothing touches the tool, check that the calibration belongs to this tool and run "
                    "`ftacq tare`")
         text = (f"compensated wrench at rest is off: |F| {force:.3f} N, |T| {torque:.4f} N·m "
-                f"({CHANNELS[worst]} {verdict.residual[worst]:+.4g} {unit}, threshold {verdict.threshold[worst]:.3g} "
+                f"({AXES[worst]} {verdict.residual[worst]:+.4g} {unit}, threshold {verdict.threshold[worst]:.3g} "
                 f"{unit}): {why}")
         return HealthNotice(verdict.time_s, "WARN", text,
                             {"residual": verdict.residual.tolist(), "threshold": verdict.threshold.tolist()})

@@ -36,6 +36,7 @@ import numpy as np
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calfile import MODEL_CORRELATION_KEY, MODEL_CORRELATION_PARAMETERS
 from ftacq.calibration import Calibration
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import IdentificationError
 from ftacq.identification import diagnostics, robust, trend
 from ftacq.identification.lrom import lrom
@@ -746,7 +747,7 @@ def _metadata(problem: _Problem, closed_params: ModelParameters, closed_info: di
         else [],
     }
     metadata["residuals"] = {
-        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "columns": list(WRENCH_COLUMNS),
         "labels": list(record.labels),
         "values": residual.tolist(),
         "weights": pose_weight.tolist(),

@@ -33,6 +33,7 @@ from typing import Any
 import rerun.blueprint as rrb
 
 from ftacq.app.dashboard.sinks import APP_ID  # noqa: F401 - the recording's id, re-exported with the layout
+from ftacq.channels import FORCE_AXES, TORQUE_AXES  # noqa: F401 - the series names, re-exported with the layout
 from ftacq.posesets import POSE_SETS, UNKNOWN_SET_COLOUR_RGB
 
 # ------------------------------------------------------------------------------------------------ timelines
@@ -98,8 +99,6 @@ LOG_PATHS = {"monitor": MONITOR_LOG, "calibration": CALIBRATION_LOG}
 
 # ------------------------------------------------------------------------------------------------ styles
 
-FORCE_AXES = ("Fx", "Fy", "Fz")
-TORQUE_AXES = ("Tx", "Ty", "Tz")
 AXIS_COLORS = ((230, 57, 70), (42, 157, 90), (38, 103, 230))
 """x red, y green, z blue, for force and torque alike (RGB 0-255)."""
 HEALTH_COUNT_NAMES = ("lost", "saturated", "status_errors", "dropped")
