@@ -106,7 +106,7 @@ HEALTH_COUNT_COLORS = ((230, 57, 70), (240, 160, 30), (150, 60, 200), (120, 120,
 JOINT_NAMES = tuple(f"q{i}" for i in range(1, 7))
 JOINT_COLORS = ((230, 57, 70), (240, 160, 30), (200, 200, 40), (42, 157, 90), (38, 103, 230), (150, 60, 200))
 SET_COLORS = {name: kind.colour_rgb for name, kind in POSE_SETS.items()}
-"""Plan colours by pose set (:data:`ftacq.posesets.POSE_SETS`: A blue, E orange, V green, D red)."""
+"""Plan colours by pose set (:data:`ftacq.posesets.POSE_SETS`: A blue, E orange, Q purple, V green, D red)."""
 UNKNOWN_SET_COLOR = UNKNOWN_SET_COLOUR_RGB
 LINK_COLOR = (190, 195, 205)
 JOINT_COLOR = (60, 60, 70)
