@@ -257,11 +257,6 @@ class DriftTracker:
         return self.x[:, 1] * 3600.0
 
     @property
-    def rate_sigma_per_h(self) -> np.ndarray:
-        """(6,) 1σ of :attr:`rate_per_h`."""
-        return np.sqrt(self.P[:, 1, 1]) * 3600.0
-
-    @property
     def reference_std(self) -> np.ndarray | None:
         """(6,) the sensor's per-sample noise (median std of recent accepted windows), or None before any."""
         if not self._reference_std:

@@ -86,7 +86,6 @@ class BiasHealth:
         self.auto_tare = auto_tare
         self.observations = 0
         self.last: Observation | None = None
-        self.last_verdict: RestVerdict | None = None
         self.last_applied = np.zeros(6)
         self.trusted = False
         """Whether the tracked offset is trusted now (applied with ``auto_tare``)."""
@@ -129,7 +128,6 @@ class BiasHealth:
                 self.check.off_since_s = None  # a hand on the tool: not "at rest"; persistence starts again after it
                 continue
             verdict, changed = self.check.check(window, applied, self.tracker)
-            self.last_verdict = verdict
             if changed:
                 notices.append(self._notice(verdict, observation))
         if len(time_s):

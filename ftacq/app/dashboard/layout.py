@@ -77,7 +77,6 @@ HEALTH_RATE = "health/rate_hz"
 HEALTH_COUNTS = "health/counts"
 HEALTH_STATUS = "health/status_word"
 
-CALIBRATION = "calibration"
 MEASURED = "calibration/measured"
 MEASURED_FORCE = "calibration/measured/force"
 MEASURED_TORQUE = "calibration/measured/torque"
