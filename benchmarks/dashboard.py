@@ -39,7 +39,6 @@ from tests.rrd_reader import read_scalars  # noqa: E402
 RATE_HZ = 7000.0
 FULL_SECONDS = 60.0
 QUICK_SECONDS = 10.0
-FAKE_START_TIMEOUT_S = 20.0
 TARGET_CPU_PERCENT = 60.0
 Q_RAD = np.array([0.3, -1.2, 1.4, -1.6, -1.5, 0.4])
 

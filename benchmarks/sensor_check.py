@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 from scipy.linalg import sqrtm  # noqa: E402
 
+from ftacq.channels import FORCE_AXES as AXES  # noqa: E402
 from ftacq.identification import identify  # noqa: E402
 from ftacq.identification.sensor_gain import ReferenceWeight  # noqa: E402
 from ftacq.verdict import PASS, identification_findings  # noqa: E402
@@ -41,7 +42,6 @@ SIZES = (0.001, 0.002, 0.003, 0.005)
 UNIFORM_SIZES = (0.005, 0.0075, 0.01)
 """... for a gain error of all three axes alike (only a reference weight sees it; its σ includes local gravity's)."""
 PAIRS = ((0, 1), (0, 2), (1, 2))
-AXES = ("Fx", "Fy", "Fz")
 
 
 def record_of(truth: CellTruth, seed: int, orientation_error_deg: float):

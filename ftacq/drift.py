@@ -63,10 +63,10 @@ import numpy as np
 
 from ftacq.bias_estimate import compensation_variance_parts
 from ftacq.calibration import Calibration
+from ftacq.channels import AXES
 from ftacq.drift_or_step import Judgement, judge
 from ftacq.rest_windows import RestWindow, same_orientation
 
-CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 MAX_PRIOR_AGE_S = 3600.0
 """The prior's drift allowance counts at most this much time since the last calibration or tare, s."""
 REFERENCE_NOISE_WINDOWS = 21
@@ -262,11 +262,6 @@ class DriftTracker:
         return self.x[:, 1] * 3600.0
 
     @property
-    def rate_sigma_per_h(self) -> np.ndarray:
-        """(6,) 1σ of :attr:`rate_per_h`."""
-        return np.sqrt(self.P[:, 1, 1]) * 3600.0
-
-    @property
     def reference_std(self) -> np.ndarray | None:
         """(6,) the sensor's per-sample noise (median std of recent accepted windows), or None before any."""
         if not self._reference_std:
@@ -308,14 +303,14 @@ class DriftTracker:
             ratio = window.std / np.maximum(reference, 1e-300)
             worst = int(np.argmax(ratio))
             if ratio[worst] > s.std_ratio:
-                return f"contact: {CHANNELS[worst]} std {ratio[worst]:.1f}× the sensor noise"
+                return f"contact: {AXES[worst]} std {ratio[worst]:.1f}× the sensor noise"
         if window.slope is not None and window.slope_se is not None and rate is not None:
             slope = np.abs(window.slope - rate) / np.maximum(window.slope_se, 1e-300)
         else:
             slope = np.abs(window.slope_t)
         worst = int(np.argmax(slope))
         if slope[worst] > s.slope_sigmas:
-            return f"contact: {CHANNELS[worst]} changing within the window ({slope[worst]:.0f}σ)"
+            return f"contact: {AXES[worst]} changing within the window ({slope[worst]:.0f}σ)"
         return ""
 
     def _with_orientation(self, x: np.ndarray, P: np.ndarray, window: RestWindow) -> tuple[np.ndarray, np.ndarray]:
@@ -345,7 +340,7 @@ class DriftTracker:
         if not reason and nis > self.settings.gate_chi2:
             worst = int(np.argmax(innovation**2 / S))
             unit = "N" if worst < 3 else "N·m"
-            reason = (f"gate: {CHANNELS[worst]} off by {innovation[worst]:+.4g} {unit} "
+            reason = (f"gate: {AXES[worst]} off by {innovation[worst]:+.4g} {unit} "
                       f"({math.sqrt(innovation[worst] ** 2 / S[worst]):.0f}σ), not drift")
         if not reason and self.step is not None and \
                 nis >= float(np.sum((innovation - self.step.size) ** 2 / S)):
@@ -428,4 +423,4 @@ class DriftTracker:
         self._accept(window)
 
 
-__all__ = ["DriftSettings", "DriftTracker", "Observation", "Step", "file_bias_sigma", "CHANNELS", "MAX_PRIOR_AGE_S"]
+__all__ = ["DriftSettings", "DriftTracker", "Observation", "Step", "file_bias_sigma", "MAX_PRIOR_AGE_S"]

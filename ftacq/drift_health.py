@@ -14,8 +14,10 @@ from typing import Any
 import numpy as np
 
 from ftacq.calibration import Calibration
-from ftacq.drift import CHANNELS, DriftSettings, DriftTracker, Observation, file_bias_sigma
+from ftacq.channels import AXES
+from ftacq.drift import DriftSettings, DriftTracker, Observation, file_bias_sigma
 from ftacq.rest_windows import RestWindow, RestWindows
+
 
 @dataclass(frozen=True)
 class RestVerdict:
@@ -84,7 +86,6 @@ class BiasHealth:
         self.auto_tare = auto_tare
         self.observations = 0
         self.last: Observation | None = None
-        self.last_verdict: RestVerdict | None = None
         self.last_applied = np.zeros(6)
         self.trusted = False
         """Whether the tracked offset is trusted now (applied with ``auto_tare``)."""
@@ -127,7 +128,6 @@ class BiasHealth:
                 self.check.off_since_s = None  # a hand on the tool: not "at rest"; persistence starts again after it
                 continue
             verdict, changed = self.check.check(window, applied, self.tracker)
-            self.last_verdict = verdict
             if changed:
                 notices.append(self._notice(verdict, observation))
         if len(time_s):
@@ -150,7 +150,7 @@ class BiasHealth:
             if np.any(sigma > bound):
                 worst = int(np.argmax(sigma / np.maximum(bound, 1e-300)))
                 unit = "N" if worst < 3 else "N·m"
-                reason = (f"the offset is no longer known well enough ({CHANNELS[worst]} 1σ {sigma[worst]:.3g} {unit}"
+                reason = (f"the offset is no longer known well enough ({AXES[worst]} 1σ {sigma[worst]:.3g} {unit}"
                           f" > one sample's noise {bound[worst]:.3g} {unit}, {time_s - (tracker.time_s or 0.0):.0f} s "
                           "since the last rest window used)")
         trusted = not reason
@@ -208,7 +208,7 @@ class BiasHealth:
                    "rest); if nothing touches the tool, check that the calibration belongs to this tool and run "
                    "`ftacq tare`")
         text = (f"compensated wrench at rest is off: |F| {force:.3f} N, |T| {torque:.4f} N·m "
-                f"({CHANNELS[worst]} {verdict.residual[worst]:+.4g} {unit}, threshold {verdict.threshold[worst]:.3g} "
+                f"({AXES[worst]} {verdict.residual[worst]:+.4g} {unit}, threshold {verdict.threshold[worst]:.3g} "
                 f"{unit}): {why}")
         return HealthNotice(verdict.time_s, "WARN", text,
                             {"residual": verdict.residual.tolist(), "threshold": verdict.threshold.tolist()})

@@ -28,15 +28,15 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import InputError
 from ftacq.fileio import atomic_write
 from ftacq.so3 import rotation_from_rotvec
 from ftacq.unitcolumns import unit_header_map
 
-POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
+POSE_COLUMNS = ("x", "y", "z", "rx", "ry", "rz") + WRENCH_COLUMNS
 """Required columns: flange pose [m, rad] in the base frame, mean wrench [N, N·m] in the sensor frame."""
 
-WRENCH_COLUMNS = POSE_COLUMNS[6:]
 STD_COLUMNS = tuple(f"std_{name}" for name in WRENCH_COLUMNS)
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(6))
 

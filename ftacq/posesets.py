@@ -1,11 +1,12 @@
-"""The pose sets of a calibration run (A, E, V, D): the one table every layer reads.
+"""The pose sets of a calibration run (A, E, V, D; Q for a quick run): the one table every layer reads.
 
 Each measured pose belongs to one set, written in the ``set`` column of a pose record (:mod:`ftacq.posefile`):
 
 - ``A``: the 24 special orientations (cube rotations, paper eqs 14-23), identified on (SROM needs all 24);
 - ``E``: random orientations in a cone, and the user's explicit poses (labels ``X01``…), identified on;
 - ``V``: validation poses, held out: never identified on, compensated with the result to measure its error;
-- ``D``: the drift-check revisit of the first pose at the end of a run, held out (it measures the bias drift).
+- ``D``: the drift-check revisit of the first pose at the end of a run, held out (it measures the bias drift);
+- ``Q``: the quick run's designed orientations (``calibrate --quick``), identified on (its held-out poses are V).
 
 Whether a set is identified on, and its colour in the dashboard and the report, come from :data:`POSE_SETS`;
 nothing else names the rule. A new set is one row here (and, if the planner makes it, its generator in
@@ -33,6 +34,7 @@ class PoseSetKind:
 POSE_SETS: dict[str, PoseSetKind] = {s.name: s for s in (
     PoseSetKind("A", "special orientations", (38, 103, 230), True),
     PoseSetKind("E", "random orientations in the cone", (240, 160, 30), True),
+    PoseSetKind("Q", "quick design", (148, 103, 189), True),
     PoseSetKind("V", "validation (held out)", (42, 157, 90), False),
     PoseSetKind("D", "drift-check revisit (held out)", (214, 39, 40), False),
 )}
@@ -40,10 +42,10 @@ POSE_SETS: dict[str, PoseSetKind] = {s.name: s for s in (
 
 UNKNOWN_SET_COLOUR_RGB = (160, 160, 160)
 """Colour of poses whose set is unknown (a pose record without a ``set`` column)."""
-SPECIAL_SET, RANDOM_SET, VALIDATION_SET, DRIFT_SET = "A", "E", "V", "D"
-"""The names the planner and the procedure produce (each a row of :data:`POSE_SETS`)."""
+SPECIAL_SET, RANDOM_SET, VALIDATION_SET, DRIFT_SET, QUICK_SET = "A", "E", "V", "D", "Q"
+"""The names the planner, the procedure and the quick run produce (each a row of :data:`POSE_SETS`)."""
 IDENTIFICATION_SETS: tuple[str, ...] = tuple(s.name for s in POSE_SETS.values() if s.identify)
-"""Sets identified on (A, E)."""
+"""Sets identified on (A, E, Q)."""
 HELD_OUT_SETS: tuple[str, ...] = tuple(s.name for s in POSE_SETS.values() if not s.identify)
 """Sets never identified on (V, D)."""
 PLANNED_SETS: tuple[str, ...] = (SPECIAL_SET, RANDOM_SET, VALIDATION_SET)
@@ -74,5 +76,5 @@ def set_colour_rgb(set_name: str) -> tuple[int, int, int]:
 
 
 __all__ = ["PoseSetKind", "POSE_SETS", "IDENTIFICATION_SETS", "HELD_OUT_SETS", "PLANNED_SETS", "SPECIAL_SET",
-           "RANDOM_SET", "VALIDATION_SET", "DRIFT_SET", "UNKNOWN_SET_COLOUR_RGB", "is_identified_on",
+           "RANDOM_SET", "VALIDATION_SET", "DRIFT_SET", "QUICK_SET", "UNKNOWN_SET_COLOUR_RGB", "is_identified_on",
            "set_colour_rgb", "spread_hold_out"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.identification.diagnostics import NOMINAL_TILT_WARN_DEG
 from ftacq.mounts import MOUNTS
 
@@ -41,7 +42,7 @@ def validation_errors(calibration, record) -> dict:
     errors = calibration.compensate(record.wrench, record.flange_R_base) - bias_drift_at(calibration, record)
     return {
         "labels": list(record.labels),
-        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "columns": list(WRENCH_COLUMNS),
         "errors": errors.tolist(),
         "max_abs": np.abs(errors).max(axis=0).tolist(),
         "rms": np.sqrt(np.mean(errors**2, axis=0)).tolist(),

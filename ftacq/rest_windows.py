@@ -148,11 +148,6 @@ class RestWindows:
         self._times: list[np.ndarray] = []
         self._values: list[np.ndarray] = []
 
-    @property
-    def still_since_s(self) -> float | None:
-        """When the current stillness began (s), or None while moving."""
-        return self._still_since
-
     def feed(self, time_s: np.ndarray, values: np.ndarray, still: bool,
              flange_R_base: np.ndarray | None = None) -> list[RestWindow]:
         """Add a batch (all samples share ``still``); return the windows it completed."""

@@ -24,13 +24,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from ftacq import STANDARD_GRAVITY_M_S2
+from ftacq.channels import FORCE_AXES
 from ftacq.verdict import FAIL, PASS, WARN, Finding
 
 WARN_SIGMAS = 3.0
 """A figure counts beyond a limit when it exceeds it by more than this many σ."""
 FAIL_FACTOR = 2.0
 """Beyond this many times the stated accuracy (by more than WARN_SIGMAS σ) is a FAIL."""
-FORCE_AXES = ("Fx", "Fy", "Fz")
 
 
 def _items(check: Mapping[str, Any]) -> list[dict]:

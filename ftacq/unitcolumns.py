@@ -10,11 +10,9 @@ import re
 from pathlib import Path
 from typing import Callable
 
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import InputError
 from ftacq.units import FORCE_UNITS, TORQUE_UNITS, canonical_unit
-
-WRENCH_COLUMNS = ("fx", "fy", "fz", "tx", "ty", "tz")
-"""The wrench columns, N and N·m once converted (the same as ``ftacq.posefile.WRENCH_COLUMNS``)."""
 
 _UNIT_COLUMN = re.compile(r"^(std_)?([ft][xyz])_(.+)$")
 """A wrench or std column with a unit suffix: ``tx_nmm``, ``std_fx_n`` (header already in lower case)."""

@@ -45,6 +45,8 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from scipy.special import chdtrc, chdtri  # χ² tails: scipy.stats's own functions, without its 1 s import
 
+from ftacq.posesets import RANDOM_SET, SPECIAL_SET, VALIDATION_SET
+
 PASS, WARN, FAIL = "PASS", "WARN", "FAIL"
 STATUSES = (PASS, WARN, FAIL)
 _RANK = {PASS: 0, WARN: 1, FAIL: 2}
@@ -301,8 +303,8 @@ def outlier_finding(outliers: Sequence[str], n_poses: int) -> Finding:
 
 def poses_finding(planned: Mapping[str, int], wanted: Mapping[str, int], measured: int, total: int,
                   stopped: str = "") -> Finding:
-    """Judge what was measured against what was asked: ``planned``/``wanted`` poses per set ("A" the 24
-    special orientations, "E" extra, "V" held out), ``measured`` of ``total`` measurements; ``stopped`` is the
+    """Judge what was measured against what was asked: ``planned``/``wanted`` poses per set (ftacq.posesets:
+    "A" the 24 special orientations, "E" extra, "V" held out), ``measured`` of ``total`` measurements; ``stopped`` is the
     stop message of a run that did not finish."""
     figures = {"planned": dict(planned), "wanted": dict(wanted), "measured": int(measured), "total": int(total)}
     details = "planned/asked per set: " + ", ".join(f"{s} {planned.get(s, 0)}/{wanted.get(s, 0)}" for s in wanted)
@@ -310,13 +312,14 @@ def poses_finding(planned: Mapping[str, int], wanted: Mapping[str, int], measure
         return Finding("poses", FAIL, f"the run did not finish: {measured} of {total} poses measured"
                        + (f" ({stopped})" if stopped else "") + "; resume it to get a calibration", details, figures)
     short = []
-    if planned.get("A", 0) < wanted.get("A", 0):
-        short.append(f"{wanted['A'] - planned.get('A', 0)} of the {wanted['A']} special orientations could not be "
-                     "reached")
-    if wanted.get("V", 0) and planned.get("V", 0) < min(wanted["V"], MIN_VALIDATION_POSES):
-        short.append(f"only {planned.get('V', 0)} of {wanted['V']} held-out poses could be reached")
-    if planned.get("E", 0) < wanted.get("E", 0) / 2:
-        short.append(f"only {planned.get('E', 0)} of {wanted['E']} extra poses could be reached")
+    special, extra, held_out = SPECIAL_SET, RANDOM_SET, VALIDATION_SET
+    if planned.get(special, 0) < wanted.get(special, 0):
+        short.append(f"{wanted[special] - planned.get(special, 0)} of the {wanted[special]} special orientations "
+                     "could not be reached")
+    if wanted.get(held_out, 0) and planned.get(held_out, 0) < min(wanted[held_out], MIN_VALIDATION_POSES):
+        short.append(f"only {planned.get(held_out, 0)} of {wanted[held_out]} held-out poses could be reached")
+    if planned.get(extra, 0) < wanted.get(extra, 0) / 2:
+        short.append(f"only {planned.get(extra, 0)} of {wanted[extra]} extra poses could be reached")
     if short:
         return Finding("poses", WARN, "; ".join(short) + " (the cell's reach or obstacles)", details, figures)
     return Finding("poses", PASS, f"all {measured} poses measured", details, figures)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftacq.bridge_convention import FeedPlan, controller_tcp_force
+from ftacq.channels import AXES
 from ftacq.errors import FtacqError
 from ftacq.kinematics import URModel, forward_kinematics
 
@@ -47,7 +48,6 @@ SETTLE_CYCLES = 3
 CYCLE_TIMEOUT_S = 1.0
 """The check is not time-critical: it waits this long for a controller cycle (the controller's own watchdog still
 pauses the program if the feed stops for 0.1 s)."""
-AXES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 
 
 class CheckAborted(FtacqError):

@@ -242,7 +242,6 @@ class CalibrationProcedure:
         self._index: int | None = None
         self._label = ""
         self._result_parts: dict = {"warnings": []}
-        self._moved = False
 
     # ------------------------------------------------------------------ control
 
@@ -428,7 +427,6 @@ class CalibrationProcedure:
         model = settings.ur
         if speed > min(model.max_joint_speed_rad_s):
             raise MotionLimitError(f"joint speed {speed} rad/s is above the {model.name} rating")
-        self._moved = True
         self.robot.move_joints(step.joint_target_rad, speed, acceleration, timeout_s=self.options.move_timeout_s)
         reached = np.asarray(self.robot.joint_positions(), dtype=float)
         error = float(np.max(np.abs(reached - step.joint_target_rad)))

@@ -29,11 +29,10 @@ from typing import Sequence
 import numpy as np
 
 from ftacq import __version__
+from ftacq.channels import AXES, LABELS, UNITS, WRENCH_COLUMNS
 from ftacq.fileio import atomic_write
 from ftacq.posesets import POSE_SETS, set_colour_rgb
 
-CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
-UNITS = ("N", "N", "N", "N·m", "N·m", "N·m")
 FIGURE_DPI = 110
 MIN_FONT_PT = 10.0
 """Smallest text in the report's plots, points at the saved size."""
@@ -87,7 +86,7 @@ def plot_wrench_per_pose(path: Path, labels: Sequence[str], sets: Sequence[str],
             ax.axhline(0.0, color="black", lw=0.5)
             if band is not None and col == 1:
                 ax.axhspan(-band[k], band[k], color="lightgray", zorder=0)
-            ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
+            ax.set_ylabel(f"{AXES[k]} [{UNITS[k]}]")
             if k == 0:
                 ax.set_title(f"{title} (colour = pose set)"
                              + ("; grey: ± 3σ expected" if band is not None and col == 1 else ""))
@@ -137,7 +136,7 @@ def plot_validation(path: Path, labels: Sequence[str], errors: np.ndarray, test:
     width = 0.25
     for k in range(3):
         for ax, channel in ((axes[0], k), (axes[1], 3 + k)):
-            ax.bar(x + (k - 1) * width, errors[:, channel], width * 0.9, label=CHANNELS[channel], zorder=2)
+            ax.bar(x + (k - 1) * width, errors[:, channel], width * 0.9, label=AXES[channel], zorder=2)
     axes[0].set_ylabel("force error [N]")
     axes[1].set_ylabel("torque error [N·m]")
     drawn = None
@@ -170,7 +169,7 @@ def validation_dict(validated) -> dict:
     errors = np.asarray(validated.errors, dtype=float).reshape(-1, 6)
     return {
         "labels": list(validated.labels),
-        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "columns": list(WRENCH_COLUMNS),
         "errors": errors.tolist(),
         "max_abs": np.asarray(validated.max_abs).tolist(),
         "rms": np.asarray(validated.rms).tolist(),
@@ -306,7 +305,7 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
         lines += ["## Validation on held-out poses (V)", "",
                   f"{len(v.labels)} poses never used for identification, compensated with the calibration:", ""]
         lines += _table(["axis", "max |error|", "RMS error", "unit"],
-                        [(CHANNELS[k], f"{v.max_abs[k]:.5f}", f"{v.rms[k]:.5f}", UNITS[k]) for k in range(6)])
+                        [(AXES[k], f"{v.max_abs[k]:.5f}", f"{v.rms[k]:.5f}", UNITS[k]) for k in range(6)])
         plot_validation(folder / "validation.png", list(v.labels), np.asarray(v.errors),
                         _validation_test(verdict, [str(label) for label in v.labels]))
         lines += ["", "![validation](validation.png)", ""]
@@ -321,7 +320,7 @@ def write_report(folder: Path, result, plan, config: dict, *, truth=None, title:
         lines += ["## Drift check", "", f"**Not made**: {result.drift_skipped}. The calibration uses every pose "
                   "measured before it; the sensor's drift over the run is unknown.", ""]
     lines += ["## Measured poses", ""]
-    lines += _table(["label", "set", "count", *[f"{c} [{u}]" for c, u in zip(CHANNELS, UNITS)]],
+    lines += _table(["label", "set", "count", *LABELS],
                     [(label, result.measured[label].set_name, str(result.measured[label].count),
                       *[f"{x:+.4f}" for x in result.measured[label].mean]) for label in order])
     path = folder / "report.md"
@@ -338,7 +337,7 @@ def plot_wrench_over_motion(path: Path, time_s: np.ndarray, raw: np.ndarray, com
         ax.plot(time_s, raw[:, k], lw=0.6, color="tab:gray", label="raw")
         ax.plot(time_s, compensated[:, k], lw=0.6, color="tab:blue", label="compensated")
         ax.axhline(0.0, color="black", lw=0.5)
-        ax.set_ylabel(f"{CHANNELS[k]} [{UNITS[k]}]")
+        ax.set_ylabel(f"{AXES[k]} [{UNITS[k]}]")
     axes[0].legend(loc="upper right")
     axes[0].set_title("raw and compensated (gravity and inertia) wrench over the motion; compensated ≈ 0 "
                       "without contact")
@@ -424,7 +423,7 @@ def write_quick_report(folder: Path, result, verdict, plan, wall_s: dict, truth=
         lines += ["## Validation on the still holds (never fitted)", "",
                   f"{len(labels)} holds compensated with the calibration (static model: the arm is still):", ""]
         lines += _table(["axis", "max |error|", "RMS error", "unit"],
-                        [(CHANNELS[k], f"{np.abs(errors[:, k]).max():.5f}",
+                        [(AXES[k], f"{np.abs(errors[:, k]).max():.5f}",
                           f"{np.sqrt(np.mean(errors[:, k] ** 2)):.5f}", UNITS[k]) for k in range(6)])
         plot_validation(folder / "validation.png", labels, errors, figures)
         lines += ["", "![validation](validation.png)", ""]

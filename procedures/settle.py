@@ -31,12 +31,12 @@ import numpy as np
 
 from drivers.robot import Robot
 from drivers.sensor import ForceTorqueSensor, WrenchAverage
+from ftacq.channels import AXES
 from ftacq.errors import DeviceTimeoutError, FtacqError, SensorFaultError
 from ftacq.settings import from_setting, values_from
 
 log = logging.getLogger(__name__)
 
-CHANNELS = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 READ_TIMEOUT_CAP_S = 0.25
 """Longest single ``sensor.read`` wait, so the stop flag is checked at least this often (s)."""
 SETTLE_POLL_PERIOD_S = 0.005
@@ -161,7 +161,7 @@ def wait_until_settled(robot: Robot, sensor: ForceTorqueSensor, settings: Settle
             else:
                 worst = int(np.argmax(window_std / thresholds))
                 unit = "N" if worst < 3 else "N·m"
-                why = (f"{CHANNELS[worst]} std {window_std[worst]:.4g} {unit} stayed above "
+                why = (f"{AXES[worst]} std {window_std[worst]:.4g} {unit} stayed above "
                        f"{thresholds[worst]:g} {unit}")
             raise PoseNotSettledError(f"the pose did not settle within {settings.timeout_s:g} s: {why}")
         pause = SETTLE_POLL_PERIOD_S - (time.monotonic() - loop_start)

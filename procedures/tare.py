@@ -24,16 +24,12 @@ from drivers.sensor import ForceTorqueSensor
 from ftacq.bias_estimate import BiasEstimate, estimate_biases
 from ftacq.calibration import Calibration
 from ftacq.errors import IdentificationError
-from ftacq.posesets import RANDOM_SET
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from procedures import events
 from procedures.calibration_procedure import CalibrationProcedure, ProcedureOptions
 from procedures.settle import SettleSettings, average_at_pose, wait_until_settled
 
 log = logging.getLogger(__name__)
-
-TARE_SET = RANDOM_SET
-"""The planner's set the tare poses come from (random orientations in the configured cone)."""
 
 
 @dataclass(frozen=True)

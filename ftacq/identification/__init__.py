@@ -21,8 +21,9 @@ Steps (Yu, Shi & Lou 2021, Algorithm 1, with method.md's corrections):
 6. With ``sensor_check``: the sensor's force gain/cross-talk matrix fitted beside (sensor_gain.py); it leaves the
    calibration as it is, and "auto" then decides on the drift from one fit of the drift and the gains together.
 
-Over 500 lines because the steps above share one state (weights, noise model, parameters, their covariance)
-through one re-weighted loop; the pieces that stand alone live in the sibling modules.
+One function per step (``_prepare``, ``_robust_closed_form``, ``_refine``, ``_result``); over 500 lines because
+steps 4-5 share one state (weights, noise model, parameters, their covariance) through one re-weighted loop; the
+pieces that stand alone live in the sibling modules.
 """
 
 from __future__ import annotations
@@ -35,10 +36,11 @@ import numpy as np
 from ftacq import STANDARD_GRAVITY_M_S2, __version__
 from ftacq.calfile import MODEL_CORRELATION_KEY, MODEL_CORRELATION_PARAMETERS
 from ftacq.calibration import Calibration
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import IdentificationError
 from ftacq.identification import diagnostics, robust, trend
 from ftacq.identification.lrom import lrom
-from ftacq.identification.pose_error import estimate_noise, fixed_noise, orientation_sensitivity
+from ftacq.identification.pose_error import NoiseModel, estimate_noise, fixed_noise, orientation_sensitivity
 from ftacq.identification.refine import (
     DRIFT_SLICE,
     PARAMETER_SLICES,
@@ -399,13 +401,78 @@ def _with_sensor_check(result: IdentificationResult, check: tuple,
     return replace(result, calibration=replace(result.calibration, metadata=metadata), diagnostics=diagnostics)
 
 
+@dataclass
+class _Problem:
+    """Steps 1-2: the record as the fit sees it, its noise inputs and how gravity_base starts."""
+
+    record: PoseRecord
+    rotations: np.ndarray
+    """(N, 3, 3) flange_R_base of each pose."""
+    wrench: np.ndarray
+    times: trend.PoseTimes | None
+    """Given: the fit has a linear bias drift over these times (refine.py ``bias_rate``)."""
+    standard_error: np.ndarray | None
+    relative: np.ndarray
+    floor: np.ndarray
+    special_index: np.ndarray
+    special_angle: np.ndarray
+    missing: list[int]
+    use_srom: bool
+    pose_set_info: dict
+    warnings: list[str]
+
+    @property
+    def n(self) -> int:
+        return len(self.record)
+
+    @property
+    def drift_time(self) -> np.ndarray | None:
+        return None if self.times is None else self.times.drift_time
+
+    @property
+    def dof_ratio(self) -> float:
+        return max((6.0 * self.n - 15.0) / (6.0 * self.n), 1e-3)
+
+    def channel_noise(self, residual: np.ndarray, pose_weight: np.ndarray, dof: float, statistic: str):
+        """σ (N, 6) and τ (6,): measured standard errors + scatter, or a scale × relative noise per pose."""
+        if self.standard_error is not None:
+            return robust.channel_noise(residual, self.standard_error, pose_weight, dof, self.floor, statistic)
+        scale, tau = robust.channel_noise(residual / self.relative, None, pose_weight, dof, self.floor, statistic)
+        return scale * self.relative, tau
+
+
+@dataclass
+class _Refined:
+    """Step 4's outcome: the parameters, the noise model and robust weights they were fitted with."""
+
+    params: ModelParameters
+    orientations: OrientationBlock
+    sigma: np.ndarray
+    tau: np.ndarray
+    pose_weight: np.ndarray
+    noise: NoiseModel | None
+    """The full noise model (pose_error.py), once the refinement had residuals to estimate it from."""
+    converged: bool = True
+    iterations: int = 0
+    reweightings: int = 0
+    moved_sigmas: float = 0.0
+
+
 def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, special_tolerance_deg: float,
               orientation_error: bool, times: trend.PoseTimes | None = None, drift_text: str = "not asked for",
               drift_warn: tuple[float, float] = (np.inf, np.inf)) -> IdentificationResult:
     """One identification; ``times`` given: with a linear bias drift over them (refine.py ``bias_rate``)."""
-    drift_time = None if times is None else times.drift_time
+    problem = _prepare(record, method, special_tolerance_deg, times)
+    closed_params, closed_info = _robust_closed_form(problem)
+    refined = _refine(problem, closed_params, refine, special_tolerance_deg, orientation_error, drift_text, drift_warn)
+    return _result(problem, closed_params, closed_info, refined, mount, refine, drift_text, drift_warn)
+
+
+def _prepare(record: PoseRecord, method: str, special_tolerance_deg: float, times: trend.PoseTimes | None
+             ) -> _Problem:
+    """Steps 1-2: refuse a degenerate pose set, match the special orientations, choose SROM or LROM, and read the
+    record's noise (measured standard errors, or relative weights whose scale the residuals give)."""
     rotations = record.flange_R_base
-    wrench = record.wrench
     n = len(record)
     warnings: list[str] = []
     pose_set_info = diagnostics.check_pose_set(rotations)
@@ -433,131 +500,152 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         )
     if standard_error is None and record.standard_error is not None:
         warnings.append("std_* columns are zero for a whole channel: noise estimated from the residuals instead")
-    dof_ratio = max((6.0 * n - 15.0) / (6.0 * n), 1e-3)
-    floor = robust.noise_floor(wrench)
+    return _Problem(record, rotations, record.wrench, times, standard_error, relative,
+                    robust.noise_floor(record.wrench), special_index, special_angle, missing, use_srom, pose_set_info,
+                    warnings)
 
-    def channel_noise(residual: np.ndarray, pose_weight: np.ndarray, dof: float, statistic: str):
-        """σ (N, 6) and τ (6,): measured standard errors + scatter, or a scale × relative noise per pose."""
-        if standard_error is not None:
-            return robust.channel_noise(residual, standard_error, pose_weight, dof, floor, statistic)
-        scale, tau = robust.channel_noise(residual / relative, None, pose_weight, dof, floor, statistic)
-        return scale * relative, tau
 
-    # --- closed form, repeated with robust weights if a pose looks disturbed (steps 2-3) ---
-    params, closed_info = _closed_form(rotations, wrench, use_srom, special_index, None, None)
+def _robust_closed_form(problem: _Problem) -> tuple[ModelParameters, dict]:
+    """Steps 2-3: the closed form, repeated with robust weights if a pose looks disturbed."""
+    rotations, wrench, n = problem.rotations, problem.wrench, problem.n
+    params, closed_info = _closed_form(rotations, wrench, problem.use_srom, problem.special_index, None, None)
     pose_weight = np.ones(n)
     for _ in range(CLOSED_FORM_ROBUST_PASSES):
         residual = wrench - predict(params, rotations)
-        sigma, _ = channel_noise(residual, np.ones(n), dof_ratio, "median")
+        sigma, _ = problem.channel_noise(residual, np.ones(n), problem.dof_ratio, "median")
         new_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
         if np.all(new_weight >= 1.0) and np.all(pose_weight >= 1.0):
             break
         pose_weight = new_weight
         force_w, torque_w = _closed_form_weights(pose_weight, sigma)
-        params, closed_info = _closed_form(rotations, wrench, use_srom, special_index, force_w, torque_w)
-    closed_params = params
-    closed_residual = wrench - predict(closed_params, rotations)
+        params, closed_info = _closed_form(rotations, wrench, problem.use_srom, problem.special_index, force_w,
+                                           torque_w)
+    return params, closed_info
 
-    # --- robust joint refinement (step 4) ---
-    residual = closed_residual
+
+def _prefit(problem: _Problem, special_tolerance_deg: float, orientation_error: bool, drift_text: str,
+            drift_warn: tuple[float, float]) -> tuple[ModelParameters, np.ndarray, float]:
+    """Step 4 on a large set (LARGE_SET_POSES): refine an evenly spaced subsample first; return its parameters, its
+    extra scatter τ² and its orientation error variance (rad²), the noise model kept for all poses."""
+    times = problem.times
+    subsample = np.linspace(0, problem.n - 1, PREFIT_POSES).astype(int)
+    sub_times = None if times is None else replace(times, drift_time=times.drift_time[subsample])
+    prefit = _identify(problem.record.select(subsample), None, "lrom", True, special_tolerance_deg, orientation_error,
+                       sub_times, drift_text, drift_warn)
+    params = ModelParameters.from_calibration(prefit.calibration)
+    if times is not None:
+        params = replace(params, bias_rate=np.asarray(prefit.calibration.metadata["drift_model"]["bias_rate"]))
+    start_scatter2 = np.asarray(prefit.calibration.metadata["noise"]["extra_scatter"]) ** 2
+    start_orientation_variance = float(np.radians(prefit.calibration.metadata["noise"]["orientation_error_deg"]) ** 2)
+    return params, start_scatter2, start_orientation_variance
+
+
+def _refine(problem: _Problem, closed_params: ModelParameters, refine: bool, special_tolerance_deg: float,
+            orientation_error: bool, drift_text: str, drift_warn: tuple[float, float]) -> _Refined:
+    """Step 4: the robust joint refinement from the closed form (or, with ``refine=False``, the closed form's own
+    noise scale and robust weights, for its uncertainty)."""
+    rotations, wrench, n, drift_time = problem.rotations, problem.wrench, problem.n, problem.drift_time
+    standard_error, floor = problem.standard_error, problem.floor
+    params = closed_params
+    residual = wrench - predict(closed_params, rotations)
     start_scatter2, start_orientation_variance = None, 0.0
     if refine and n > LARGE_SET_POSES:  # a subsample first (LARGE_SET_POSES)
-        subsample = np.linspace(0, n - 1, PREFIT_POSES).astype(int)
-        sub_times = None if times is None else replace(times, drift_time=times.drift_time[subsample])
-        prefit = _identify(record.select(subsample), None, "lrom", True, special_tolerance_deg, orientation_error,
-                           sub_times, drift_text, drift_warn)
-        params = ModelParameters.from_calibration(prefit.calibration)
-        if times is not None:
-            params = replace(params, bias_rate=np.asarray(prefit.calibration.metadata["drift_model"]["bias_rate"]))
+        params, start_scatter2, start_orientation_variance = _prefit(problem, special_tolerance_deg,
+                                                                     orientation_error, drift_text, drift_warn)
         residual = wrench - predict(params, rotations, drift_time)
-        start_scatter2 = np.asarray(prefit.calibration.metadata["noise"]["extra_scatter"]) ** 2
-        start_orientation_variance = float(np.radians(prefit.calibration.metadata["noise"]["orientation_error_deg"]) ** 2)
-    sigma, tau = channel_noise(residual, np.ones(n), dof_ratio, "median")
+    sigma, tau = problem.channel_noise(residual, np.ones(n), problem.dof_ratio, "median")
     pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
     robust_sigma = sigma  # includes the scatter the measured noise does not explain: picks the first inliers
     if standard_error is not None:
         # start from the measured noise alone: the closed form's residuals overstate the noise of the
         # channels it fits sub-optimally; extra scatter τ is re-estimated after each refit
         sigma = np.sqrt(np.maximum(standard_error, floor) ** 2)
-    converged, iterations, reweightings, moved_sigmas = True, 0, 0, 0.0
-    if times is not None and params.bias_rate is None:
+    if problem.times is not None and params.bias_rate is None:
         params = replace(params, bias_rate=np.zeros(6))  # the closed form has none: the refinement fits it
     orientations = OrientationBlock(rotations, drift_time)
-    noise = None  # the full noise model (pose_error.py), once the refinement has residuals to estimate it from
-    if refine:
-        converged = False
-        covariance = None
-        weight = pose_weight[:, None] / sigma**2
-        total_sigma = sigma
-        if start_scatter2 is not None:  # the subsample's noise model and robust weights from the start
-            noise = fixed_noise(orientation_sensitivity(gravity_in_sensor(params, rotations), params.center_of_mass),
-                                standard_error, relative, floor, start_scatter2, start_orientation_variance)
-            pose_weight = robust.robust_weights(noise.pose_statistic(residual))
-            weight = noise.weight(pose_weight)
-            total_sigma = np.sqrt(noise.total_variance)
-        for _ in range(MAX_ROBUST_ITERATIONS):
-            result = levenberg_marquardt(params, orientations, wrench, weight, max_iterations=INNER_ITERATIONS)
-            iterations += result.iterations
-            reweightings += 1
-            moved_sigmas = np.inf if covariance is None else float(np.max(
-                np.abs(_parameter_change(params, result.params)) / np.sqrt(np.maximum(np.diag(covariance), 1e-300))))
-            step_ok = covariance is None or bool(
-                np.all(
-                    np.abs(_parameter_change(params, result.params))
-                    <= PARAMETER_CHANGE_SIGMAS * np.sqrt(np.maximum(np.diag(covariance), 1e-300))
-                )
-            )
-            params = result.params
-            residual = wrench - predict(params, rotations, drift_time)
-            if noise is not None:
-                statistic = noise.pose_statistic(residual)
-            else:
-                statistic = robust.pose_statistic(residual, robust_sigma)
-            inlier = statistic <= robust.outlier_threshold(n)
-            # the noise comes from the clean poses; if too few look clean, from all of them with their robust weights
-            noise_weight = inlier.astype(float) if inlier.sum() >= diagnostics.MIN_POSES else pose_weight
-            n_in = max(int(np.count_nonzero(noise_weight)), 3)
-            sensitivity = orientation_sensitivity(gravity_in_sensor(params, rotations), params.center_of_mass)
-            if start_scatter2 is not None:  # noise estimated on the subsample (LARGE_SET_POSES), kept
-                noise = fixed_noise(sensitivity, standard_error, relative, floor, start_scatter2,
-                                    start_orientation_variance)
-            else:
-                noise = estimate_noise(
-                    residual,
-                    sensitivity,
-                    standard_error,
-                    relative,
-                    noise_weight,
-                    max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3),
-                    floor,
-                    start_scatter2=tau**2 if noise is None else noise.scatter**2,
-                    start_orientation_variance=0.0 if noise is None else noise.fitted_orientation_variance_rad2,
-                    model_orientation=orientation_error and n >= ORIENTATION_MIN_POSES,
-                )
-            sigma, tau = noise.channel_sigma, noise.scatter
-            previous_total, total_sigma = total_sigma, np.sqrt(noise.total_variance)
-            sigma_change = float(np.max(np.abs(total_sigma / previous_total - 1.0)))
-            new_weight = robust.robust_weights(noise.pose_statistic(residual))
-            weight_change = float(np.max(np.abs(new_weight - pose_weight)))
-            pose_weight = new_weight
-            weight = noise.weight(pose_weight)
-            _, covariance = _covariance(params, orientations, weight)
-            settled = moved_sigmas <= SETTLED_PARAMETER_SIGMAS and sigma_change <= SETTLED_NOISE_CHANGE
-            if result.converged and (settled or (weight_change <= ROBUST_WEIGHT_TOLERANCE
-                                                 and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok)):
-                converged = True
-                break
-
-    else:  # noise scale of the closed form itself, for its uncertainty
+    if not refine:  # noise scale of the closed form itself, for its uncertainty
         inlier = robust.pose_statistic(residual, sigma) <= robust.outlier_threshold(n)
-        sigma, tau = channel_noise(residual, inlier.astype(float), dof_ratio, "mean")
+        sigma, tau = problem.channel_noise(residual, inlier.astype(float), problem.dof_ratio, "mean")
         pose_weight = robust.robust_weights(robust.pose_statistic(residual, sigma))
+        return _Refined(params, orientations, sigma, tau, pose_weight, None)
 
-    # --- uncertainty, diagnostics, warnings (step 5) ---
-    residual = wrench - predict(params, rotations, drift_time)
+    converged, iterations, reweightings, moved_sigmas = False, 0, 0, 0.0
+    covariance = None
+    noise = None  # the full noise model (pose_error.py), once the refinement has residuals to estimate it from
+    weight = pose_weight[:, None] / sigma**2
+    total_sigma = sigma
+    if start_scatter2 is not None:  # the subsample's noise model and robust weights from the start
+        noise = fixed_noise(orientation_sensitivity(gravity_in_sensor(params, rotations), params.center_of_mass),
+                            standard_error, problem.relative, floor, start_scatter2, start_orientation_variance)
+        pose_weight = robust.robust_weights(noise.pose_statistic(residual))
+        weight = noise.weight(pose_weight)
+        total_sigma = np.sqrt(noise.total_variance)
+    for _ in range(MAX_ROBUST_ITERATIONS):
+        result = levenberg_marquardt(params, orientations, wrench, weight, max_iterations=INNER_ITERATIONS)
+        iterations += result.iterations
+        reweightings += 1
+        moved_sigmas = np.inf if covariance is None else float(np.max(
+            np.abs(_parameter_change(params, result.params)) / np.sqrt(np.maximum(np.diag(covariance), 1e-300))))
+        step_ok = covariance is None or bool(
+            np.all(
+                np.abs(_parameter_change(params, result.params))
+                <= PARAMETER_CHANGE_SIGMAS * np.sqrt(np.maximum(np.diag(covariance), 1e-300))
+            )
+        )
+        params = result.params
+        residual = wrench - predict(params, rotations, drift_time)
+        if noise is not None:
+            statistic = noise.pose_statistic(residual)
+        else:
+            statistic = robust.pose_statistic(residual, robust_sigma)
+        inlier = statistic <= robust.outlier_threshold(n)
+        # the noise comes from the clean poses; if too few look clean, from all of them with their robust weights
+        noise_weight = inlier.astype(float) if inlier.sum() >= diagnostics.MIN_POSES else pose_weight
+        n_in = max(int(np.count_nonzero(noise_weight)), 3)
+        sensitivity = orientation_sensitivity(gravity_in_sensor(params, rotations), params.center_of_mass)
+        if start_scatter2 is not None:  # noise estimated on the subsample (LARGE_SET_POSES), kept
+            noise = fixed_noise(sensitivity, standard_error, problem.relative, floor, start_scatter2,
+                                start_orientation_variance)
+        else:
+            noise = estimate_noise(
+                residual,
+                sensitivity,
+                standard_error,
+                problem.relative,
+                noise_weight,
+                max((6.0 * n_in - 15.0) / (6.0 * n_in), 1e-3),
+                floor,
+                start_scatter2=tau**2 if noise is None else noise.scatter**2,
+                start_orientation_variance=0.0 if noise is None else noise.fitted_orientation_variance_rad2,
+                model_orientation=orientation_error and n >= ORIENTATION_MIN_POSES,
+            )
+        sigma, tau = noise.channel_sigma, noise.scatter
+        previous_total, total_sigma = total_sigma, np.sqrt(noise.total_variance)
+        sigma_change = float(np.max(np.abs(total_sigma / previous_total - 1.0)))
+        new_weight = robust.robust_weights(noise.pose_statistic(residual))
+        weight_change = float(np.max(np.abs(new_weight - pose_weight)))
+        pose_weight = new_weight
+        weight = noise.weight(pose_weight)
+        _, covariance = _covariance(params, orientations, weight)
+        settled = moved_sigmas <= SETTLED_PARAMETER_SIGMAS and sigma_change <= SETTLED_NOISE_CHANGE
+        if result.converged and (settled or (weight_change <= ROBUST_WEIGHT_TOLERANCE
+                                             and sigma_change <= NOISE_SCALE_TOLERANCE and step_ok)):
+            converged = True
+            break
+    return _Refined(params, orientations, sigma, tau, pose_weight, noise, converged, iterations, reweightings,
+                    moved_sigmas)
+
+
+def _result(problem: _Problem, closed_params: ModelParameters, closed_info: dict, refined: _Refined,
+            mount: str | None, refine: bool, drift_text: str, drift_warn: tuple[float, float]) -> IdentificationResult:
+    """Step 5: the uncertainty of every parameter, the named outliers, the warnings and the calibration's metadata."""
+    record, rotations, wrench, n = problem.record, problem.rotations, problem.wrench, problem.n
+    params, noise, sigma, pose_weight = refined.params, refined.noise, refined.sigma, refined.pose_weight
+    warnings = list(problem.warnings)
+    residual = wrench - predict(params, rotations, problem.drift_time)
     d2 = noise.pose_statistic(residual) if noise is not None else robust.pose_statistic(residual, sigma)
     weight = noise.weight(pose_weight) if noise is not None else pose_weight[:, None] / sigma**2
-    information, covariance = _covariance(params, orientations, weight)
+    information, covariance = _covariance(params, refined.orientations, weight)
     conditioning = diagnostics.fisher_conditioning(information)
     uncertainty = _uncertainty(params, covariance, mount)
     mass_kg = float(np.linalg.norm(params.gravity_base) / STANDARD_GRAVITY_M_S2)
@@ -565,7 +653,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
     warnings += diagnostics.parameter_warnings(uncertainty, mass_kg, conditioning)
     if not closed_info.get("wahba_unique", True):
         warnings.append("Wahba step: the rotation is not unique (repeated smallest singular value with a reflection)")
-    if not converged:
+    if not refined.converged:
         warnings.append("refinement did not converge within the iteration limit; the result may be inaccurate")
     outlier_mask = d2 > robust.outlier_threshold(n)
     outliers = tuple(label for label, flag in zip(record.labels, outlier_mask) if flag)
@@ -581,11 +669,44 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
             f"too few undisturbed poses: {n - len(outliers)} of {n} after naming outliers {', '.join(outliers)}"
         )
 
-    record_times = times if times is not None else trend.pose_times(record)
+    record_times = problem.times if problem.times is not None else trend.pose_times(record)
     variance = noise.total_variance if noise is not None else sigma**2
     found = trend.residual_trend(residual, variance, pose_weight, record_times.drift_time, record_times.unit)
+    metadata = _metadata(problem, closed_params, closed_info, refined, mount, refine, residual, uncertainty,
+                         covariance, conditioning, outliers, warnings, record_times, found, drift_text, drift_warn)
+    calibration = params.to_calibration(uncertainty=uncertainty, metadata=metadata)
+    closed_form = closed_params.to_calibration(metadata={"method": "srom" if problem.use_srom else "lrom"})
+    return IdentificationResult(
+        calibration=calibration,
+        closed_form=closed_form,
+        residuals=residual,
+        closed_form_residuals=wrench - predict(closed_params, rotations),
+        weights=pose_weight,
+        noise=sigma,
+        pose_statistic=d2,
+        outliers=outliers,
+        warnings=tuple(warnings),
+        method_used=metadata["method"],
+        labels=record.labels,
+        sets=record.sets,
+        special_index=problem.special_index,
+        converged=refined.converged,
+        iterations=refined.iterations,
+        mount=mount,
+        diagnostics={**metadata["diagnostics"], "tilt_deg": list(tilt_deg(params.gravity_base)),
+                     "special_angle_deg": problem.special_angle, "trend": found.to_dict()},
+        parameter_covariance=covariance,
+    )
 
-    tilt = tilt_deg(params.gravity_base)
+
+def _metadata(problem: _Problem, closed_params: ModelParameters, closed_info: dict, refined: _Refined,
+              mount: str | None, refine: bool, residual: np.ndarray, uncertainty: dict, covariance: np.ndarray,
+              conditioning: dict, outliers: tuple[str, ...], warnings: list[str], record_times: trend.PoseTimes,
+              found: trend.ResidualTrend, drift_text: str, drift_warn: tuple[float, float]) -> dict:
+    """Step 5: the calibration file's ``metadata`` (method, mount and tilt, noise, residuals, drift model,
+    correlations, diagnostics, the closed form); a tilt from the declared mount is added to ``warnings``."""
+    record, params, noise, pose_weight = problem.record, refined.params, refined.noise, refined.pose_weight
+    use_srom = problem.use_srom
     nearest, nearest_angle = nearest_mount(params.gravity_base)
     metadata: dict = {
         "method": ("srom" if use_srom else "lrom") + ("+refine" if refine else ""),
@@ -609,7 +730,7 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
                 "is --mount right? If the base is mounted so, declare it: --gravity-direction "
                 + ",".join(f"{v:.3f}" for v in params.gravity_base / np.linalg.norm(params.gravity_base))
             )
-    if standard_error is not None:
+    if problem.standard_error is not None:
         noise_text = "measured std/√count"
     elif record.count is not None and record.std is None:
         noise_text = "estimated from the residuals, relative weights 1/√count"
@@ -619,14 +740,14 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         noise_text = "estimated from the residuals"
     metadata["noise"] = {
         "source": noise_text,
-        "extra_scatter": tau.tolist(),
+        "extra_scatter": refined.tau.tolist(),
         "orientation_error_deg": noise.orientation_error_deg if noise is not None else 0.0,
         "rms_residual": np.sqrt(np.mean(residual[pose_weight > 0.5] ** 2, axis=0)).tolist()
         if np.any(pose_weight > 0.5)
         else [],
     }
     metadata["residuals"] = {
-        "columns": ["fx", "fy", "fz", "tx", "ty", "tz"],
+        "columns": list(WRENCH_COLUMNS),
         "labels": list(record.labels),
         "values": residual.tolist(),
         "weights": pose_weight.tolist(),
@@ -644,18 +765,19 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
     metadata[MODEL_CORRELATION_KEY] = _model_correlation(covariance)
     metadata["outliers"] = list(outliers)
     metadata["warnings"] = list(warnings)
+    moved_sigmas = refined.moved_sigmas
     metadata["diagnostics"] = {
-        "poses": n,
-        "special_orientations_present": 24 - len(missing),
+        "poses": problem.n,
+        "special_orientations_present": 24 - len(problem.missing),
         "condition_number": conditioning["condition_number"],
         "weakest_parameters": conditioning["weakest_parameters"],
-        "converged": converged,
-        "iterations": iterations,
-        "reweightings": reweightings,
+        "converged": refined.converged,
+        "iterations": refined.iterations,
+        "reweightings": refined.reweightings,
         "max_reweightings": MAX_ROBUST_ITERATIONS,
         "last_change_sigmas": moved_sigmas if np.isfinite(moved_sigmas) else None,
-        "resolution": (np.sqrt(12.0) * robust.resolution_floor(wrench)).tolist(),
-        **pose_set_info,
+        "resolution": (np.sqrt(12.0) * robust.resolution_floor(problem.wrench)).tolist(),
+        **problem.pose_set_info,
         **closed_info,
     }
     metadata["closed_form"] = {
@@ -665,26 +787,4 @@ def _identify(record: PoseRecord, mount: str | None, method: str, refine: bool, 
         "gravity_base": closed_params.gravity_base.tolist(),
         "center_of_mass_m": closed_params.center_of_mass.tolist(),
     }
-    calibration = params.to_calibration(uncertainty=uncertainty, metadata=metadata)
-    closed_form = closed_params.to_calibration(metadata={"method": "srom" if use_srom else "lrom"})
-    return IdentificationResult(
-        calibration=calibration,
-        closed_form=closed_form,
-        residuals=residual,
-        closed_form_residuals=closed_residual,
-        weights=pose_weight,
-        noise=sigma,
-        pose_statistic=d2,
-        outliers=outliers,
-        warnings=tuple(warnings),
-        method_used=metadata["method"],
-        labels=record.labels,
-        sets=record.sets,
-        special_index=special_index,
-        converged=converged,
-        iterations=iterations,
-        mount=mount,
-        diagnostics={**metadata["diagnostics"], "tilt_deg": list(tilt), "special_angle_deg": special_angle,
-                     "trend": found.to_dict()},
-        parameter_covariance=covariance,
-    )
+    return metadata

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import IdentificationError
 from ftacq.identification.refine import DRIFT_PARAMETER_NAMES, PARAMETER_NAMES
 from ftacq.validation import MAX_FORCE_N, MAX_POSITION_M, MAX_ROTATION_VECTOR_RAD, MAX_TORQUE_NM
@@ -70,7 +71,7 @@ def check_record_values(pose: np.ndarray, wrench: np.ndarray, labels, std: np.nd
     ``count`` (N,) ≥ 1 or None. Bounds: :data:`ftacq.validation.MAX_POSITION_M`, ``MAX_ROTATION_VECTOR_RAD``
     (norm), ``MAX_FORCE_N``, ``MAX_TORQUE_NM`` (beyond any sensor's range). Runs before any linear algebra.
     """
-    columns = ("x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
+    columns = ("x", "y", "z", "rx", "ry", "rz") + WRENCH_COLUMNS
     values = np.column_stack([np.asarray(pose, dtype=float).reshape(-1, 6), np.asarray(wrench, dtype=float).reshape(-1, 6)])
     limits = np.array([MAX_POSITION_M] * 3 + [MAX_ROTATION_VECTOR_RAD] * 3 + [MAX_FORCE_N] * 3 + [MAX_TORQUE_NM] * 3)
     with np.errstate(invalid="ignore", over="ignore"):

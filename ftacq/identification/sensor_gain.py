@@ -35,6 +35,7 @@ import numpy as np
 from scipy.special import chdtrc  # χ² tails: scipy.stats's own functions, without its 1 s import
 
 from ftacq import STANDARD_GRAVITY_M_S2
+from ftacq.channels import TORQUE_AXES
 from ftacq.identification.pose_error import orientation_sensitivity
 from ftacq.identification.torque import skew
 from ftacq.so3 import rotation_from_rotvec
@@ -42,8 +43,6 @@ from ftacq.so3 import rotation_from_rotvec
 if TYPE_CHECKING:
     from ftacq.identification.trend import ResidualTrend
 
-FORCE_AXES = ("Fx", "Fy", "Fz")
-TORQUE_AXES = ("Tx", "Ty", "Tz")
 SYMMETRIC_ENTRIES = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 """The six independent entries of a symmetric 3×3, in the order of every 6-vector here."""
 REFERENCE_GRAVITY_RELATIVE_SIGMA = 1.5e-3
@@ -394,5 +393,5 @@ def drift_trend(fit: SensorGainFit, record) -> "ResidualTrend":
                                float(chdtrc(6, chi2)), float(np.ptp(times.drift_time)), times.unit)
 
 
-__all__ = ["check_identification", "drift_trend", "FORCE_AXES", "TORQUE_AXES", "ReferenceWeight", "SensorGainFit", "fit_sensor_gain", "whitening",
+__all__ = ["check_identification", "drift_trend", "ReferenceWeight", "SensorGainFit", "fit_sensor_gain", "whitening",
            "SYMMETRIC_ENTRIES", "REFERENCE_GRAVITY_RELATIVE_SIGMA", "SIGNIFICANCE_P"]

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ftacq.errors import InputError
+from ftacq.imports.options import QUATERNION_ORDERS
 
-QUATERNION_ORDERS = ("xyzw", "wxyz")
 QUATERNION_NORM_TOLERANCE = 1e-3
 """|‖q‖ − 1| above this is not a unit quaternion (a column mix-up or a scaled value): refused."""
 MATRIX_ORTHONORMAL_TOLERANCE = 1e-3
@@ -78,4 +78,4 @@ def to_rotation_vectors(base_R_flange: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(np.asarray(base_R_flange, dtype=float).reshape(-1, 3, 3)).as_rotvec()
 
 
-__all__ = ["QUATERNION_ORDERS", "from_matrices", "from_quaternions", "from_rotation_vectors", "to_rotation_vectors"]
+__all__ = ["from_matrices", "from_quaternions", "from_rotation_vectors", "to_rotation_vectors"]

@@ -20,8 +20,6 @@ import numpy as np
 
 from ftacq.posefile import PoseRecord
 
-WRENCH_FRAMES = ("sensor", "base")
-"""Frames a recording's wrenches can be in: the sensor's own (the pose record's), or the robot base frame."""
 FRAME_RATIO = 3.0
 """The other frame's closed-form force RMS this many times smaller than the frame given: the frame is wrong."""
 MAX_CHECKED_POSES = 500
@@ -113,5 +111,5 @@ def wrench_frame_finding(record: PoseRecord, result: Any, frame: str = "sensor")
     return Finding("frame", PASS, f"the wrenches fit in the {frame} frame they were given in", details, figures)
 
 
-__all__ = ["FRAME_RATIO", "WRENCH_FRAMES", "base_from_sensor", "frame_mismatch", "rotate_wrench", "sensor_from_base",
+__all__ = ["FRAME_RATIO", "base_from_sensor", "frame_mismatch", "rotate_wrench", "sensor_from_base",
            "wrench_frame_finding"]

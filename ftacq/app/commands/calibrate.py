@@ -349,7 +349,7 @@ def _finish(args, folder, plan, config, result, cell, options, sensor_info=None)
     import numpy as np
 
     from ftacq.calfile import save_calibration
-    from ftacq.posesets import IDENTIFICATION_SETS
+    from ftacq.posesets import PLANNED_SETS, is_identified_on
     from ftacq.provenance import input_record, with_provenance
     from ftacq.verdict import FAIL, format_verdict
     from procedures.acceptance import run_verdict
@@ -375,7 +375,8 @@ def _finish(args, folder, plan, config, result, cell, options, sensor_info=None)
         calibration = with_provenance(
             calibration, sensor_info, getattr(config.tool, "name", None), run_folder=str(folder.path),
             validation=None if result.validation is None else validation_dict(result.validation),
-            input=input_record(folder.poses_csv, sets, IDENTIFICATION_SETS, has_std=True, has_count=True),
+            input=input_record(folder.poses_csv, sets, [s for s in PLANNED_SETS if is_identified_on(s)],
+                               has_std=True, has_count=True),
             drift_check=drift_check, verdict=None if verdict is None else verdict.to_dict())
         from dataclasses import replace
 

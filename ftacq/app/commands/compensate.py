@@ -17,9 +17,9 @@ import sys
 from pathlib import Path
 
 from ftacq.app.helptext import examples
+from ftacq.channels import CONTACT_COLUMNS, WRENCH_COLUMNS
 
-REQUIRED_COLUMNS = ("rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz")
-CONTACT_COLUMNS = ("contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz")
+REQUIRED_COLUMNS = ("rx", "ry", "rz") + WRENCH_COLUMNS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

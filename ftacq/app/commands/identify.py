@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ftacq.app.helptext import examples
+from ftacq.imports.options import WRENCH_FRAMES, ImportOptions
 from ftacq.mounts import MOUNT_FORMS
 
 
@@ -54,7 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the mount as the direction of gravity in the robot base frame (any length), e.g. 0.539,0.699,-0.470",
     )
     units = add_unit_options(parser, "the pose record")
-    units.add_argument("--wrench-frame", choices=("sensor", "base"), default="sensor",
+    units.add_argument("--wrench-frame", choices=WRENCH_FRAMES, default=ImportOptions.wrench_frame,
                        help="frame of the wrench columns: the sensor's (default; the pose record's) or the robot "
                             "base frame (rotated into the flange frame before the fit); the verdict names a wrong one")
     parser.add_argument(

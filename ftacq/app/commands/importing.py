@@ -11,8 +11,7 @@ import argparse
 import sys
 
 from ftacq.app.helptext import examples
-
-AUTO = "auto"
+from ftacq.imports.options import ORIENTATIONS, POSITION_COLUMNS, QUATERNION_ORDERS, WRENCH_FRAMES, ImportOptions
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -34,16 +33,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("recording", metavar="RECORDING.csv", help="one row per still pose, with a header")
     parser.add_argument("-o", "--output", metavar="POSES.csv", required=True, help="pose record to write")
     pose = parser.add_argument_group("flange pose")
-    pose.add_argument("--orientation", choices=(AUTO, "rotvec", "quaternion", "matrix", "joints"), default=AUTO,
+    pose.add_argument("--orientation", choices=ORIENTATIONS, default=ImportOptions.orientation,
                       help="how the recording gives the flange orientation in the base frame (default: from the "
                            "column names)")
-    pose.add_argument("--quaternion-order", choices=("xyzw", "wxyz"), default="xyzw",
+    pose.add_argument("--quaternion-order", choices=QUATERNION_ORDERS,
+                      default=ImportOptions.quaternion_order,
                       help="order of --orientation-columns for quaternions: scalar last (ROS, scipy) or first "
                            "(ABB, MATLAB); default xyzw")
     pose.add_argument("--orientation-columns", metavar="A,B,…",
                       help="the orientation's columns in order (default rx,ry,rz; qx,qy,qz,qw; r11,…,r33 row-major; "
                            "every q<n> column for joints)")
-    pose.add_argument("--position-columns", metavar="X,Y,Z", default="x,y,z",
+    pose.add_argument("--position-columns", metavar="X,Y,Z", default=",".join(POSITION_COLUMNS),
                       help="the flange position's columns, m (default x,y,z; absent: written as 0)")
     robot = pose.add_mutually_exclusive_group()
     robot.add_argument("--robot", metavar="MODEL", help="joint angles of a UR arm (UR5e, UR10e, …)")
@@ -54,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     pose.add_argument("--urdf-frame", metavar="FRAME", help="the URDF frame that is the flange (default tool0, "
                                                             "flange or ee_link, the first present)")
     wrench = parser.add_argument_group("wrench")
-    wrench.add_argument("--wrench-frame", choices=("sensor", "base"), default="sensor",
+    wrench.add_argument("--wrench-frame", choices=WRENCH_FRAMES, default=ImportOptions.wrench_frame,
                         help="frame of the recorded wrenches: the sensor's (default) or the robot base frame "
                              "(torques about the sensor origin)")
     wrench.add_argument("--force-unit", metavar="UNIT", help="unit of fx fy fz when the file does not say (N, kN, "
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ftacq.errors import InputError
     from ftacq.identification.diagnostics import MIN_POSES
-    from ftacq.imports import ImportOptions, import_recording
+    from ftacq.imports import import_recording
     from ftacq.imports.robot_model import dh_arm_model, read_dh_table, ur_arm_model, urdf_arm_model
     from ftacq.imports.wrench_frame import frame_mismatch
     from ftacq.posefile import write_pose_csv

@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from ftacq.app.helptext import examples
+from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import DeviceError, InputError
 
 INFO_WINDOW_S = 0.5
@@ -32,8 +33,8 @@ BIAS_CHECK_WINDOW_S = 0.2
 """Window averaged after a bias to show the residual, seconds."""
 READ_TIMEOUT_S = 1.0
 """Longest single wait for samples while recording (the driver reconnects meanwhile), seconds."""
-CSV_COLUMNS = ("t", "fx", "fy", "fz", "tx", "ty", "tz", "status", "saturated", "seq",
-               "count_fx", "count_fy", "count_fz", "count_tx", "count_ty", "count_tz", "device_time_s", "sample_time_s")
+CSV_COLUMNS = ("t", *WRENCH_COLUMNS, "status", "saturated", "seq", *(f"count_{name}" for name in WRENCH_COLUMNS),
+               "device_time_s", "sample_time_s")
 """The sensor record's columns (docs/formats.md, "Sensor record"): ``t`` the receive time (s since the first
 sample's), ``device_time_s`` the sample's time on the sensor's own clock (s; empty for a sensor without one),
 ``sample_time_s`` that time on the host clock (s since the first sample's receive time, as ``t``: the minimum-delay

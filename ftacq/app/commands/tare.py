@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ftacq.channels import LABELS
 from ftacq.errors import InputError
 
 SIM_BIAS_SHIFT = (0.35, -0.25, 0.6, 0.012, -0.008, 0.005)
 """With --sim, the simulated sensor's biases differ from the calibration's by this much (N, N·m): what the tare
 should find."""
-CHANNELS = ("Fx [N]", "Fy [N]", "Fz [N]", "Tx [N·m]", "Ty [N·m]", "Tz [N·m]")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -200,7 +200,7 @@ def format_estimate(estimate, samples: int) -> str:
     lines = [f"{estimate.method} ({samples} samples averaged)"
              + (f", pose scatter χ²/dof {estimate.chi2_per_dof:.2f}" if np.isfinite(estimate.chi2_per_dof) else ""),
              f"  {'':9} {'old':>11} {'new':>11} {'1σ':>9} {'change':>11}"]
-    for name, old, new, sigma, change in zip(CHANNELS, estimate.previous, estimate.bias, estimate.sigma,
+    for name, old, new, sigma, change in zip(LABELS, estimate.previous, estimate.bias, estimate.sigma,
                                              estimate.change):
         places = decimals_for(sigma)  # the values to the 1σ's last printed digit
         lines.append(f"  {name:9} {old:11.{places}f} {new:11.{places}f} {format_sigma(sigma):>9} "

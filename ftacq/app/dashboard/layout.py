@@ -33,6 +33,7 @@ from typing import Any
 import rerun.blueprint as rrb
 
 from ftacq.app.dashboard.sinks import APP_ID  # noqa: F401 - the recording's id, re-exported with the layout
+from ftacq.channels import FORCE_AXES, TORQUE_AXES  # noqa: F401 - the series names, re-exported with the layout
 from ftacq.posesets import POSE_SETS, UNKNOWN_SET_COLOUR_RGB
 
 # ------------------------------------------------------------------------------------------------ timelines
@@ -76,7 +77,6 @@ HEALTH_RATE = "health/rate_hz"
 HEALTH_COUNTS = "health/counts"
 HEALTH_STATUS = "health/status_word"
 
-CALIBRATION = "calibration"
 MEASURED = "calibration/measured"
 MEASURED_FORCE = "calibration/measured/force"
 MEASURED_TORQUE = "calibration/measured/torque"
@@ -98,8 +98,6 @@ LOG_PATHS = {"monitor": MONITOR_LOG, "calibration": CALIBRATION_LOG}
 
 # ------------------------------------------------------------------------------------------------ styles
 
-FORCE_AXES = ("Fx", "Fy", "Fz")
-TORQUE_AXES = ("Tx", "Ty", "Tz")
 AXIS_COLORS = ((230, 57, 70), (42, 157, 90), (38, 103, 230))
 """x red, y green, z blue, for force and torque alike (RGB 0-255)."""
 HEALTH_COUNT_NAMES = ("lost", "saturated", "status_errors", "dropped")
@@ -107,7 +105,7 @@ HEALTH_COUNT_COLORS = ((230, 57, 70), (240, 160, 30), (150, 60, 200), (120, 120,
 JOINT_NAMES = tuple(f"q{i}" for i in range(1, 7))
 JOINT_COLORS = ((230, 57, 70), (240, 160, 30), (200, 200, 40), (42, 157, 90), (38, 103, 230), (150, 60, 200))
 SET_COLORS = {name: kind.colour_rgb for name, kind in POSE_SETS.items()}
-"""Plan colours by pose set (:data:`ftacq.posesets.POSE_SETS`: A blue, E orange, V green, D red)."""
+"""Plan colours by pose set (:data:`ftacq.posesets.POSE_SETS`: A blue, E orange, Q purple, V green, D red)."""
 UNKNOWN_SET_COLOR = UNKNOWN_SET_COLOUR_RGB
 LINK_COLOR = (190, 195, 205)
 JOINT_COLOR = (60, 60, 70)

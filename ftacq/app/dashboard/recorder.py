@@ -240,10 +240,6 @@ class Dashboard:
                 flange_R_sensor = self._sensor_rotation.T
             self._static(SENSOR, rr.Transform3D(mat3x3=flange_R_sensor))
 
-    @property
-    def has_calibration(self) -> bool:
-        return self._sensor_rotation is not None
-
     # -- streams ---------------------------------------------------------------------------------------------
 
     def thin_wrenches(self, every: int) -> None:
