@@ -386,50 +386,26 @@ class QuickRecording:
 
 def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float = 60.0, on_waypoint=None,
                  on_hold=None) -> QuickRecording:
-    """Run the plan while recording; return the recording. ``on_waypoint(k, n)`` before each move,
-    ``on_hold(k, purpose, started)`` around each hold (True at its start, False at its end). Ctrl-C or a fault
-    stops the robot; the partial recording is attached to the raised exception as ``error.quick_recording``."""
-    from procedures.excitation import SENSOR_READ_TIMEOUT_S, _assemble, _SensorRecorder
+    """Run the plan while recording (:func:`procedures.motion_runner.run_waypoints`, the excitation stage's runner);
+    return the recording. ``on_waypoint(k, n)`` before each move, ``on_hold(k, purpose, started)`` around each hold
+    (True at its start, False at its end). Ctrl-C or a fault stops the robot; the partial recording is attached to
+    the raised exception as ``error.quick_recording``."""
+    from procedures.motion_runner import run_waypoints
 
-    sensor.read(timeout_s=SENSOR_READ_TIMEOUT_S)
-    first_robot = stream.count
-    rate = float(getattr(stream, "frequency_hz", 500.0))  # the controller's RTDE rate (125 Hz on a CB3)
-    holds = np.full((len(plan.waypoints_rad), 2), -1, dtype=int)
-    recorder = _SensorRecorder(sensor)
-    recorder.start()
-    completed = 0
-
-    def assemble() -> QuickRecording:
-        return QuickRecording(_assemble(recorder.batches, stream, first_robot), holds, completed)
+    def hold_event(k: int, started: bool) -> None:
+        if on_hold is not None:
+            on_hold(k, plan.purposes[k], started)
 
     try:
-        for k, (target, hold) in enumerate(zip(plan.waypoints_rad, plan.hold_s)):
-            if on_waypoint is not None:
-                on_waypoint(k, len(plan.waypoints_rad))
-            if recorder.error is not None:
-                raise recorder.error
-            robot.move_joints(target, plan.speed_rad_s, plan.acceleration_rad_s2, timeout_s=move_timeout_s)
-            if hold > 0:
-                if on_hold is not None:
-                    on_hold(k, plan.purposes[k], True)
-                begin = stream.count
-                stream.wait_for_samples(begin + int(round(hold * rate)), timeout_s=hold + 1.0)
-                holds[k] = (begin - first_robot, stream.count - first_robot)
-                if on_hold is not None:
-                    on_hold(k, plan.purposes[k], False)
-            completed = k + 1
-        stream.wait_for_samples(stream.count + 5, timeout_s=1.0)
+        run = run_waypoints(robot, sensor, stream, plan.waypoints_rad, plan.speed_rad_s, plan.acceleration_rad_s2,
+                            hold_s=plan.hold_s, move_timeout_s=move_timeout_s, on_waypoint=on_waypoint,
+                            on_hold=hold_event)
     except BaseException as error:
-        try:
-            robot.stop()
-        finally:
-            recorder.stop()
-            error.quick_recording = assemble()  # type: ignore[attr-defined]
+        partial = getattr(error, "motion_run", None)
+        if partial is not None:
+            error.quick_recording = QuickRecording(partial.record, partial.holds, partial.completed)  # type: ignore[attr-defined]
         raise
-    recorder.stop()
-    if recorder.error is not None:
-        raise recorder.error
-    return assemble()
+    return QuickRecording(run.record, run.holds, run.completed)
 
 
 __all__ = ["QuickPlan", "QuickRecording", "design_quick", "check_quick", "format_quick", "record_quick",

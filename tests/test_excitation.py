@@ -20,7 +20,8 @@ from ftacq.errors import InputError
 from ftacq.kinematics import ur_model
 from drivers.sensor import WrenchBatch
 from drivers.ur_stream import StateWindow
-from procedures.excitation import _assemble, plan_excitation, record_excitation
+from procedures.excitation import plan_excitation, record_excitation
+from procedures.motion_runner import assemble_record
 from procedures.plan import PlanSettings, check_path, home_configuration_rad
 from tests.fakes.cell import SimulatedCell
 from tests.fakes.world import CellTruth
@@ -92,12 +93,12 @@ def test_recorded_sensor_times_come_from_the_device_clock_so_skipped_samples_shi
     zeros = np.zeros((robot_t.size, 6))
     stream = SimpleNamespace(count=robot_t.size, window=lambda last: StateWindow(
         robot_t[-last:], robot_t[-last:], robot_t[-last:], zeros[-last:], zeros[-last:], zeros[-last:], zeros[-last:]))
-    record = _assemble(batches, stream, first_robot=0)
+    record = assemble_record(batches, stream, first_robot=0)
     assert record.metadata["sensor_clock"] == "device"
     assert np.abs(record.sensor_time_s - truth).max() <= BOUND_S
     # without a device clock (a polled sensor) the arrival stamps are the times
     polled = [WrenchBatch(b.time_s, b.wrench, b.counts, b.status, b.sequence, b.saturated) for b in batches[:10]]
-    record = _assemble(polled, stream, first_robot=0)
+    record = assemble_record(polled, stream, first_robot=0)
     assert record.metadata["sensor_clock"] == "arrival"
     np.testing.assert_array_equal(record.sensor_time_s, np.concatenate([b.time_s for b in batches[:10]]))
 
