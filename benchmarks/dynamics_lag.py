@@ -42,18 +42,11 @@ from ftacq.dynamics.timing import box_average  # noqa: E402
 from ftacq.kinematics import ur_model  # noqa: E402
 from procedures.excitation import plan_excitation  # noqa: E402
 from procedures.plan import PlanSettings, home_configuration_rad  # noqa: E402
-from tests.fakes.lagging_motion import chain_of_moves, record_excitation_offline, replay_live  # noqa: E402
+from tests.fakes.lagging_motion import chain_of_moves, heavy_truth, record_excitation_offline, replay_live  # noqa: E402
 from tests.fakes.world import CellTruth  # noqa: E402
 
 MODEL = ur_model("UR5e")
-TOOL_MASS_KG = 4.2
 MASS_SIGMA_KG, COM_SIGMA_M = 2e-4, 2e-5
-
-
-def heavy_truth() -> CellTruth:
-    base = CellTruth()
-    scale = TOOL_MASS_KG / base.mass_kg
-    return CellTruth(mass_kg=TOOL_MASS_KG, inertia_kg_m2=tuple(tuple(scale * v for v in row) for row in base.inertia_kg_m2))
 
 
 def efficient_inertia(truth: CellTruth, recording) -> np.ndarray:

@@ -21,21 +21,14 @@ from ftacq.dynamics.motionfile import read_motion_csv, write_motion_csv
 from ftacq.kinematics import ur_model
 from procedures.excitation import plan_excitation
 from procedures.plan import PlanSettings, home_configuration_rad
-from tests.fakes.lagging_motion import chain_of_moves, record_excitation_offline, replay_live
+from tests.fakes.lagging_motion import chain_of_moves, heavy_truth, record_excitation_offline, replay_live
 from tests.fakes.world import CellTruth
 
 pytest.importorskip("pinocchio")
 MODEL = ur_model("UR5e")
 SETTINGS = PlanSettings(joint_speed_rad_s=1.0, joint_acceleration_rad_s2=2.0)
-TOOL_MASS_KG = 4.2
 MASS_SIGMA_KG, COM_SIGMA_M = 2e-4, 2e-5
 """The static calibration's 1σ (a heavy tool on 24+ poses); its values are drawn around the truth with them."""
-
-
-def heavy_truth() -> CellTruth:
-    base = CellTruth()
-    scale = TOOL_MASS_KG / base.mass_kg
-    return CellTruth(mass_kg=TOOL_MASS_KG, inertia_kg_m2=tuple(tuple(scale * v for v in row) for row in base.inertia_kg_m2))
 
 
 def lagging_record(seed: int, servo_lag_s: float, moves: int = 6):

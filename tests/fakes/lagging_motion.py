@@ -21,6 +21,16 @@ from tests.fakes.ur_motion import JointMove
 from tests.fakes.world import CellTruth, SensorPhysics, SettablePose
 
 ROBOT_RATE_HZ = 500.0
+HEAVY_TOOL_MASS_KG = 4.2
+"""The heavy tool of the servo-lag tests and benchmark (an independent cell's, issue 37), kg."""
+
+
+def heavy_truth() -> CellTruth:
+    """The default cell with the heavy tool: its inertia scaled with its mass."""
+    base = CellTruth()
+    scale = HEAVY_TOOL_MASS_KG / base.mass_kg
+    return CellTruth(mass_kg=HEAVY_TOOL_MASS_KG,
+                     inertia_kg_m2=tuple(tuple(scale * v for v in row) for row in base.inertia_kg_m2))
 
 
 def chain_of_moves(model: URModel, start_q: np.ndarray, targets: np.ndarray, speed_rad_s: float,
