@@ -120,12 +120,12 @@ def run_full(truth: CellTruth, folder: Path, seed: int = 0) -> tuple[dict, float
 
 
 def run_quick(truth: CellTruth, folder: Path, seed: int = 0) -> tuple[dict, dict, str]:
-    """The quick stage's steps (ftacq/app/commands/quick_stage.py) on a cell with this truth."""
+    """The quick stage's steps (procedures/quick_analysis.py) on a cell with this truth."""
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
     from drivers.ur_stream import URStateStream
-    from ftacq.app.commands.quick_stage import analyse_quick
+    from procedures.quick_analysis import analyse_quick
     from ftacq.calfile import save_calibration
     from ftacq.mounts import mount_of
     from procedures.plan import make_plan
@@ -215,7 +215,7 @@ def offline_grid(seeds: int, json_path: Path | None, part: tuple[int, int] = (0,
     largest |error|/σ, the analysis's wall time."""
     from dataclasses import replace
 
-    from ftacq.app.commands.quick_stage import analyse_quick, quick_verdict
+    from procedures.quick_analysis import analyse_quick, quick_verdict
     from ftacq.mounts import mount_of
     from procedures.plan import home_configuration_rad, make_plan
     from procedures.quick import QuickPlan, design_quick

@@ -1,4 +1,4 @@
-"""The quick calibration's trajectory and verdict (procedures/quick.py, ftacq/app/commands/quick_stage.py).
+"""The quick calibration's trajectory and verdict (procedures/quick.py, procedures/quick_analysis.py).
 
 The designed trajectory, sampled densely, stays within the CELL.toml speed and acceleration and clear of the
 collision model at every sample; the verdict on the still validation poses passes the right tool and fails a
@@ -7,7 +7,8 @@ wrong one (a 0.2 kg part left in the gripper during the validation holds, unknow
 import numpy as np
 import pytest
 
-from ftacq.app.commands.quick_stage import quick_verdict, refuse_resume
+from procedures.quick_analysis import quick_verdict
+from ftacq.app.commands.quick_stage import refuse_resume
 from ftacq.dynamics import MotionRecord
 from ftacq.dynamics.joint import identify_joint
 from ftacq.errors import InputError

@@ -14,7 +14,7 @@ import json
 import numpy as np
 import pytest
 
-from ftacq.app.commands.quick_stage import REST_SPEED_RAD_S, validation_poses
+from procedures.quick_analysis import REST_SPEED_RAD_S, validation_poses
 from ftacq.kinematics import forward_kinematics, ur_model
 from procedures.plan import home_configuration_rad
 from procedures.quick import FIT, VALIDATE, QuickPlan, record_quick

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ftacq.app.commands.quick_stage import analyse_quick, quick_verdict
+from procedures.quick_analysis import analyse_quick, quick_verdict
 from ftacq.mounts import mount_of
 from ftacq.rest_windows import settled_starts
 from ftacq.so3 import rotvec_from_rotation

@@ -5,7 +5,7 @@ the motion (issue 38, item 2)."""
 from dataclasses import replace
 
 import numpy as np
-from ftacq.app.commands.quick_stage import quick_verdict
+from procedures.quick_analysis import quick_verdict
 from ftacq.dynamics.joint import identify_joint
 from ftacq.mounts import mount_of
 from procedures.quick import VALIDATE
