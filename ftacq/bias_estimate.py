@@ -225,6 +225,12 @@ def apply_estimate(calibration: Calibration, estimate: BiasEstimate, time: str |
                        estimate.method, time=time, **extra)
 
 
-__all__ = ["BiasEstimate", "estimate_biases", "apply_estimate", "with_biases", "compensation_sigma",
+def format_bias_change(change) -> str:
+    """The biases' change (6,) (N, N·m) in one line: ``F [+0.0123, …] N, T [+0.00045, …] N·m``."""
+    return ("F [" + ", ".join(f"{v:+.4f}" for v in change[:3]) + "] N, T ["
+            + ", ".join(f"{v:+.5f}" for v in change[3:]) + "] N·m")
+
+
+__all__ = ["format_bias_change", "BiasEstimate", "estimate_biases", "apply_estimate", "with_biases", "compensation_sigma",
            "compensation_variance_parts",
            "pose_noise_covariance", "model_jacobian"]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ftacq.bias_estimate import apply_estimate
+from ftacq.bias_estimate import apply_estimate, format_bias_change
 from ftacq.errors import FtacqError
 from procedures import events
 from procedures.bias_health import DriftCompensator
@@ -133,9 +133,8 @@ class LiveTare:
         self.tares += 1
         self._finish(request, result=result)
         change = result.estimate.change
-        return [events.Notice(f"tared at the current pose ({len(wrench)} samples): biases changed by F ["
-                              + ", ".join(f"{v:+.4f}" for v in change[:3]) + "] N, T ["
-                              + ", ".join(f"{v:+.5f}" for v in change[3:]) + "] N·m",
+        return [events.Notice(f"tared at the current pose ({len(wrench)} samples): biases changed by "
+                              + format_bias_change(change),
                               source="tare", time_s=float(batch.time_s[-1]))]
 
     def _restart(self) -> None:

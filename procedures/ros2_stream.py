@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from drivers.ros2.cdr import NS_PER_S, WrenchStampedEncoder
+from ftacq.bias_estimate import format_bias_change
 from procedures import events
 
 WRENCH_TYPE = "geometry_msgs/msg/WrenchStamped"
@@ -200,8 +201,7 @@ class Ros2Publisher:
         change = np.asarray(self._tare(), dtype=float)
         self.tares += 1
         self._publish_calibration()
-        return True, ("tared: biases changed by F [" + ", ".join(f"{v:+.4f}" for v in change[:3]) + "] N, T ["
-                      + ", ".join(f"{v:+.5f}" for v in change[3:]) + "] N·m")
+        return True, "tared: biases changed by " + format_bias_change(change)
 
 
 class BagRecorder:
