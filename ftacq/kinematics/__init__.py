@@ -45,6 +45,7 @@ from ftacq.kinematics.ur import (
     dh_transforms,
     dh_transforms_batch,
     flange_pose,
+    pose_of_transform,
     forward_kinematics,
     middle_equivalent,
     planning_limits_rad,
@@ -53,7 +54,7 @@ from ftacq.kinematics.ur import (
 
 __all__ = ["URModel", "UR_MODELS", "ur_model", "JOINT_LIMIT_MARGIN_RAD", "MEASURED_ANGLE_TOLERANCE_RAD",
            "planning_limits_rad", "middle_equivalent", "dh_matrix", "dh_step", "dh_transforms", "dh_transforms_batch",
-           "forward_kinematics", "flange_pose", "FLANGE_FRAME", "dh_frame_name", "dh_chain_model", "pinocchio_model",
+           "forward_kinematics", "flange_pose", "pose_of_transform", "FLANGE_FRAME", "dh_frame_name", "dh_chain_model", "pinocchio_model",
            "FlangeRotation", "pinocchio_model_from_urdf", "pinocchio_dh_frames", "IK_TOLERANCE", "TWO_PI", "Branch",
            "IKResult", "analytic_ik", "analytic_ik_batch", "branch_of", "singularity_reason", "wrap_near", "refine_ik",
            "solve_ik_branches", "solve_ik_batch", "solve_ik", "pose_error"]

@@ -162,8 +162,12 @@ def forward_kinematics(model: URModel, q_rad: np.ndarray) -> np.ndarray:
 
 def flange_pose(model: URModel, q_rad: np.ndarray) -> np.ndarray:
     """Return the flange pose [x, y, z (m), rx, ry, rz (rad)] as a UR controller reports it (TCP offset zero)."""
-    base_T_flange = forward_kinematics(model, q_rad)
-    return np.concatenate([base_T_flange[:3, 3], rotvec_from_rotation(base_T_flange[:3, :3])])
+    return pose_of_transform(forward_kinematics(model, q_rad))
+
+
+def pose_of_transform(base_T_frame: np.ndarray) -> np.ndarray:
+    """Return [x, y, z (m), rx, ry, rz (rad)] of a (4, 4) transform: a pose as a UR controller reports one."""
+    return np.concatenate([base_T_frame[:3, 3], rotvec_from_rotation(base_T_frame[:3, :3])])
 
 
 def dh_transforms_batch(model: URModel, q_rad: np.ndarray) -> np.ndarray:

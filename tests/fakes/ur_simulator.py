@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ftacq.kinematics import URModel, flange_pose, forward_kinematics
+from ftacq.kinematics import URModel, flange_pose, forward_kinematics, pose_of_transform
 from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 from tests.fakes.rigid_body import flange_motion
@@ -217,8 +217,8 @@ class URSimulator:
         self.events: list[dict] = []
         self.stream_period_s = 0.002  # longest period among streaming clients; set by the server
         self.on_network_fault = None  # callable(kind) installed by the server
-        self._pose_cache_key: tuple[bytes, bytes] | None = None
-        self._pose_cache: tuple[np.ndarray, np.ndarray] = (np.zeros(6), np.zeros(6))
+        self._pose_cache: dict[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] = {}
+        """(flange pose, TCP pose) by (q, TCP offset): the target's and the lagging arm's, both asked each tick."""
         self.tcp_speed = np.zeros(6)
         self.tool_motion_outputs = True
         """Compute actual_TCP_speed and actual_tool_accelerometer each tick (the server clears it while no client's
@@ -233,14 +233,15 @@ class URSimulator:
     def flange_pose(self) -> np.ndarray:
         return flange_pose(self.model, self.q)
 
-    def tcp_pose_for(self, q: np.ndarray, tcp: np.ndarray) -> np.ndarray:
-        """Pose of ``base_T_flange(q) @ flange_T_tcp`` as [x, y, z, rx, ry, rz]."""
-        base_T_flange = forward_kinematics(self.model, q)
+    def tcp_pose_for(self, q: np.ndarray, tcp: np.ndarray, base_T_flange: np.ndarray | None = None) -> np.ndarray:
+        """Pose of ``base_T_flange(q) @ flange_T_tcp`` as [x, y, z, rx, ry, rz] (``base_T_flange``: q's, if known)."""
+        if not np.any(tcp):
+            return flange_pose(self.model, q) if base_T_flange is None else pose_of_transform(base_T_flange)
+        if base_T_flange is None:
+            base_T_flange = forward_kinematics(self.model, q)
         flange_T_tcp = np.eye(4)
         flange_T_tcp[:3, :3] = rotation_from_rotvec(tcp[3:6])
         flange_T_tcp[:3, 3] = tcp[:3]
-        if not np.any(tcp):
-            return flange_pose(self.model, q)
         base_T_tcp = base_T_flange @ flange_T_tcp
         return np.concatenate([base_T_tcp[:3, 3], rotvec_from_rotation(base_T_tcp[:3, :3])])
 
@@ -698,10 +699,14 @@ class URSimulator:
         change."""
         q = self.q if q is None else q
         key = (q.tobytes(), self.tcp_offset.tobytes())
-        if self._pose_cache_key != key:
-            self._pose_cache_key = key
-            self._pose_cache = (flange_pose(self.model, q), self.tcp_pose_for(q, self.tcp_offset))
-        return self._pose_cache
+        poses = self._pose_cache.get(key)
+        if poses is None:
+            if len(self._pose_cache) >= 4:
+                self._pose_cache.clear()
+            base_T_flange = forward_kinematics(self.model, q)
+            poses = self._pose_cache[key] = (pose_of_transform(base_T_flange),
+                                             self.tcp_pose_for(q, self.tcp_offset, base_T_flange))
+        return poses
 
     def actual_joints(self, now: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) of the physical arm at ``now``: the target's :attr:`servo_lag_s` of motion time ago (the
