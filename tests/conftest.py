@@ -21,6 +21,9 @@ from typing import Callable, TypeVar
 
 import pytest
 
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the ftacq command (ftacq/app/cli.py), for the workers and
+# every process the tests start: xdist starts its workers after this file is read, before they import numpy
+
 CHECKOUT = Path(__file__).resolve().parents[1]
 NOT_OUTPUT = {".git", ".venv", "__pycache__", ".pytest_cache", ".hypothesis", ".mypy_cache", ".ruff_cache"}
 """Folders of the checkout that tools (git, the environment, caches) write: not looked at by the guard."""
