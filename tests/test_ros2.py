@@ -109,6 +109,35 @@ def test_window_stamps_never_go_back():
         np.testing.assert_allclose(np.concatenate([m1, m2]), 1.0)
 
 
+def test_the_calibration_text_is_serialized_once_per_calibration(monkeypatch):
+    """A calibration without ``created_utc`` is stamped when serialized: the bag's metadata and the latched topic
+    carry one text, even across a second's turn; a tare's new calibration gets its own."""
+    import datetime as real_dt
+    from dataclasses import replace
+
+    from ftacq import calfile
+    from ftacq.app.ros2_outputs import CalibrationText
+    from ftacq.app.simcell import simulated_truth, true_calibration
+
+    seconds = iter(range(10**6))
+
+    class Clock(real_dt.datetime):
+        @classmethod
+        def now(cls, tz=None):  # a second later at every call
+            return real_dt.datetime(2026, 1, 1, tzinfo=tz) + real_dt.timedelta(seconds=next(seconds))
+
+    monkeypatch.setattr(calfile._dt, "datetime", Clock)
+    calibration = true_calibration(simulated_truth())
+    assert "created_utc" not in calibration.metadata
+    in_force = [calibration]
+    text = CalibrationText(lambda: in_force[0])
+    first = text()
+    assert first is not None and text() == first and json.loads(first)["created_utc"]
+    in_force[0] = replace(calibration, force_bias=calibration.force_bias + 1.0)  # a tare
+    assert json.loads(text() or "")["force_bias"] != json.loads(first)["force_bias"]
+    assert CalibrationText(lambda: None)() is None
+
+
 # ------------------------------------------------------------------------------------------------ end to end
 
 

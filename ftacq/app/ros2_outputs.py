@@ -79,6 +79,27 @@ def check_ros2_args(args: argparse.Namespace) -> None:
                               "pip install 'ftacq[ros2]'") from None
 
 
+class CalibrationText:
+    """() → the calibration in force (``calibration()``) as its JSON text, or None: serialized once per calibration
+    object, so the bag's metadata, its ``calibration`` message and the latched topic carry the same text (a
+    calibration without ``created_utc`` is stamped with the time it is serialized: twice could differ by a second)."""
+
+    def __init__(self, calibration: Callable[[], Any]) -> None:
+        self.calibration = calibration
+        self._of: Any = None
+        self._text: str | None = None
+
+    def __call__(self) -> str | None:
+        from ftacq.calfile import calibration_json_text
+
+        now = self.calibration()
+        if now is None:
+            return None
+        if now is not self._of:
+            self._of, self._text = now, calibration_json_text(now)
+        return self._text
+
+
 def _failed(what: str, queue: Any) -> str:
     """A last line for a ROS 2 listener that failed (it got no more events after its error), else ""."""
     error = queue.first_error
@@ -108,7 +129,6 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
         return [], report
     import numpy as np
 
-    from ftacq.calfile import calibration_json_text
     from ftacq.settings import SensorConfig
     from procedures.delivery import BackgroundListener
     from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher, StampClock
@@ -123,9 +143,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
     frame_id = args.ros2_frame_id or sensor.frame
     rate_hz = DEFAULT_RATE_HZ if args.ros2_rate is None else args.ros2_rate
 
-    def calibration_json() -> str | None:
-        now = calibration()
-        return None if now is None else calibration_json_text(now)
+    calibration_json = CalibrationText(calibration)
 
     def reference_bias() -> np.ndarray:
         now = calibration()
@@ -162,4 +180,4 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
     return listeners, report
 
 
-__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag"]
+__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag", "CalibrationText"]
