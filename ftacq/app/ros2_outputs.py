@@ -17,11 +17,24 @@ from ftacq.errors import ConfigError
 
 DOMAIN_ID_MAX = 232
 """The largest DDS domain id with Cyclone DDS's default port mapping (ROS 2: 0-101 and 215-232 are safe on Linux)."""
-ROS2_READ_PERIOD_S = 0.002
-"""With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S): a
-sample waits for the next read before it is published (benchmarks/ros2.py: latency against CPU)."""
+ROS2_READ_PERIOD_S = 0.0
+"""With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S); 0: as
+soon as the driver has samples (its receive thread wakes the read), so a sample waits for no pacing before it is
+published (benchmarks/ros2.py: latency against CPU)."""
+ROS2_STATE_WAIT_S = 0.0
+"""With --ros2 the dynamic compensation's longest wait for the robot states of a read's newest samples, s (else
+procedures.dynamic_compensation.STATE_WAIT_S, 0.1 s): 0 holds the newest state's prediction for the samples newer
+than it, as the bridge does (an error of dW/dt × how far ahead, ≈ 2-4 ms at 500 Hz; docs/ros2.md)."""
 LISTENER_QUEUE_BATCHES = 1_000_000
 """The ROS 2 listeners' queues hold this many reads before dropping (never, in practice: nothing is lost)."""
+
+
+def prefer_low_latency(cell: Any) -> None:
+    """Make ``cell`` (:class:`ftacq.app.session.Cell`) publish each sample as soon as it can: reads on data
+    (:data:`ROS2_READ_PERIOD_S`) and no wait for robot states (:data:`ROS2_STATE_WAIT_S`)."""
+    cell.monitor.batch_period_s = ROS2_READ_PERIOD_S
+    if hasattr(cell.compensator, "state_wait_s"):
+        cell.compensator.state_wait_s = min(cell.compensator.state_wait_s, ROS2_STATE_WAIT_S)
 
 
 def add_ros2_args(parser: argparse.ArgumentParser) -> None:
@@ -131,7 +144,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
 
     from ftacq.settings import SensorConfig
     from procedures.delivery import BackgroundListener
-    from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher, StampClock
+    from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher
 
     if args.config is not None:
         from ftacq.app.config import load_config
@@ -149,35 +162,40 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
         now = calibration()
         return np.zeros(6) if now is None else np.concatenate([now.force_bias, now.torque_bias])
 
-    listeners = []
-    clock = StampClock()  # one for both: the bag holds the very messages the topics carry
+    from procedures.ros2_stream import Ros2Messages, Ros2Stream
+
+    bag_queue: BackgroundListener | None = None
+    publisher: Ros2Publisher | None = None
+    messages = Ros2Messages(frame_id, rate_hz, reference_bias, joint_states=is_bag(args.record))
     if is_bag(args.record):
-        recorder = BagRecorder(args.record, namespace, frame_id, rate_hz, calibration_json(), reference_bias,
-                               metadata={"source": "ftacq monitor"}, clock=clock)
+        recorder = BagRecorder(args.record, namespace, calibration_json(), metadata={"source": "ftacq monitor"})
         bag_queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
-                                       name="ftacq-mcap", direct=True)
-        stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or
+                                       name="ftacq-mcap")
+        stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or  # type: ignore[arg-type]
                                              f"ROS 2 bag: {recorder.bag.messages} messages recorded in {args.record}"))
         stack.callback(recorder.close)  # after the queue is drained (callbacks run last first)
         stack.callback(bag_queue.close)
-        listeners.append(bag_queue)
     if args.ros2:
         from drivers.ros2.node import Ros2Node
 
         node = Ros2Node(namespace, _domain_id(args))
         stack.callback(node.close)
-        publisher = Ros2Publisher(node, frame_id, rate_hz, args.ros2_reliable, calibration_json, reference_bias,
-                                  tare=None if tare is None else (lambda: tare().estimate.change), clock=clock)
-        dds_queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
-                                       name="ftacq-ros2", direct=True)
-        stack.callback(lambda: report.append(
-            _failed("ROS 2", dds_queue)
-            or f"ROS 2: published under {node.namespace or '/'} on domain {node.domain_id}: "
-            + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
-            + f"; {publisher.tares} tares"))
-        stack.callback(dds_queue.close)
-        listeners.append(dds_queue)
+        publisher = Ros2Publisher(node, rate_hz, args.ros2_reliable, calibration_json,
+                                  tare=None if tare is None else (lambda: tare().estimate.change))
+    stream = Ros2Stream(messages, publisher, bag_queue)
+    if publisher is not None:
+        def published() -> str:
+            assert publisher is not None
+            error = stream.publisher_error
+            if error is not None:
+                return f"ROS 2: FAILED, stopped at {type(error).__name__}: {error}"
+            return (f"ROS 2: published under {publisher.node.namespace or '/'} on domain {publisher.node.domain_id}: "
+                    + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
+                    + f"; {publisher.tares} tares")
+
+        stack.callback(lambda: report.append(published()))
+    listeners = [stream]
     return listeners, report
 
 
-__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag", "CalibrationText"]
+__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag", "CalibrationText", "prefer_low_latency"]
