@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ftacq.so3 import rotvec_from_rotation
 
 _HALF_PI = np.pi / 2
 
@@ -162,8 +161,12 @@ def forward_kinematics(model: URModel, q_rad: np.ndarray) -> np.ndarray:
 
 def flange_pose(model: URModel, q_rad: np.ndarray) -> np.ndarray:
     """Return the flange pose [x, y, z (m), rx, ry, rz (rad)] as a UR controller reports it (TCP offset zero)."""
+    import pinocchio as pin
+
     base_T_flange = forward_kinematics(model, q_rad)
-    return np.concatenate([base_T_flange[:3, 3], rotvec_from_rotation(base_T_flange[:3, :3])])
+    # Pinocchio's log3 for one rotation (equal to rotvec_from_rotation, tests/test_so3.py): ~1 µs against ~100 µs
+    # of numpy calls, once per live monitor read
+    return np.concatenate([base_T_flange[:3, 3], pin.log3(np.ascontiguousarray(base_T_flange[:3, :3]))])
 
 
 def dh_transforms_batch(model: URModel, q_rad: np.ndarray) -> np.ndarray:
