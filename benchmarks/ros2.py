@@ -77,8 +77,12 @@ class ThreadCpu:
         self._tick_s = 1.0 / os.sysconf("SC_CLK_TCK")
         self._comm = Path("/proc/self/comm").read_text().strip()
         self._stream: list[tuple[float, float]] = []  # (wall, process CPU) while the monitor streams
+        self._before: dict[int, float] = {}
+        self._loop: list[tuple[float, float]] = []  # (wall, the main thread's CPU) while the monitor streams
 
     def __enter__(self) -> "ThreadCpu":
+        self._sample()
+        self._before = {tid: cpu for tid, (_, cpu) in self.cpu_s.items()}  # threads older than the run: their CPU then
         self._thread.start()
         return self
 
@@ -90,7 +94,8 @@ class ThreadCpu:
         import threading
 
         names = {thread.native_id: thread.name for thread in threading.enumerate()}
-        if "ftacq-listeners" in names.values():  # the monitor's listener thread lives while it streams
+        streaming = "ftacq-listeners" in names.values()  # the monitor's listener thread lives while it streams
+        if streaming:
             fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
             self._stream.append((time.monotonic(), (int(fields[11]) + int(fields[12])) * self._tick_s))
         for task in Path("/proc/self/task").iterdir():
@@ -103,6 +108,8 @@ class ThreadCpu:
             tid = int(task.name)
             name = names.get(tid) or (f"dds:{comm}" if comm != self._comm else "other")
             self.cpu_s[tid] = (name, (int(fields[11]) + int(fields[12])) * self._tick_s)
+            if streaming and tid == threading.main_thread().native_id:
+                self._loop.append((time.monotonic(), self.cpu_s[tid][1]))
 
     def _run(self) -> None:
         while not self._stop.wait(self.period_s):
@@ -114,8 +121,16 @@ class ThreadCpu:
         (wall0, cpu0), (wall1, cpu1) = self._stream[0], self._stream[-1]
         return 100.0 * (cpu1 - cpu0) / (wall1 - wall0)
 
+    @property
+    def loop_percent(self) -> float:
+        """The main thread's CPU (the monitor's loop: read, compensate, publish) while it streamed, % of one core."""
+        (wall0, cpu0), (wall1, cpu1) = self._loop[0], self._loop[-1]
+        return 100.0 * (cpu1 - cpu0) / (wall1 - wall0)
+
     def by_name(self, prefixes: tuple[str, ...]) -> float:
-        return sum(cpu for name, cpu in self.cpu_s.values() if name.startswith(prefixes))
+        """CPU time (s) the threads named so used since :meth:`__enter__`."""
+        return sum(cpu - self._before.get(tid, 0.0) for tid, (name, cpu) in self.cpu_s.items()
+                   if name.startswith(prefixes))
 
 
 class Probe:
@@ -253,7 +268,7 @@ def run(folder: Path, seconds: float, ros2: list[str] | None, bag: bool, cell_ar
                      "dds_percent": 100.0 * threads.by_name(("dds:",)) / seconds,
                      "mcap_percent": 100.0 * threads.by_name(("ftacq-mcap",)) / seconds,
                      "publisher_percent": 100.0 * probe.stream_cpu_s / seconds,
-                     "loop_percent": 100.0 * threads.by_name(("MainThread",)) / seconds,
+                     "loop_percent": threads.loop_percent,
                      "process_percent": threads.stream_percent, "reads": len(probe.reads)}
     import re
 

@@ -138,6 +138,40 @@ def test_the_calibration_text_is_serialized_once_per_calibration(monkeypatch):
     assert CalibrationText(lambda: None)() is None
 
 
+def test_each_event_is_encoded_once_for_the_topics_and_the_bag():
+    """The stream makes an event's messages once: the publisher and the bag get the very same bytes; a publisher
+    that fails gets nothing more, the bag goes on."""
+    from drivers.sensor import WrenchBatch
+    from procedures import events
+    from procedures.ros2_stream import EncodedMessages, Ros2Messages, Ros2Stream
+
+    def samples(start: int) -> events.WrenchSamples:
+        time_s = 1.0 + (start + np.arange(70)) / 7000.0
+        wrench = np.random.default_rng(start).normal(size=(70, 6))
+        n = len(time_s)
+        batch = WrenchBatch(time_s, wrench, np.zeros((n, 6), dtype=np.int64), np.zeros(n, dtype=np.uint32),
+                            np.arange(start, start + n), np.zeros(n, dtype=bool))
+        return events.WrenchSamples(batch=batch, compensated=wrench - 1.0, sample_time_s=time_s)
+
+    published, bagged = [], []
+
+    def failing(messages):
+        published.append(messages)
+        if len(published) == 2:
+            raise OSError("DDS write failed")
+
+    stream = Ros2Stream(Ros2Messages("ft_sensor", 1000.0), failing, bagged.append)
+    for start in (0, 70, 140):
+        stream(samples(start))
+    assert [type(event) for event in bagged] == [EncodedMessages] * 3
+    assert published[0] is bagged[0].messages  # made once, shared
+    names = [name for name, *_ in bagged[0].messages]
+    assert names == ["wrench_raw", "wrench_compensated"]
+    assert len(published) == 2 and isinstance(stream.publisher_error, OSError)  # stopped after its failure
+    stream(events.RobotState(1.1, np.zeros(6), np.zeros(6)))  # joint_states only when asked (the bag's)
+    assert len(bagged) == 3
+
+
 # ------------------------------------------------------------------------------------------------ end to end
 
 
