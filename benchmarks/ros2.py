@@ -215,7 +215,8 @@ class Probe:
             newest = np.searchsorted(window, np.floor(stamp_s / self.period_s), side="right") - 1
             closing = np.minimum(newest + 1, len(sample_s) - 1)
         else:
-            newest = closing = np.clip(np.searchsorted(sample_s, stamp_s - 1e-7), 0, len(sample_s) - 1)
+            after = np.clip(np.searchsorted(sample_s, stamp_s), 1, len(sample_s) - 1)  # the nearest sample
+            newest = closing = after - (stamp_s - sample_s[after - 1] < sample_s[after] - stamp_s)
         r, c = read_of[newest], read_of[closing]
         written = np.array([written_s[int(s)] for s in stamp_ns])
         steady = r > 0  # the first read holds what came since the sensor started (start-up, not the stream)

@@ -21,20 +21,22 @@ ROS2_READ_PERIOD_S = 0.0
 """With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S); 0: as
 soon as the driver has samples (its receive thread wakes the read), so a sample waits for no pacing before it is
 published (benchmarks/ros2.py: latency against CPU)."""
-ROS2_STATE_WAIT_S = 0.0
-"""With --ros2 the dynamic compensation's longest wait for the robot states of a read's newest samples, s (else
-procedures.dynamic_compensation.STATE_WAIT_S, 0.1 s): 0 holds the newest state's prediction for the samples newer
-than it, as the bridge does (an error of dW/dt × how far ahead, ≈ 2-4 ms at 500 Hz; docs/ros2.md)."""
+ROS2_HOLD_S = 0.005
+"""With --ros2 the dynamic compensation holds the newest robot state's prediction, without waiting, for samples up to
+this much newer than that state, s (an error of dW/dt × how far ahead: docs/ros2.md; at 500 Hz the newest state is
+2-4 ms old); a read further ahead waits for its states as without --ros2 (up to
+procedures.dynamic_compensation.STATE_WAIT_S): a stalled state stream delays it rather than leaving it
+uncompensated."""
 LISTENER_QUEUE_BATCHES = 1_000_000
 """The ROS 2 listeners' queues hold this many reads before dropping (never, in practice: nothing is lost)."""
 
 
 def prefer_low_latency(cell: Any) -> None:
     """Make ``cell`` (:class:`ftacq.app.session.Cell`) publish each sample as soon as it can: reads on data
-    (:data:`ROS2_READ_PERIOD_S`) and no wait for robot states (:data:`ROS2_STATE_WAIT_S`)."""
+    (:data:`ROS2_READ_PERIOD_S`), no wait for the robot states of its newest few ms (:data:`ROS2_HOLD_S`)."""
     cell.monitor.batch_period_s = ROS2_READ_PERIOD_S
-    if hasattr(cell.compensator, "state_wait_s"):
-        cell.compensator.state_wait_s = min(cell.compensator.state_wait_s, ROS2_STATE_WAIT_S)
+    if hasattr(cell.compensator, "hold_s"):
+        cell.compensator.hold_s = ROS2_HOLD_S
 
 
 def add_ros2_args(parser: argparse.ArgumentParser) -> None:
