@@ -138,6 +138,38 @@ def test_the_calibration_text_is_serialized_once_per_calibration(monkeypatch):
     assert CalibrationText(lambda: None)() is None
 
 
+def test_raw_and_compensated_means_together_equal_each_apart():
+    """While every read has both, raw and compensated share one window mean: the same bytes as two means apart; an
+    uncompensated read parts them (raw goes on alone) and they join again once their open windows agree."""
+    from drivers.sensor import WrenchBatch
+    from procedures import events
+    from procedures.ros2_stream import Ros2Messages, StampClock, WrenchStampedEncoder
+
+    clock, encoder = StampClock(), WrenchStampedEncoder("ft_sensor")
+    streams = Ros2Messages("ft_sensor", 1000.0, clock=clock)
+    apart = {"wrench_raw": WindowMean(1e-3), "wrench_compensated": WindowMean(1e-3)}
+    rng = np.random.default_rng(3)
+    start, got, expected = 0, [], []
+    for k, n in enumerate([23, 50, 9, 31, 64, 17, 40, 70, 5, 33]):
+        time_s = 1.0 + (start + np.arange(n)) / 7000.0 + rng.normal(0, 1e-6, n)
+        start += n
+        wrench = rng.normal(size=(n, 6))
+        compensated = None if k == 3 else wrench - 0.5
+        batch = WrenchBatch(time_s, wrench, np.zeros((n, 6), dtype=np.int64), np.zeros(n, dtype=np.uint32),
+                            np.arange(n), np.zeros(n, dtype=bool))
+        got += [(name, data) for name, _, data, _ in streams(events.WrenchSamples(batch, compensated,
+                                                                                   sample_time_s=time_s))]
+        for name, values in (("wrench_raw", wrench), ("wrench_compensated", compensated)):
+            if values is not None:
+                mean_time_s, mean = apart[name].feed(time_s, values)
+                if len(mean):
+                    expected.append((name, encoder.encode(clock.stamp_ns(mean_time_s), mean)))
+        if k == 3:
+            assert streams.streams.both is None  # parted by the uncompensated read
+    assert sorted(got) == sorted(expected) and len(got) > 10
+    assert streams.streams.both is not None  # joined again
+
+
 def test_each_event_is_encoded_once_for_the_topics_and_the_bag():
     """The stream makes an event's messages once: the publisher and the bag get the very same bytes; a publisher
     that fails gets nothing more, the bag goes on."""
