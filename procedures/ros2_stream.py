@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -224,7 +224,7 @@ class Ros2Stream:
     direct = True
 
     def __init__(self, messages: Ros2Messages, publisher: "Ros2Publisher | None" = None,
-                 bag: Callable[[events.Event], None] | None = None) -> None:
+                 bag: Callable[[Any], None] | None = None) -> None:
         self.messages = messages
         self.publisher = publisher
         self.bag = bag

@@ -173,7 +173,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
         recorder = BagRecorder(args.record, namespace, calibration_json(), metadata={"source": "ftacq monitor"})
         bag_queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
                                        name="ftacq-mcap")
-        stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or  # type: ignore[arg-type]
+        stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or
                                              f"ROS 2 bag: {recorder.bag.messages} messages recorded in {args.record}"))
         stack.callback(recorder.close)  # after the queue is drained (callbacks run last first)
         stack.callback(bag_queue.close)
