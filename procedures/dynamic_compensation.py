@@ -14,7 +14,8 @@ states only.
 A batch whose newest samples are newer than the newest robot state (the RTDE reader thread was held off, a state
 package is still on its way) waits for the states of its time, at most ``state_wait_s`` (:data:`STATE_WAIT_S` in
 the monitor, whose record may come a few ms later; 0 in the bridge, which answers the controller's cycle now and
-holds the newest prediction instead): under load the reader fell up to 50 ms behind the sensor reads, and a
+holds the newest prediction instead; ``monitor --ros2`` holds it for samples up to ``hold_s`` ahead and waits only
+for reads further ahead): under load the reader fell up to 50 ms behind the sensor reads, and a
 prediction held over that is wrong by dW/dt × 50 ms (issue 27). A stream that stays silent through one wait is not
 waited for again until it delivers a state.
 
@@ -105,7 +106,7 @@ class DynamicCompensator:
 
     def __init__(self, calibration: Calibration, robot: URModel, stream, lag_s: float | None = None,
                  clock: SampleClock | None = None, window_s: float = PREDICTION_WINDOW_S,
-                 state_wait_s: float = 0.0, servo_lag_s: float | None = None) -> None:
+                 state_wait_s: float = 0.0, servo_lag_s: float | None = None, hold_s: float = 0.0) -> None:
         if not calibration.has_dynamics:
             raise ValueError("the calibration has no inertia: use the static GravityCompensator")
         self.calibration = calibration
@@ -147,6 +148,9 @@ class DynamicCompensator:
         self._static_pose: np.ndarray | None = None
         self.derivative_states = 0
         self.state_wait_s = float(state_wait_s)
+        self.hold_s = float(hold_s)
+        """Samples up to this much newer than the newest robot state take its prediction held without a wait, s (a
+        live publisher: the newest state is 2-4 ms old at 500 Hz); a read further ahead waits (``state_wait_s``)."""
         self.waits = 0
         """Batches that waited for the robot states of their newest samples."""
         self.wait_timeouts = 0
@@ -206,8 +210,8 @@ class DynamicCompensator:
         self._static_pose = None
         self._update_predictions()
         state_times, predicted = self._kept()
-        if self.state_wait_s > 0.0 and state_times.size and times[-1] > state_times[-1]:
-            state_times, predicted = self._wait_for_states(float(times[-1]))
+        if self.state_wait_s > 0.0 and state_times.size and times[-1] > state_times[-1] + self.hold_s:
+            state_times, predicted = self._wait_for_states(float(times[-1]) - self.hold_s)
         if (state_times.size >= 2 and times[0] < state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S
                 and state_times[-1] - times[0] <= CATCH_UP_MAX_S):
             state_times, predicted = self._predictions_over(times, state_times, predicted)
@@ -251,7 +255,8 @@ class DynamicCompensator:
         return np.concatenate([window.time_s[rows], state_times]), np.vstack([earlier, predicted])
 
     def _wait_for_states(self, newest_sample_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Wait (at most ``state_wait_s``) until a robot state at or after ``newest_sample_s`` (host s) is kept;
+        """Wait (at most ``state_wait_s``) until a robot state at or after ``newest_sample_s`` (host s; the read's
+        newest sample less ``hold_s``) is kept;
         return the kept predictions then. The stream's ``wait_for_samples`` sleeps on its reader's notification."""
         wait = getattr(self.stream, "wait_for_samples", None)
         count = int(getattr(self.stream, "count", 0))

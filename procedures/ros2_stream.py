@@ -1,8 +1,9 @@
 """The monitor's stream as ROS 2 messages: on DDS topics (:class:`Ros2Publisher`) and in an MCAP bag (:class:`BagRecorder`).
 
-Both are listeners of the stream (:mod:`procedures.events`); each runs behind a
-``BackgroundListener(..., direct=True)`` of its own that the monitor feeds from its acquisition thread, so it gets
-every batch (the bag: an unbounded queue) and at once (the topics: period 0), never behind the viewer's queue.
+One direct listener of the stream (:class:`Ros2Stream`, :mod:`procedures.events`), called in the monitor's
+acquisition thread as soon as a read is compensated: it makes each event's messages once (:class:`Ros2Messages`:
+window means, CDR bytes), writes them to DDS at once, and hands the same messages to the bag's own thread (an
+unbounded queue: the bag gets every one), never behind the viewer's queue.
 
 What they send (ROS names under the node's namespace, docs/ros2.md):
 
@@ -23,7 +24,8 @@ What they send (ROS names under the node's namespace, docs/ros2.md):
 from __future__ import annotations
 
 import time
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable
 
 import numpy as np
 
@@ -61,18 +63,18 @@ class WindowMean:
     dated before a sample already seen (the sensor clock's mapping moved back, by less than a millisecond) counts
     at that sample's time, so every topic's stamps increase, whatever the batches."""
 
-    def __init__(self, period_s: float) -> None:
+    def __init__(self, period_s: float, columns: int = 6) -> None:
         self.period_s = float(period_s)
         self._time_s = np.empty(0)
-        self._values = np.empty((0, 6))
+        self._values = np.empty((0, columns))
         self._floor_s = -np.inf
 
     def feed(self, time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Add samples (N,) s and (N, 6); return the completed windows' (mean time (M,), mean values (M, 6)).
+        """Add samples (N,) s and (N, C); return the completed windows' (mean time (M,), mean values (M, C)).
         A few numpy calls per read (no ``np.r_``: its overhead alone was a third of the cost at 500 reads/s)."""
         time_s = np.maximum.accumulate(np.asarray(time_s, dtype=float))
         if not len(time_s):
-            return _NO_TIMES, _NO_VALUES
+            return _NO_TIMES, self._values[:0]
         np.maximum(time_s, self._floor_s, out=time_s)
         self._floor_s = time_s[-1]  # the newest time seen: a window sent ended before it (batching-independent)
         values = np.asarray(values, dtype=float)
@@ -85,7 +87,7 @@ class WindowMean:
         open_from = int(np.searchsorted(window, window[-1]))  # the newest window may still grow (windows ascend)
         self._time_s, self._values = time_s[open_from:], values[open_from:]
         if open_from == 0:
-            return _NO_TIMES, _NO_VALUES
+            return _NO_TIMES, self._values[:0]
         window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
         starts = np.flatnonzero(np.diff(window, prepend=window[0] - 1))
         counts = np.diff(starts, append=open_from)
@@ -93,7 +95,25 @@ class WindowMean:
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
 
 
-_NO_TIMES, _NO_VALUES = np.empty(0), np.empty((0, 6))
+    def split(self, columns: int) -> tuple["WindowMean", "WindowMean"]:
+        """Two means of this one's first ``columns`` and its other columns, from the same state."""
+        parts = WindowMean(self.period_s, columns), WindowMean(self.period_s, self._values.shape[1] - columns)
+        for part, values in zip(parts, (self._values[:, :columns], self._values[:, columns:])):
+            part._time_s, part._values, part._floor_s = self._time_s, values, self._floor_s
+        return parts
+
+    @staticmethod
+    def joined(first: "WindowMean", second: "WindowMean") -> "WindowMean | None":
+        """One mean of both's columns when they hold the same samples' times (what :meth:`split` made), else None."""
+        if first._floor_s != second._floor_s or not np.array_equal(first._time_s, second._time_s):
+            return None
+        both = WindowMean(first.period_s, first._values.shape[1] + second._values.shape[1])
+        both._time_s, both._floor_s = first._time_s, first._floor_s
+        both._values = np.hstack((first._values, second._values))
+        return both
+
+
+_NO_TIMES = np.empty(0)
 
 
 def _sample_times(samples: events.WrenchSamples) -> np.ndarray:
@@ -101,17 +121,30 @@ def _sample_times(samples: events.WrenchSamples) -> np.ndarray:
 
 
 class _WrenchStreams:
-    """Raw and compensated samples → WrenchStamped messages (bytes, stamps) at the chosen rate."""
+    """Raw and compensated samples → WrenchStamped messages (bytes, stamps) at the chosen rate. While every read has
+    both, one :class:`WindowMean` of their 12 columns (half the numpy calls; the same means, the same stamps); a read
+    without a compensated wrench parts them until their open windows hold the same samples again."""
 
     def __init__(self, frame_id: str, rate_hz: float, clock: StampClock) -> None:
         self.encoder = WrenchStampedEncoder(frame_id)
         self.clock = clock
         period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
-        self.raw, self.compensated = WindowMean(period_s), WindowMean(period_s)
+        self.both: WindowMean | None = WindowMean(period_s, 12)
+        self.raw, self.compensated = WindowMean(period_s), WindowMean(period_s)  # (used while apart)
 
-    def messages(self, samples: events.WrenchSamples) -> list[tuple[str, list[bytes], np.ndarray]]:
-        """[(topic name, messages, stamps ns)] for ``wrench_raw`` and (when known) ``wrench_compensated``."""
+    def messages(self, samples: events.WrenchSamples) -> list[Message]:
+        """``wrench_raw`` and (when known) ``wrench_compensated`` messages for the windows ``samples`` complete."""
         time_s = _sample_times(samples)
+        if self.both is not None and samples.compensated is not None:
+            mean_time_s, mean = self.both.feed(time_s, np.hstack((samples.batch.wrench, samples.compensated)))
+            if not len(mean):
+                return []
+            stamp_ns = self.clock.stamp_ns(mean_time_s)
+            return [("wrench_raw", WRENCH_TYPE, self.encoder.encode(stamp_ns, mean[:, :6]), stamp_ns),
+                    ("wrench_compensated", WRENCH_TYPE, self.encoder.encode(stamp_ns, mean[:, 6:]), stamp_ns)]
+        if self.both is not None:
+            self.raw, self.compensated = self.both.split(6)
+            self.both = None
         out = []
         for name, values, window in (("wrench_raw", samples.batch.wrench, self.raw),
                                      ("wrench_compensated", samples.compensated, self.compensated)):
@@ -120,51 +153,123 @@ class _WrenchStreams:
             mean_time_s, mean = window.feed(time_s, values)
             if len(mean):
                 stamp_ns = self.clock.stamp_ns(mean_time_s)
-                out.append((name, self.encoder.encode(stamp_ns, mean), stamp_ns))
+                out.append((name, WRENCH_TYPE, self.encoder.encode(stamp_ns, mean), stamp_ns))
+        self.both = WindowMean.joined(self.raw, self.compensated)
         return out
 
 
+Message = tuple[str, str, list[bytes], np.ndarray]
+"""One topic's messages from one event: (topic name under the namespace, ROS 2 type, CDR bytes each, stamps UNIX ns)."""
+
+
+class Ros2Messages:
+    """The stream's ROS 2 messages (module docstring), computed once per event for every output: the window means
+    and the CDR bytes the topics send are the bag's, byte for byte.
+
+    Args:
+        frame_id: the sensor frame's name in ``header.frame_id``.
+        rate_hz: wrench messages per second (window means), 0 for every sample.
+        reference_bias: () → the calibration's biases now (6,) [N, N·m], for ``bias``.
+        joint_states: also ``joint_states`` from the RobotState events (the bag's; no topic carries them).
+        joint_names: their names. clock: the stamps' :class:`StampClock`.
+    """
+
+    def __init__(self, frame_id: str, rate_hz: float = DEFAULT_RATE_HZ,
+                 reference_bias: Callable[[], np.ndarray] = lambda: np.zeros(6), joint_states: bool = False,
+                 joint_names: tuple[str, ...] = UR_JOINT_NAMES, clock: StampClock | None = None) -> None:
+        self.clock = clock or StampClock()
+        self.streams = _WrenchStreams(frame_id, rate_hz, self.clock)
+        self.reference_bias = reference_bias
+        self.joint_states = joint_states
+        self.joint_names = list(joint_names)
+
+    def __call__(self, event: events.Event) -> list[Message]:
+        if isinstance(event, events.WrenchSamples):
+            return self.streams.messages(event)
+        if isinstance(event, events.BiasDrift):
+            return bias_messages(event, self.reference_bias(), self.clock, self.streams.encoder)
+        if isinstance(event, events.RobotState) and self.joint_states:
+            from drivers.ros2.messages import Header, JointState, Time
+
+            stamp_ns = self.clock.stamp_ns(np.array([event.time_s]))
+            stamp = int(stamp_ns[0])
+            message = JointState(header=Header(stamp=Time(sec=stamp // NS_PER_S, nanosec=stamp % NS_PER_S)),
+                                 name=self.joint_names, position=[float(q) for q in event.joint_positions_rad])
+            return [("joint_states", JOINT_STATE_TYPE, [message.serialize()], stamp_ns)]
+        return []
+
+
 def bias_messages(drift: events.BiasDrift, reference_bias: np.ndarray, clock: StampClock,
-                  encoder: WrenchStampedEncoder) -> list[tuple[str, list[bytes], np.ndarray]]:
+                  encoder: WrenchStampedEncoder) -> list[Message]:
     """``bias`` (the calibration's biases + the tracker's offset) and ``bias_sigma`` (its 1σ), one message each."""
     stamp_ns = clock.stamp_ns(np.array([drift.time_s]))
-    return [("bias", encoder.encode(stamp_ns, (reference_bias + drift.offset)[None]), stamp_ns),
-            ("bias_sigma", encoder.encode(stamp_ns, np.asarray(drift.sigma)[None]), stamp_ns)]
+    return [("bias", WRENCH_TYPE, encoder.encode(stamp_ns, (reference_bias + drift.offset)[None]), stamp_ns),
+            ("bias_sigma", WRENCH_TYPE, encoder.encode(stamp_ns, np.asarray(drift.sigma)[None]), stamp_ns)]
+
+
+@dataclass(frozen=True)
+class EncodedMessages:
+    """An event for the bag's queue: the messages :class:`Ros2Messages` made of one stream event."""
+
+    messages: list[Message]
+
+
+class Ros2Stream:
+    """The monitor's one ROS 2 listener (``direct``: called in its acquisition thread as soon as a read is
+    compensated): the messages of each event, made once (:class:`Ros2Messages`), written to DDS at once by the
+    ``publisher`` (a DDS write never blocks: reliable writers keep their history and drop the oldest) and handed to
+    the bag's queue (``bag``: a ``BackgroundListener`` around a :class:`BagRecorder`), never made twice. A publisher
+    that raises gets nothing more (:attr:`publisher_error`); the bag goes on."""
+
+    direct = True
+
+    def __init__(self, messages: Ros2Messages, publisher: "Ros2Publisher | None" = None,
+                 bag: Callable[[Any], None] | None = None) -> None:
+        self.messages = messages
+        self.publisher = publisher
+        self.bag = bag
+        self.publisher_error: Exception | None = None
+
+    def __call__(self, event: events.Event) -> None:
+        out = self.messages(event)
+        if not out:
+            return
+        if self.publisher is not None and self.publisher_error is None:
+            try:
+                self.publisher(out)
+            except Exception as error:  # noqa: BLE001 - the topics fail, the bag and the monitor go on
+                self.publisher_error = error
+        if self.bag is not None:
+            self.bag(EncodedMessages(out))
 
 
 class Ros2Publisher:
-    """The stream on ROS 2 topics through a :class:`drivers.ros2.node.Ros2Node` (module docstring).
+    """Writes the stream's messages on ROS 2 topics through a :class:`drivers.ros2.node.Ros2Node` (module
+    docstring); serves ``calibration`` and the ``tare`` service.
 
     Args:
         node: the node (its namespace, domain).
-        frame_id: the sensor frame's name in ``header.frame_id``.
-        rate_hz: wrench messages per second (window means), 0 for every sample.
+        rate_hz: wrench messages per second (0: every sample): the history a reliable writer keeps (1 s of them).
         reliable: reliable wrench topics (default: ROS 2's sensor-data QoS, best effort).
         calibration_json: () → the calibration in force as JSON (latched on ``calibration``, again after a tare), or
             None (no calibration).
-        reference_bias: () → the calibration's biases now (6,) [N, N·m], for ``bias``.
         tare: called by the ``tare`` service (std_srvs/srv/Trigger) in the service's thread: the session's live tare
             (procedures/live_tare.py); returns the biases' change (6,) [N, N·m] or raises (the answer says why).
-        clock: the stamps' :class:`StampClock` (share one with a :class:`BagRecorder`: identical stamps).
     """
 
-    def __init__(self, node, frame_id: str, rate_hz: float = DEFAULT_RATE_HZ, reliable: bool = False,
+    def __init__(self, node, rate_hz: float = DEFAULT_RATE_HZ, reliable: bool = False,
                  calibration_json: Callable[[], str | None] = lambda: None,
-                 reference_bias: Callable[[], np.ndarray] = lambda: np.zeros(6),
-                 tare: Callable[[], np.ndarray] | None = None, clock: StampClock | None = None) -> None:
+                 tare: Callable[[], np.ndarray] | None = None) -> None:
         from drivers.ros2 import node as dds
         from drivers.ros2.messages import String, WrenchStamped
 
         self.node = node
-        self.clock = clock or StampClock()
-        self.streams = _WrenchStreams(frame_id, rate_hz, self.clock)
         # reliable: one second of messages kept for a subscriber that falls behind (at every sample, of a 7 kHz sensor)
         wrench_qos = dds.reliable(int(rate_hz or RELIABLE_EVERY_SAMPLE_HZ)) if reliable else dds.SENSOR_DATA
         self.writers = {name: node.writer(name, WRENCH_TYPE, WrenchStamped, wrench_qos)
                         for name in ("wrench_raw", "wrench_compensated")}
         for name in ("bias", "bias_sigma"):
             self.writers[name] = node.writer(name, WRENCH_TYPE, WrenchStamped, dds.RELIABLE)
-        self.reference_bias = reference_bias
         self.sent = dict.fromkeys(self.writers, 0)
         self.tares = 0
         self.calibration_json = calibration_json
@@ -174,11 +279,16 @@ class Ros2Publisher:
         if tare is not None:
             node.trigger_service("tare", self._answer_tare)
 
-    def __call__(self, event: events.Event) -> None:
-        if isinstance(event, events.WrenchSamples):
-            self._send(self.streams.messages(event))
-        elif isinstance(event, events.BiasDrift):
-            self._send(bias_messages(event, self.reference_bias(), self.clock, self.streams.encoder))
+    def __call__(self, messages: list[Message]) -> None:
+        """Write the messages of the topics it publishes (``joint_states``, the bag's, is not one)."""
+        for name, _, data, stamp_ns in messages:
+            writer = self.writers.get(name)
+            if writer is None:
+                continue
+            write = writer.write_serialized
+            for message, time_ns in zip(data, stamp_ns.tolist()):
+                write(message, time_ns)
+            self.sent[name] += len(data)
 
     def _publish_calibration(self) -> None:
         from drivers.ros2.messages import String
@@ -186,13 +296,6 @@ class Ros2Publisher:
         text = self.calibration_json()
         if text is not None:
             self._calibration_writer.write(String(data=text))
-
-    def _send(self, messages: list[tuple[str, list[bytes], np.ndarray]]) -> None:
-        for name, data, stamp_ns in messages:
-            write = self.writers[name].write_serialized
-            for message, time_ns in zip(data, stamp_ns.tolist()):
-                write(message, time_ns)
-            self.sent[name] += len(data)
 
     def _answer_tare(self) -> tuple[bool, str]:
         """The ``tare`` service: tare, publish the calibration now in force, answer with the biases' change (an
@@ -206,21 +309,15 @@ class Ros2Publisher:
 
 class BagRecorder:
     """The stream's ROS 2 messages in an MCAP bag (:class:`drivers.ros2.bag.BagWriter`; module docstring): the
-    same wrench and bias messages as :class:`Ros2Publisher`, ``joint_states``, the calibration. Call :meth:`close`
-    after the stream ends to finish the file."""
+    :class:`EncodedMessages` events :class:`Ros2Stream` hands it (the wrench and bias messages the topics carry,
+    ``joint_states``), and the calibration. Call :meth:`close` after the stream ends to finish the file."""
 
-    def __init__(self, path, namespace: str, frame_id: str, rate_hz: float = DEFAULT_RATE_HZ,
-                 calibration_json: str | None = None, reference_bias: Callable[[], np.ndarray] = lambda: np.zeros(6),
-                 joint_names: tuple[str, ...] = UR_JOINT_NAMES, metadata: dict[str, str] | None = None,
-                 clock: StampClock | None = None) -> None:
+    def __init__(self, path, namespace: str, calibration_json: str | None = None,
+                 metadata: dict[str, str] | None = None) -> None:
         from drivers.ros2.bag import BagWriter
         from ftacq.ros2_names import normalize_namespace
 
         self.namespace = normalize_namespace(namespace)
-        self.clock = clock or StampClock()
-        self.streams = _WrenchStreams(frame_id, rate_hz, self.clock)
-        self.reference_bias = reference_bias
-        self.joint_names = list(joint_names)
         self.bag = BagWriter(path)
         if metadata:
             self.bag.metadata("ftacq", metadata)
@@ -236,26 +333,13 @@ class BagRecorder:
         return f"{self.namespace}/{name}"
 
     def __call__(self, event: events.Event) -> None:
-        if isinstance(event, events.WrenchSamples):
-            self._write(self.streams.messages(event))
-        elif isinstance(event, events.BiasDrift):
-            self._write(bias_messages(event, self.reference_bias(), self.clock, self.streams.encoder))
-        elif isinstance(event, events.RobotState):
-            from drivers.ros2.messages import Header, JointState, Time
-
-            stamp_ns = int(self.clock.stamp_ns(np.array([event.time_s]))[0])
-            message = JointState(header=Header(stamp=Time(sec=stamp_ns // NS_PER_S, nanosec=stamp_ns % NS_PER_S)),
-                                 name=self.joint_names,
-                                 position=[float(q) for q in event.joint_positions_rad])
-            self.bag.write(self._topic("joint_states"), JOINT_STATE_TYPE, [message.serialize()], [stamp_ns])
-
-    def _write(self, messages: list[tuple[str, list[bytes], np.ndarray]]) -> None:
-        for name, data, stamp_ns in messages:
-            self.bag.write(self._topic(name), WRENCH_TYPE, data, stamp_ns.tolist())
+        if isinstance(event, EncodedMessages):
+            for name, ros_type, data, stamp_ns in event.messages:
+                self.bag.write(self._topic(name), ros_type, data, stamp_ns.tolist())
 
     def close(self) -> None:
         self.bag.close()
 
 
-__all__ = ["Ros2Publisher", "BagRecorder", "WindowMean", "StampClock", "DEFAULT_RATE_HZ",
-           "UR_JOINT_NAMES"]
+__all__ = ["Ros2Messages", "Ros2Stream", "Ros2Publisher", "BagRecorder", "EncodedMessages", "WindowMean",
+           "StampClock", "DEFAULT_RATE_HZ", "UR_JOINT_NAMES"]

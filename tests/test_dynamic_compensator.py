@@ -257,3 +257,28 @@ def test_a_batch_ahead_of_the_newest_state_waits_for_the_states_of_its_time():
         late = SimpleNamespace(time_s=batch.time_s + shift, device_time_s=batch.device_time_s, wrench=batch.wrench)
         assert waiting.compensate(late, None) is not None  # the newest prediction held, within MAX_STATE_GAP_S
     assert waiting.waits == 2 and waiting.wait_timeouts == 1 and waiting.held_samples > 0
+
+
+def test_a_live_publisher_holds_the_newest_few_ms_and_waits_only_beyond():
+    """``monitor --ros2`` (hold_s 5 ms): a read at most 5 ms ahead of the newest robot state takes that state's
+    prediction held, without waiting; one 12 ms ahead waits, but only until the states are within 5 ms of it."""
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    all_cycles = list(cycles(400, seed=9, departs=False))
+    states = _ArrivingStates()
+    for cycle in all_cycles[:300]:
+        states.append(cycle)
+    states.pending = all_cycles[300:310]
+    live = DynamicCompensator(calibration, MODEL, states, lag_s=0.0, state_wait_s=0.1, hold_s=0.005)
+    newest_s = float(states.window(last=1).time_s[-1])
+    rng = np.random.default_rng(8)
+    near = SimpleNamespace(time_s=newest_s - 0.017 + np.arange(140) / 7000.0, device_time_s=np.full(140, np.nan),
+                           wrench=rng.normal(size=(140, 6)))
+    assert 0.0 < near.time_s[-1] - newest_s < 0.005
+    assert live.compensate(near, None) is not None
+    assert live.waits == 0 and states.waited == 0 and live.held_samples > 0  # held, not waited for
+    far = SimpleNamespace(time_s=near.time_s + 0.009, device_time_s=near.device_time_s, wrench=near.wrench)
+    assert far.time_s[-1] - newest_s > 0.011
+    assert live.compensate(far, None) is not None
+    assert live.waits == 1 and live.wait_timeouts == 0 and states.pending  # waited for a few states, not all
+    assert live.held_max_s <= 0.005  # never held further than hold_s ahead

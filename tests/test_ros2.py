@@ -109,6 +109,101 @@ def test_window_stamps_never_go_back():
         np.testing.assert_allclose(np.concatenate([m1, m2]), 1.0)
 
 
+def test_the_calibration_text_is_serialized_once_per_calibration(monkeypatch):
+    """A calibration without ``created_utc`` is stamped when serialized: the bag's metadata and the latched topic
+    carry one text, even across a second's turn; a tare's new calibration gets its own."""
+    import datetime as real_dt
+    from dataclasses import replace
+
+    from ftacq import calfile
+    from ftacq.app.ros2_outputs import CalibrationText
+    from ftacq.app.simcell import simulated_truth, true_calibration
+
+    seconds = iter(range(10**6))
+
+    class Clock(real_dt.datetime):
+        @classmethod
+        def now(cls, tz=None):  # a second later at every call
+            return real_dt.datetime(2026, 1, 1, tzinfo=tz) + real_dt.timedelta(seconds=next(seconds))
+
+    monkeypatch.setattr(calfile._dt, "datetime", Clock)
+    calibration = true_calibration(simulated_truth())
+    assert "created_utc" not in calibration.metadata
+    in_force = [calibration]
+    text = CalibrationText(lambda: in_force[0])
+    first = text()
+    assert first is not None and text() == first and json.loads(first)["created_utc"]
+    in_force[0] = replace(calibration, force_bias=calibration.force_bias + 1.0)  # a tare
+    assert json.loads(text() or "")["force_bias"] != json.loads(first)["force_bias"]
+    assert CalibrationText(lambda: None)() is None
+
+
+def test_raw_and_compensated_means_together_equal_each_apart():
+    """While every read has both, raw and compensated share one window mean: the same bytes as two means apart; an
+    uncompensated read parts them (raw goes on alone) and they join again once their open windows agree."""
+    from drivers.sensor import WrenchBatch
+    from procedures import events
+    from procedures.ros2_stream import Ros2Messages, StampClock, WrenchStampedEncoder
+
+    clock, encoder = StampClock(), WrenchStampedEncoder("ft_sensor")
+    streams = Ros2Messages("ft_sensor", 1000.0, clock=clock)
+    apart = {"wrench_raw": WindowMean(1e-3), "wrench_compensated": WindowMean(1e-3)}
+    rng = np.random.default_rng(3)
+    start, got, expected = 0, [], []
+    for k, n in enumerate([23, 50, 9, 31, 64, 17, 40, 70, 5, 33]):
+        time_s = 1.0 + (start + np.arange(n)) / 7000.0 + rng.normal(0, 1e-6, n)
+        start += n
+        wrench = rng.normal(size=(n, 6))
+        compensated = None if k == 3 else wrench - 0.5
+        batch = WrenchBatch(time_s, wrench, np.zeros((n, 6), dtype=np.int64), np.zeros(n, dtype=np.uint32),
+                            np.arange(n), np.zeros(n, dtype=bool))
+        got += [(name, data) for name, _, data, _ in streams(events.WrenchSamples(batch, compensated,
+                                                                                   sample_time_s=time_s))]
+        for name, values in (("wrench_raw", wrench), ("wrench_compensated", compensated)):
+            if values is not None:
+                mean_time_s, mean = apart[name].feed(time_s, values)
+                if len(mean):
+                    expected.append((name, encoder.encode(clock.stamp_ns(mean_time_s), mean)))
+        if k == 3:
+            assert streams.streams.both is None  # parted by the uncompensated read
+    assert sorted(got) == sorted(expected) and len(got) > 10
+    assert streams.streams.both is not None  # joined again
+
+
+def test_each_event_is_encoded_once_for_the_topics_and_the_bag():
+    """The stream makes an event's messages once: the publisher and the bag get the very same bytes; a publisher
+    that fails gets nothing more, the bag goes on."""
+    from drivers.sensor import WrenchBatch
+    from procedures import events
+    from procedures.ros2_stream import EncodedMessages, Ros2Messages, Ros2Stream
+
+    def samples(start: int) -> events.WrenchSamples:
+        time_s = 1.0 + (start + np.arange(70)) / 7000.0
+        wrench = np.random.default_rng(start).normal(size=(70, 6))
+        n = len(time_s)
+        batch = WrenchBatch(time_s, wrench, np.zeros((n, 6), dtype=np.int64), np.zeros(n, dtype=np.uint32),
+                            np.arange(start, start + n), np.zeros(n, dtype=bool))
+        return events.WrenchSamples(batch=batch, compensated=wrench - 1.0, sample_time_s=time_s)
+
+    published, bagged = [], []
+
+    def failing(messages):
+        published.append(messages)
+        if len(published) == 2:
+            raise OSError("DDS write failed")
+
+    stream = Ros2Stream(Ros2Messages("ft_sensor", 1000.0), failing, bagged.append)
+    for start in (0, 70, 140):
+        stream(samples(start))
+    assert [type(event) for event in bagged] == [EncodedMessages] * 3
+    assert published[0] is bagged[0].messages  # made once, shared
+    names = [name for name, *_ in bagged[0].messages]
+    assert names == ["wrench_raw", "wrench_compensated"]
+    assert len(published) == 2 and isinstance(stream.publisher_error, OSError)  # stopped after its failure
+    stream(events.RobotState(1.1, np.zeros(6), np.zeros(6)))  # joint_states only when asked (the bag's)
+    assert len(bagged) == 3
+
+
 # ------------------------------------------------------------------------------------------------ end to end
 
 

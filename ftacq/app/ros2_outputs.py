@@ -17,11 +17,26 @@ from ftacq.errors import ConfigError
 
 DOMAIN_ID_MAX = 232
 """The largest DDS domain id with Cyclone DDS's default port mapping (ROS 2: 0-101 and 215-232 are safe on Linux)."""
-ROS2_READ_PERIOD_S = 0.002
-"""With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S): a
-sample waits for the next read before it is published (benchmarks/ros2.py: latency against CPU)."""
+ROS2_READ_PERIOD_S = 0.0
+"""With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S); 0: as
+soon as the driver has samples (its receive thread wakes the read), so a sample waits for no pacing before it is
+published (benchmarks/ros2.py: latency against CPU)."""
+ROS2_HOLD_S = 0.005
+"""With --ros2 the dynamic compensation holds the newest robot state's prediction, without waiting, for samples up to
+this much newer than that state, s (an error of dW/dt × how far ahead: docs/ros2.md; at 500 Hz the newest state is
+2-4 ms old); a read further ahead waits for its states as without --ros2 (up to
+procedures.dynamic_compensation.STATE_WAIT_S): a stalled state stream delays it rather than leaving it
+uncompensated."""
 LISTENER_QUEUE_BATCHES = 1_000_000
 """The ROS 2 listeners' queues hold this many reads before dropping (never, in practice: nothing is lost)."""
+
+
+def prefer_low_latency(cell: Any) -> None:
+    """Make ``cell`` (:class:`ftacq.app.session.Cell`) publish each sample as soon as it can: reads on data
+    (:data:`ROS2_READ_PERIOD_S`), no wait for the robot states of its newest few ms (:data:`ROS2_HOLD_S`)."""
+    cell.monitor.batch_period_s = ROS2_READ_PERIOD_S
+    if hasattr(cell.compensator, "hold_s"):
+        cell.compensator.hold_s = ROS2_HOLD_S
 
 
 def add_ros2_args(parser: argparse.ArgumentParser) -> None:
@@ -79,6 +94,27 @@ def check_ros2_args(args: argparse.Namespace) -> None:
                               "pip install 'ftacq[ros2]'") from None
 
 
+class CalibrationText:
+    """() → the calibration in force (``calibration()``) as its JSON text, or None: serialized once per calibration
+    object, so the bag's metadata, its ``calibration`` message and the latched topic carry the same text (a
+    calibration without ``created_utc`` is stamped with the time it is serialized: twice could differ by a second)."""
+
+    def __init__(self, calibration: Callable[[], Any]) -> None:
+        self.calibration = calibration
+        self._of: Any = None
+        self._text: str | None = None
+
+    def __call__(self) -> str | None:
+        from ftacq.calfile import calibration_json_text
+
+        now = self.calibration()
+        if now is None:
+            return None
+        if now is not self._of:
+            self._of, self._text = now, calibration_json_text(now)
+        return self._text
+
+
 def _failed(what: str, queue: Any) -> str:
     """A last line for a ROS 2 listener that failed (it got no more events after its error), else ""."""
     error = queue.first_error
@@ -108,10 +144,9 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
         return [], report
     import numpy as np
 
-    from ftacq.calfile import calibration_json_text
     from ftacq.settings import SensorConfig
     from procedures.delivery import BackgroundListener
-    from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher, StampClock
+    from procedures.ros2_stream import DEFAULT_RATE_HZ, BagRecorder, Ros2Publisher
 
     if args.config is not None:
         from ftacq.app.config import load_config
@@ -123,43 +158,46 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
     frame_id = args.ros2_frame_id or sensor.frame
     rate_hz = DEFAULT_RATE_HZ if args.ros2_rate is None else args.ros2_rate
 
-    def calibration_json() -> str | None:
-        now = calibration()
-        return None if now is None else calibration_json_text(now)
+    calibration_json = CalibrationText(calibration)
 
     def reference_bias() -> np.ndarray:
         now = calibration()
         return np.zeros(6) if now is None else np.concatenate([now.force_bias, now.torque_bias])
 
-    listeners = []
-    clock = StampClock()  # one for both: the bag holds the very messages the topics carry
+    from procedures.ros2_stream import Ros2Messages, Ros2Stream
+
+    bag_queue: BackgroundListener | None = None
+    publisher: Ros2Publisher | None = None
+    messages = Ros2Messages(frame_id, rate_hz, reference_bias, joint_states=is_bag(args.record))
     if is_bag(args.record):
-        recorder = BagRecorder(args.record, namespace, frame_id, rate_hz, calibration_json(), reference_bias,
-                               metadata={"source": "ftacq monitor"}, clock=clock)
+        recorder = BagRecorder(args.record, namespace, calibration_json(), metadata={"source": "ftacq monitor"})
         bag_queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,
-                                       name="ftacq-mcap", direct=True)
+                                       name="ftacq-mcap")
         stack.callback(lambda: report.append(_failed("ROS 2 bag", bag_queue) or
                                              f"ROS 2 bag: {recorder.bag.messages} messages recorded in {args.record}"))
         stack.callback(recorder.close)  # after the queue is drained (callbacks run last first)
         stack.callback(bag_queue.close)
-        listeners.append(bag_queue)
     if args.ros2:
         from drivers.ros2.node import Ros2Node
 
         node = Ros2Node(namespace, _domain_id(args))
         stack.callback(node.close)
-        publisher = Ros2Publisher(node, frame_id, rate_hz, args.ros2_reliable, calibration_json, reference_bias,
-                                  tare=None if tare is None else (lambda: tare().estimate.change), clock=clock)
-        dds_queue = BackgroundListener([publisher], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.0,
-                                       name="ftacq-ros2", direct=True)
-        stack.callback(lambda: report.append(
-            _failed("ROS 2", dds_queue)
-            or f"ROS 2: published under {node.namespace or '/'} on domain {node.domain_id}: "
-            + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
-            + f"; {publisher.tares} tares"))
-        stack.callback(dds_queue.close)
-        listeners.append(dds_queue)
+        publisher = Ros2Publisher(node, rate_hz, args.ros2_reliable, calibration_json,
+                                  tare=None if tare is None else (lambda: tare().estimate.change))
+    stream = Ros2Stream(messages, publisher, bag_queue)
+    if publisher is not None:
+        def published() -> str:
+            assert publisher is not None
+            error = stream.publisher_error
+            if error is not None:
+                return f"ROS 2: FAILED, stopped at {type(error).__name__}: {error}"
+            return (f"ROS 2: published under {publisher.node.namespace or '/'} on domain {publisher.node.domain_id}: "
+                    + ", ".join(f"{name} {count}" for name, count in publisher.sent.items())
+                    + f"; {publisher.tares} tares")
+
+        stack.callback(lambda: report.append(published()))
+    listeners = [stream]
     return listeners, report
 
 
-__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag"]
+__all__ = ["add_ros2_args", "check_ros2_args", "ros2_listeners", "is_bag", "CalibrationText", "prefer_low_latency"]

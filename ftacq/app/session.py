@@ -249,7 +249,8 @@ class Cell:
         try:
             with self._step_lock:
                 self._start_monitor()
-                stop = stop or self._stop
+                self.monitor.sample_poses = False  # no batch goes to the caller: no pose per sample (a CSV record
+                stop = stop or self._stop          # still gets them: LiveMonitor._process)
                 self.monitor.stream(seconds, stop)
         finally:
             summary = self.close()
@@ -315,6 +316,8 @@ class Cell:
 
         self._start_monitor()
         dynamic_before = getattr(self.compensator, "dynamic_batches", 0)
+        # the pose at each sample's time for a Batch only when an iterator takes it (forward kinematics per read)
+        self.monitor.sample_poses = self._iterators > 0
         with ctrl_c_after():
             samples = self.monitor.step(deadline_s, self._stop)
             if samples is not None and self._iterators:

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ftacq.so3 import rotvec_from_rotation
 
 _HALF_PI = np.pi / 2
 
@@ -167,7 +166,11 @@ def flange_pose(model: URModel, q_rad: np.ndarray) -> np.ndarray:
 
 def pose_of_transform(base_T_frame: np.ndarray) -> np.ndarray:
     """Return [x, y, z (m), rx, ry, rz (rad)] of a (4, 4) transform: a pose as a UR controller reports one."""
-    return np.concatenate([base_T_frame[:3, 3], rotvec_from_rotation(base_T_frame[:3, :3])])
+    import pinocchio as pin
+
+    # Pinocchio's log3 for one rotation (equal to rotvec_from_rotation, tests/test_so3.py): ~1 µs against ~100 µs
+    # of numpy calls, once per live monitor read and per simulated controller tick
+    return np.concatenate([base_T_frame[:3, 3], pin.log3(np.ascontiguousarray(base_T_frame[:3, :3]))])
 
 
 def dh_transforms_batch(model: URModel, q_rad: np.ndarray) -> np.ndarray:

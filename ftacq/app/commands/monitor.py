@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq import __version__
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.app.readout import LiveReadout, format_summary
-    from ftacq.app.ros2_outputs import ROS2_READ_PERIOD_S, check_ros2_args, is_bag, ros2_listeners
+    from ftacq.app.ros2_outputs import check_ros2_args, is_bag, prefer_low_latency, ros2_listeners
     from ftacq.app.session import SimOptions, open_cell
     from ftacq.validation import check_number, check_output_file
 
@@ -134,8 +134,8 @@ def run(args: argparse.Namespace) -> int:
                                              record_rate_hz=args.record_rate, auto_tare=args.auto_tare, force=args.force, who="ftacq monitor",
                                              prepare=open_viewer))
         dashboard = viewer[0]
-        if args.ros2:  # a sample waits for the next read before it is published
-            cell.monitor.batch_period_s = ROS2_READ_PERIOD_S
+        if args.ros2:  # each sample published as soon as it can be (reads on data, no wait for robot states)
+            prefer_low_latency(cell)
         for note in cell.notes:
             print(f"ftacq monitor: {note}", file=sys.stderr)
         if cell.drift_text is not None:
