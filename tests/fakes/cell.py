@@ -282,6 +282,15 @@ def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: in
     }, "<tests>")
 
 
+def plan_for(cell: SimulatedCell, config):
+    """The plan :func:`run_calibration` would make, from the controller's joint angles as the simulator holds them
+    (they differ from a client's reading by the encoder noise only), so that a test can create its run folder
+    first without a client connection of its own (ur-rtde's disconnects and destructors take 1.5 s)."""
+    from procedures.plan import make_plan
+
+    return make_plan(config.plan_settings(), np.asarray(cell.controller.state()["q"], dtype=float))
+
+
 def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, plan=None, on_procedure=None):
     """Plan from the controller's current configuration and run the procedure in this process with the real
     UR and sensor drivers; return (plan, result). Listeners receive every event (add a RunFolderWriter to keep
