@@ -263,7 +263,7 @@ class SimulatedCell:
         return replace(self.truth, **changes)
 
 
-__all__ = ["SimulatedCell", "SimClocks", "SENSORS", "fast_config", "run_calibration", "motion_problems"]
+__all__ = ["SimulatedCell", "SimClocks", "SENSORS", "fast_config", "plan_for", "run_calibration", "motion_problems"]
 
 
 def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: int = 4, **sampling):
