@@ -223,16 +223,24 @@ class URRobot:
         self.close()
 
     def close(self) -> None:
-        """Disconnect the control and receive interfaces (≈0.5 s each inside ur-rtde). Safe to call twice."""
+        """Disconnect the control and receive interfaces at once. Safe to call twice.
+
+        ur-rtde sleeps 0.5 s in each ``disconnect()`` (the GIL released) and again in each destructor (the GIL
+        held): the two connections are independent, so their disconnects overlap (1.5 s instead of 2 s)."""
         control, self._control = self._control, None
-        if control is not None:
-            # after a lost connection a ur-rtde call may still be blocked inside the client: do not wait long
-            timeout_s = LOST_DISCONNECT_TIMEOUT_S if self._lost else DISCONNECT_TIMEOUT_S
-            try:
-                call_with_deadline(control.disconnect, timeout_s=timeout_s, what="control-disconnect")
-            except (RuntimeError, DeviceTimeoutError) as error:
-                log.warning("RTDE control disconnect from %s: %s", self.host, error)
-        self._reader.close()
+        if control is None:
+            self._reader.close()
+            return
+        closing_reader = threading.Thread(target=self._reader.close, name="ur-rtde-receive-close", daemon=True)
+        closing_reader.start()
+        # after a lost connection a ur-rtde call may still be blocked inside the client: do not wait long
+        timeout_s = LOST_DISCONNECT_TIMEOUT_S if self._lost else DISCONNECT_TIMEOUT_S
+        try:
+            call_with_deadline(control.disconnect, timeout_s=timeout_s, what="control-disconnect")
+        except (RuntimeError, DeviceTimeoutError) as error:
+            log.warning("RTDE control disconnect from %s: %s", self.host, error)
+        finally:
+            closing_reader.join()  # its disconnect has its own deadline (URStateReader.close)
 
     # ------------------------------------------------------------------ guarded calls
     def _ctrl(self):

@@ -64,6 +64,12 @@ def _pose_axis_width_in(count: int, minimum_in: float = 12.0) -> float:
 
 
 def _save(fig, path: Path) -> None:
+    """Save ``fig`` (laid out by its ``tight_layout()``) as a PNG at :data:`FIGURE_DPI`.
+
+    ``tight_layout()`` leaves a placeholder layout engine on the figure, and with any engine ``savefig`` draws the
+    whole figure once more (without output) before drawing it for the file: dropping the engine skips that pass
+    (a third of the save) and changes no pixel, the layout is already applied."""
+    fig.set_layout_engine(None)
     with atomic_write(path, mode="wb") as handle:
         fig.savefig(handle, format="png", dpi=FIGURE_DPI)
 

@@ -14,7 +14,7 @@ from ftacq.app.cli import main
 from procedures import events
 from procedures.measured import drift_label
 from procedures.run_folder import RunFolder, RunFolderWriter
-from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, run_calibration
+from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, plan_for, run_calibration
 from tests.fakes.world import CellTruth
 
 SIGMAS = 6.0
@@ -43,11 +43,7 @@ def run_and_check(tmp_path, sensor: str) -> None:
     seen: list = []
     with SimulatedCell(sensor=sensor, time_scale=0.0, seed=3) as cell:
         config = fast_config(cell)
-        from drivers.ur import URRobot
-        from procedures.plan import make_plan
-
-        with URRobot(cell.robot_host, MotionLimits(), model=cell.model_name) as robot:
-            plan = make_plan(config.plan_settings(), robot.joint_positions())
+        plan = plan_for(cell, config)
         folder = RunFolder.create(tmp_path, config.to_dict(), plan.to_json())
         plan, result = run_calibration(cell, config, listeners=[RunFolderWriter(folder), seen.append], plan=plan)
         commands = cell.controller.commands()

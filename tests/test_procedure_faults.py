@@ -12,7 +12,7 @@ from drivers.robot import MotionLimits
 from ftacq.errors import DeviceError, ProtectiveStopError
 from procedures import events
 from procedures.run_folder import RunFolder, RunFolderWriter
-from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, run_calibration
+from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, plan_for, run_calibration
 
 FAULT_MOVE = 4
 """The fault happens during this motion command (1-based): three poses are measured before it."""
@@ -21,14 +21,6 @@ FAULT_MOVE = 4
 def limits_of(config) -> MotionLimits:
     return MotionLimits(joint_speed_rad_s=config.robot.joint_speed_rad_s,
                         joint_acceleration_rad_s2=config.robot.joint_acceleration_rad_s2)
-
-
-def plan_for(cell, config):
-    from drivers.ur import URRobot
-    from procedures.plan import make_plan
-
-    with URRobot(cell.robot_host, MotionLimits(), model=cell.model_name) as robot:
-        return make_plan(config.plan_settings(), robot.joint_positions())
 
 
 def check_kept_and_stopped(folder, plan, result, commands, config, measured_count: int) -> None:

@@ -19,17 +19,9 @@ from procedures.acceptance import run_verdict
 from procedures.calibration_procedure import ProcedureOptions
 from procedures.measured import drift_label
 from procedures.run_folder import CALIBRATION_JSON, RunFolder, RunFolderWriter
-from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, run_calibration
+from tests.fakes.cell import SimulatedCell, fast_config, motion_problems, plan_for, run_calibration
 
 pytest.importorskip("rtde_control")
-
-
-def _plan_for(cell, config):
-    from drivers.ur import URRobot
-    from procedures.plan import make_plan
-
-    with URRobot(cell.robot_host, MotionLimits(), model=cell.model_name) as robot:
-        return make_plan(config.plan_settings(), robot.joint_positions())
 
 
 def _protective_stop_at_the_revisit(cell, plan):
@@ -50,7 +42,7 @@ def test_a_failed_drift_check_revisit_still_yields_a_calibration_with_a_warn(tmp
 
     with SimulatedCell(sensor="netft", time_scale=0.0) as cell:
         config = fast_config(cell, random_count=2, validation_count=3)
-        plan = _plan_for(cell, config)
+        plan = plan_for(cell, config)
         listeners = []
         if fault == "refused":  # the revisit target the old planner made: q6 on +360°, inside no margin
             target = np.array(plan.revisit_target_rad)

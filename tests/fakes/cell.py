@@ -263,7 +263,7 @@ class SimulatedCell:
         return replace(self.truth, **changes)
 
 
-__all__ = ["SimulatedCell", "SimClocks", "SENSORS", "fast_config", "run_calibration", "motion_problems"]
+__all__ = ["SimulatedCell", "SimClocks", "SENSORS", "fast_config", "plan_for", "run_calibration", "motion_problems"]
 
 
 def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: int = 4, **sampling):
@@ -280,6 +280,15 @@ def fast_config(cell: SimulatedCell, random_count: int = 6, validation_count: in
         "poses": {"random_count": random_count, "validation_count": validation_count},
         "sampling": values,
     }, "<tests>")
+
+
+def plan_for(cell: SimulatedCell, config):
+    """The plan :func:`run_calibration` would make, from the controller's joint angles as the simulator holds them
+    (they differ from a client's reading by the encoder noise only), so that a test can create its run folder
+    first without a client connection of its own (ur-rtde's disconnects and destructors take 1.5 s)."""
+    from procedures.plan import make_plan
+
+    return make_plan(config.plan_settings(), np.asarray(cell.controller.state()["q"], dtype=float))
 
 
 def run_calibration(cell: SimulatedCell, config, listeners=(), measured=None, plan=None, on_procedure=None):

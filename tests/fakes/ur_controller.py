@@ -314,6 +314,8 @@ class ControllerServer:
         self.rtde_connections: list[RTDEConnection] = []
         self.input_owners: dict[str, RTDEConnection] = {}
         self.other_sockets: list[socket.socket] = []
+        self.control_sockets: list[socket.socket] = []
+        """The test harness's control connections: not a client's, so a "drop" leaves them; shut at close."""
         self.threads: list[threading.Thread] = []
         self.listeners: dict[str, socket.socket] = {}
         self.shared_pose = None
@@ -526,6 +528,8 @@ class ControllerServer:
             self._untrack(sock)
 
     def _control_client(self, sock: socket.socket) -> None:
+        with self.lock:
+            self.control_sockets.append(sock)
         try:
             for line in self._lines(sock):
                 if not line.strip():
@@ -538,6 +542,9 @@ class ControllerServer:
         except OSError:
             pass
         finally:
+            with self.lock:
+                if sock in self.control_sockets:
+                    self.control_sockets.remove(sock)
             sock.close()
 
     def control(self, line: str) -> dict:
@@ -668,6 +675,13 @@ class ControllerServer:
         self.stop_event.set()
         self.close_listeners()
         self.close_clients()
+        with self.lock:
+            control_sockets = list(self.control_sockets)
+        for sock in control_sockets:  # wakes its thread's recv: the parent closes its end only once we exited
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
         for thread in self.threads[:6]:
             thread.join(timeout=1.0)
         if self.shared_pose is not None:
