@@ -194,4 +194,5 @@ def test_a_sensor_whose_own_calibration_is_off_fails_naming_the_axis(tmp_path):
     assert "certificate accuracy 1.25 %" in verdict
     unchecked = run_to_end(calibrate_command(tmp_path, "--out", str(tmp_path / "unchecked"), "--sim-bad-sensor",
                                              "--no-sensor-check"))
+    assert unchecked.returncode in (0, 1) and "\n\nverdict: " in unchecked.stdout, unchecked.stderr[-3000:]
     assert "sensor  " not in unchecked.stdout.rstrip().split("\n\nverdict: ")[1]
