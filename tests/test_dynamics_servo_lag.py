@@ -91,7 +91,7 @@ def test_the_inertia_is_identified_within_3_sigma_with_the_arm_behind_its_target
     assert summary["lag_ms"] == pytest.approx(1e3 * recording.transport_lag_s, abs=0.5)  # the sensor's own lag
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=8)
 def test_the_inertias_sigma_covers_its_error_over_seeds():
     truth = heavy_truth()
     normalised = []

@@ -42,6 +42,7 @@ def test_plan_is_checked_and_returns_to_start():
     assert 5.0 < plan.estimated_duration_s < 60.0
 
 
+@pytest.mark.slow(seconds=12)
 def test_recorded_excitation_stays_within_the_limits_and_identifies_the_inertia():
     truth = CellTruth(motion_noise_gain=0.0)
     start = home_configuration_rad("floor")

@@ -51,6 +51,7 @@ def wait_for_line(process: subprocess.Popen, text: str, deadline_s: float) -> li
     pytest.fail(f"{text!r} not printed within {deadline_s} s: {''.join(lines)[-2000:]}")
 
 
+@pytest.mark.slow(seconds=13)
 def test_a_separate_process_jogs_the_arm_while_the_monitor_reads_it(tmp_path):
     with SimulatedCell(time_scale=1.0, sensor_process=True) as cell:
         truth = cell.truth

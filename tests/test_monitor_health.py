@@ -69,6 +69,7 @@ def run_monitor(cell, compensator, collected: list, stop: threading.Event) -> th
     return thread
 
 
+@pytest.mark.slow(seconds=10)
 def test_a_push_on_the_still_tool_is_not_absorbed_and_a_swapped_tool_is_flagged(cell) -> None:
     """The arm stands still; the tracker learns the biases; a steady push is held until the tracker has refused
     four of its windows: the estimate does not move (auto-tare on) and the compensated wrench shows the push

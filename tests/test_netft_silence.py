@@ -148,6 +148,7 @@ def test_fault_matrix_with_a_one_second_silence(fake, faults) -> None:
         assert health.lost == 40 + fake.records_silenced
 
 
+@pytest.mark.slow(seconds=7)
 def test_record_through_a_two_second_silence_keeps_every_record_sent(fake, tmp_path, capsys) -> None:
     """Acceptance: ``ftacq sensor record`` at 7 kHz through a 2 s silence: every record the box sent is in the
     CSV exactly once; the summary reports the gap and the command exits 1 (lost beyond the threshold)."""

@@ -7,6 +7,7 @@ import json
 import re
 
 import numpy as np
+import pytest
 
 from drivers.robot import MotionLimits
 from ftacq.calfile import load_calibration
@@ -77,10 +78,12 @@ def run_and_check(tmp_path, sensor: str) -> None:
     assert states.index("identifying") > max(i for i, s in enumerate(states) if s == "averaging")
 
 
+@pytest.mark.slow(seconds=9)
 def test_procedure_with_can_sensor_recovers_the_truth(tmp_path):
     run_and_check(tmp_path, "can")
 
 
+@pytest.mark.slow(seconds=9)
 def test_procedure_with_netft_sensor_recovers_the_truth(tmp_path):
     run_and_check(tmp_path, "netft")
 
@@ -125,6 +128,7 @@ def test_without_yes_and_without_a_terminal_the_robot_does_not_move(tmp_path, ca
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow(seconds=11)
 def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     status = main(["calibrate", "--sim", "--sensor", "can", "--time-scale", "0", "--yes",
                    "--config", str(_fast_toml(tmp_path)), "--out", str(tmp_path / "runs"),

@@ -72,6 +72,7 @@ def _silence_sensor_during(cell, plan_index: int):
 
 
 @pytest.mark.parametrize("sensor", ["can", "netft"])
+@pytest.mark.slow(seconds=7)
 def test_sensor_going_silent_mid_move(tmp_path, sensor):
     with SimulatedCell(sensor=sensor, time_scale=4.0) as cell:
         config = fast_config(cell, sensor_timeout_s=0.3)
@@ -87,6 +88,7 @@ def test_sensor_going_silent_mid_move(tmp_path, sensor):
     check_kept_and_stopped(folder, plan, result, commands, config, measured_count=2)
 
 
+@pytest.mark.slow(seconds=9)
 def test_requested_stop_keeps_the_data_and_a_critical_listener_error_fails_the_run(tmp_path):
     with SimulatedCell(sensor="can", time_scale=0.0) as cell:
         config = fast_config(cell)

@@ -37,6 +37,7 @@ def _protective_stop_at_the_revisit(cell, plan):
     ("refused", "refused before moving: joint limit: q6"),
     ("protective_stop", "ProtectiveStopError"),
 ])
+@pytest.mark.slow(seconds=10)
 def test_a_failed_drift_check_revisit_still_yields_a_calibration_with_a_warn(tmp_path, capsys, fault, expected):
     from ftacq.app.commands.calibrate import _finish
 

@@ -166,6 +166,7 @@ def test_sim_quick_passes_and_saves_the_calibration_with_its_drift_model(tmp_pat
     assert json.loads((folder / "run.json").read_text())["status"] == "done"
 
 
+@pytest.mark.slow(seconds=9)
 def test_ctrl_c_stops_keeps_the_motion_and_says_how_to_restart(tmp_path):
     import json
     import os

@@ -251,7 +251,7 @@ def _stamp_ns(entry: dict) -> int:
     return entry["stamp"][0] * 10**9 + entry["stamp"][1]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=8)
 def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_path, monkeypatch, capsys):
     """``ftacq monitor --sim --ros2 --seconds 5 --record X.mcap``: a subscriber in another process receives every
     topic (values decoded there and by rosbags alike), calls the tare service and gets its answer; the bag reads
@@ -333,7 +333,7 @@ def test_monitor_topics_tare_service_and_bag_against_independent_readers(tmp_pat
         assert stamps == sorted(stamps)
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=8)
 def test_every_sample_on_the_wire_equals_the_monitor_record(tmp_path, monkeypatch):
     """``--ros2-rate 0``: one message per sample; each raw and compensated message the subscriber receives equals
     the row of the monitor's own CSV record with the same sample time (the stamp is that time + one offset)."""
