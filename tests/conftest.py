@@ -75,17 +75,22 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
 _BEFORE = pytest.StashKey[set]()
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Run the tests marked ``slow`` first, longest first (``@pytest.mark.slow(seconds=…)``: the test's usual
-    length on the 2-core machine, default 5 s), the others after them as collected. ``./run.sh test`` deals tests
-    out one at a time, in this order (``--dist loadgroup``): the real-time quick calibrations (a minute and a half
-    each) start at once on different workers and the short tests fill in around them, instead of one long test
-    ending the suite while the other worker idles. Every process orders alike (xdist requires it)."""
+    """Order and group the suite for ``./run.sh test`` (``-n 2 --dist loadgroup``): the tests marked ``slow`` first,
+    longest first (``@pytest.mark.slow(seconds=…)``: the test's usual length on the 2-core machine, default
+    :data:`SLOW_TEST_S`), each dealt out alone; every other test in one group per module (``xdist_group``), so a
+    module's shared fixtures (a simulated cell, an identified run) are built once. The real-time quick calibrations
+    (a minute and a half each) then start at once on different workers and the modules fill in around them,
+    instead of one long test ending the suite while the other worker idles. Every process orders alike."""
     def expected_s(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return 0.0 if marker is None else float(marker.kwargs.get("seconds", SLOW_TEST_S))
 
     items.sort(key=lambda item: -expected_s(item))
+    for item in items:
+        if item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
 
 
 SLOW_TEST_S = 5.0
