@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.app.confirm import confirm_motion
+from ftacq.fit_options import DRIFT_MODELS
 from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 from ftacq.mounts import MOUNT_FORMS, MOUNTS
@@ -67,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "every parameter (inertia included) identified from it, judged on still validation "
                              "poses, replayed with the viewer flags; --yes saves a PASS, otherwise you are asked "
                              "(docs/quick.md)")
-    parser.add_argument("--drift", choices=("auto", "none", "linear"), default="auto",
+    parser.add_argument("--drift", choices=DRIFT_MODELS, default="auto",
                         help="model a linear drift of the sensor's zero over the run: linear, none, or auto (when "
                              "the residuals trend with time beyond the drift thresholds; default); docs/verdict.md")
     add_sensor_check_args(parser)
