@@ -32,7 +32,8 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class PlanReady:
-    """The checked plan, in execution order. ``set_names[i]`` is "A" (special), "E" (random) or "V" (validation)."""
+    """The checked plan (or a motion's waypoints), in execution order; ``set_names[i]`` is a row of
+    :data:`ftacq.posesets.POSE_SETS`."""
 
     poses: np.ndarray  # (N, 6)
     joint_targets_rad: np.ndarray  # (N, 6)

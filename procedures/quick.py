@@ -43,7 +43,7 @@ from ftacq.dynamics.identify import MotionRecord
 from ftacq.kinematics.trapezoid import move_duration_s, move_profile
 from ftacq.dynamics.joint import LINEAR, NONLINEAR
 from ftacq.errors import PlanError
-from ftacq.posesets import QUICK_SET, VALIDATION_SET
+from ftacq.posesets import IDENTIFICATION_SETS, QUICK_SET, SPECIAL_SET, VALIDATION_SET
 from procedures import events
 
 log = logging.getLogger(__name__)
@@ -194,7 +194,7 @@ def full_run_sigmas(settings, pose_plan) -> dict[str, float]:
     """The full run's predicted 1σ per :data:`SIGMA_GROUPS` entry: its fitted poses (sets A and E) each averaged
     still for ``sampling.average_time_s`` at :data:`DESIGN_RATE_HZ` (the static model: the inertia and the lag are
     not seen, so left out)."""
-    fitted = [i for i, name in enumerate(pose_plan.set_names) if name in ("A", "E")]
+    fitted = [i for i, name in enumerate(pose_plan.set_names) if name in IDENTIFICATION_SETS]
     rows = max(int(round(float(settings.average_time_s) * DESIGN_RATE_HZ)), 1)
     q = np.repeat(np.asarray(pose_plan.joint_targets_rad)[fitted], rows, axis=0)
     still = np.zeros_like(q)
@@ -269,8 +269,8 @@ def design_quick(settings, start_q_rad: np.ndarray, pose_plan=None, budget_s: fl
 
     start = np.asarray(start_q_rad, dtype=float).reshape(6)
     plan = pose_plan if pose_plan is not None else make_plan(settings, start)
-    special = [i for i, s in enumerate(plan.set_names) if s == "A"]
-    validation = [i for i, s in enumerate(plan.set_names) if s == "V"]
+    special = [i for i, s in enumerate(plan.set_names) if s == SPECIAL_SET]
+    validation = [i for i, s in enumerate(plan.set_names) if s == VALIDATION_SET]
     if not special:
         raise PlanError("the quick calibration needs the special orientations (CELL.toml poses.special = true)")
     targets = np.asarray(plan.joint_targets_rad)
@@ -395,8 +395,8 @@ class QuickRecording:
 def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float = 60.0,
                  listeners: Sequence[events.Listener] = ()) -> QuickRecording:
     """Run the plan while recording (:func:`procedures.motion_runner.run_waypoints`, the excitation stage's runner,
-    which publishes the run's events to ``listeners``: a hold is a "holding" state of its waypoint, set "V" or "Q"
-    (:attr:`QuickPlan.set_names`)); return the recording. Ctrl-C or a fault stops the robot; the partial recording
+    which publishes the run's events to ``listeners``: a hold is a "holding" state of its waypoint, in the set
+    :attr:`QuickPlan.set_names` gives it); return the recording. Ctrl-C or a fault stops the robot; the partial recording
     is attached to the raised exception as ``error.quick_recording``."""
     from procedures.motion_runner import run_waypoints
 
