@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -34,27 +35,33 @@ def short_plan(start: np.ndarray) -> QuickPlan:
                      4.0, 0.0, 1)
 
 
-@pytest.mark.parametrize("rate_hz", [7000.0, 1750.0])
-def test_a_hold_is_found_in_the_sensor_samples_at_any_rdt_rate(rate_hz):
+@contextlib.contextmanager
+def moving_cell(**cell_options):
+    """A real-time simulated cell at the floor's home configuration: (cell, robot, started sensor, state stream)."""
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
     from drivers.ur_stream import URStateStream
 
-    truth = CellTruth()
-    start = home_configuration_rad("floor")
-    # the sensor's clock further off the host than the default, in bursts: its times must come from its counter
-    clocks = SimClocks(sensor_rate_error=150e-6, sensor_burst_interval_s=0.003)
-    with SimulatedCell(truth=truth, time_scale=1.0, rate_hz=rate_hz, initial_q=start, clocks=clocks) as cell, \
+    with SimulatedCell(time_scale=1.0, initial_q=home_configuration_rad("floor"), **cell_options) as cell, \
             URRobot(cell.robot_host, MotionLimits(1.0, 2.0), model="UR5e") as robot, \
             URStateStream(cell.robot_host) as stream:
         sensor = open_sensor(cell.sensor_url)
         sensor.start()
         try:
-            plan = short_plan(robot.joint_positions())
-            recording = record_quick(plan, robot, sensor, stream)
+            yield cell, robot, sensor, stream
         finally:
             sensor.close()
+
+
+@pytest.mark.parametrize("rate_hz", [7000.0, 1750.0])
+def test_a_hold_is_found_in_the_sensor_samples_at_any_rdt_rate(rate_hz):
+    truth = CellTruth()
+    # the sensor's clock further off the host than the default, in bursts: its times must come from its counter
+    clocks = SimClocks(sensor_rate_error=150e-6, sensor_burst_interval_s=0.003)
+    with moving_cell(truth=truth, rate_hz=rate_hz, clocks=clocks) as (_, robot, sensor, stream):
+        plan = short_plan(robot.joint_positions())
+        recording = record_quick(plan, robot, sensor, stream)
     record = recording.record
     assert record.metadata["sensor_clock"] == "device"
     assert recording.completed == 2 and np.all(recording.hold_rows[:, 1] > recording.hold_rows[:, 0])
@@ -112,10 +119,6 @@ def test_the_motion_publishes_its_plan_states_and_samples_and_a_stop():
     """The motion runner tells its listeners what the full run tells them (procedures/events.py): the plan, a state
     per move and hold, the end; every sensor batch with the arm's newest state. Ctrl-C from a listener stops the
     robot and ends the events with "stopped"."""
-    from drivers.robot import MotionLimits
-    from drivers.sensor import open_sensor
-    from drivers.ur import URRobot
-    from drivers.ur_stream import URStateStream
     from procedures import events
 
     model = ur_model("UR5e")
@@ -125,19 +128,12 @@ def test_the_motion_publishes_its_plan_states_and_samples_and_a_stop():
         if isinstance(event, events.StateChanged) and event.state == "holding":
             raise KeyboardInterrupt
 
-    with SimulatedCell(time_scale=1.0, initial_q=home_configuration_rad("floor")) as cell, \
-            URRobot(cell.robot_host, MotionLimits(1.0, 2.0), model="UR5e") as robot, \
-            URStateStream(cell.robot_host) as stream:
-        sensor = open_sensor(cell.sensor_url)
-        sensor.start()
-        try:
-            plan = short_plan(robot.joint_positions())
-            recording = record_quick(plan, robot, sensor, stream, listeners=[published.append])
-            stopped: list = []
-            with pytest.raises(KeyboardInterrupt) as raised:
-                record_quick(plan, robot, sensor, stream, listeners=[stopped.append, interrupt_at_the_first_hold])
-        finally:
-            sensor.close()
+    with moving_cell() as (cell, robot, sensor, stream):
+        plan = short_plan(robot.joint_positions())
+        recording = record_quick(plan, robot, sensor, stream, listeners=[published.append])
+        stopped: list = []
+        with pytest.raises(KeyboardInterrupt) as raised:
+            record_quick(plan, robot, sensor, stream, listeners=[stopped.append, interrupt_at_the_first_hold])
         commands = cell.controller.commands()
     ready = published[0]
     assert isinstance(ready, events.PlanReady) and ready.labels == ("Q1", "V1") and ready.set_names == ("Q", "V")
