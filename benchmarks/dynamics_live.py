@@ -85,8 +85,10 @@ def read_record(path: Path) -> dict[str, np.ndarray]:
             if not line.startswith("#"):
                 columns = line.strip().split(",")
                 break
-        wanted = ["time_s", "x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz",
-                  "contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz"]
+        from ftacq.channels import CONTACT_COLUMNS
+        from ftacq.posefile import POSE_COLUMNS
+
+        wanted = ["time_s", *POSE_COLUMNS, *CONTACT_COLUMNS]
         wanted += [name for name in ("sample_time_s",) if name in columns]  # the sample's host time, if recorded
         rows = (_filled(line) for line in handle)  # empty fields (an uncompensated batch) read as NaN
         values = np.loadtxt(rows, delimiter=",", usecols=[columns.index(name) for name in wanted], ndmin=2)
@@ -168,12 +170,13 @@ def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folde
 
 def per_minute(run: dict, static) -> list[str]:
     """Lines of the per-minute table: error while moving (dynamic, static) beside the at-rest noise."""
+    from ftacq.channels import CONTACT_COLUMNS, WRENCH_COLUMNS
     from ftacq.so3 import rotation_from_rotvec
 
     record, moves = run["record"], run["moves"]
     t = record.get("sample_time_s", record["time_s"])  # when the sample was taken, else when it was received
-    contact = np.column_stack([record[f"contact_{c}"] for c in ("fx", "fy", "fz", "tx", "ty", "tz")])
-    raw = np.column_stack([record[c] for c in ("fx", "fy", "fz", "tx", "ty", "tz")])
+    contact = np.column_stack([record[c] for c in CONTACT_COLUMNS])
+    raw = np.column_stack([record[c] for c in WRENCH_COLUMNS])
     moving = np.zeros(t.size, dtype=bool)
     rest = np.zeros(t.size, dtype=bool)
     for index, move in enumerate(moves):

@@ -1,4 +1,4 @@
-"""The pose sets of a calibration run (A, E, V, D; Q for a quick run): the one table every layer reads.
+"""The pose sets of a calibration run (A, E, V, D; Q for a quick run, M for a motion): the one table every layer reads.
 
 Each measured pose belongs to one set, written in the ``set`` column of a pose record (:mod:`ftacq.posefile`):
 
@@ -6,7 +6,8 @@ Each measured pose belongs to one set, written in the ``set`` column of a pose r
 - ``E``: random orientations in a cone, and the user's explicit poses (labels ``X01``…), identified on;
 - ``V``: validation poses, held out: never identified on, compensated with the result to measure its error;
 - ``D``: the drift-check revisit of the first pose at the end of a run, held out (it measures the bias drift);
-- ``Q``: the quick run's designed orientations (``calibrate --quick``), identified on (its held-out poses are V).
+- ``Q``: the quick run's designed orientations (``calibrate --quick``), identified on (its held-out poses are V);
+- ``M``: the waypoints of a recorded motion (the excitation stage): the motion is identified on, never a pose alone.
 
 Whether a set is identified on, and its colour in the dashboard and the report, come from :data:`POSE_SETS`;
 nothing else names the rule. A new set is one row here (and, if the planner makes it, its generator in
@@ -37,17 +38,19 @@ POSE_SETS: dict[str, PoseSetKind] = {s.name: s for s in (
     PoseSetKind("Q", "quick design", (148, 103, 189), True),
     PoseSetKind("V", "validation (held out)", (42, 157, 90), False),
     PoseSetKind("D", "drift-check revisit (held out)", (214, 39, 40), False),
+    PoseSetKind("M", "motion waypoints (not measured still)", (127, 127, 127), False),
 )}
 """Every pose set by name, in the order reports list them."""
 
 UNKNOWN_SET_COLOUR_RGB = (160, 160, 160)
 """Colour of poses whose set is unknown (a pose record without a ``set`` column)."""
-SPECIAL_SET, RANDOM_SET, VALIDATION_SET, DRIFT_SET, QUICK_SET = "A", "E", "V", "D", "Q"
-"""The names the planner, the procedure and the quick run produce (each a row of :data:`POSE_SETS`)."""
+SPECIAL_SET, RANDOM_SET, VALIDATION_SET, DRIFT_SET, QUICK_SET, MOTION_SET = "A", "E", "V", "D", "Q", "M"
+"""The names the planner, the procedure, the quick run and the motion runner produce (each a row of
+:data:`POSE_SETS`)."""
 IDENTIFICATION_SETS: tuple[str, ...] = tuple(s.name for s in POSE_SETS.values() if s.identify)
 """Sets identified on (A, E, Q)."""
 HELD_OUT_SETS: tuple[str, ...] = tuple(s.name for s in POSE_SETS.values() if not s.identify)
-"""Sets never identified on (V, D)."""
+"""Sets never identified on as still poses (V, D, M)."""
 PLANNED_SETS: tuple[str, ...] = (SPECIAL_SET, RANDOM_SET, VALIDATION_SET)
 """Sets a plan contains, in the order the plan summary lists them."""
 
@@ -76,5 +79,5 @@ def set_colour_rgb(set_name: str) -> tuple[int, int, int]:
 
 
 __all__ = ["PoseSetKind", "POSE_SETS", "IDENTIFICATION_SETS", "HELD_OUT_SETS", "PLANNED_SETS", "SPECIAL_SET",
-           "RANDOM_SET", "VALIDATION_SET", "DRIFT_SET", "QUICK_SET", "UNKNOWN_SET_COLOUR_RGB", "is_identified_on",
+           "RANDOM_SET", "VALIDATION_SET", "DRIFT_SET", "QUICK_SET", "MOTION_SET", "UNKNOWN_SET_COLOUR_RGB", "is_identified_on",
            "set_colour_rgb", "spread_hold_out"]

@@ -262,13 +262,7 @@ class CalibrationProcedure:
     # ------------------------------------------------------------------ events and states
 
     def _emit(self, event: events.Event) -> None:
-        for listener in self.listeners:
-            try:
-                listener(event)
-            except Exception:
-                if getattr(listener, "critical", False):
-                    raise
-                log.warning("listener %r failed on %s", listener, type(event).__name__, exc_info=True)
+        events.publish(self.listeners, event)
 
     def _counts(self) -> tuple[int, int]:
         """Return (poses measured so far, resumed ones included; poses the whole run measures)."""

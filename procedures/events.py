@@ -18,6 +18,8 @@ Stream events come at up to the sensor's read rate: a listener that does real wo
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -25,10 +27,13 @@ import numpy as np
 
 from drivers.sensor import SensorHealth, WrenchBatch
 
+log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
 class PlanReady:
-    """The checked plan, in execution order. ``set_names[i]`` is "A" (special), "E" (random) or "V" (validation)."""
+    """The checked plan (or a motion's waypoints), in execution order; ``set_names[i]`` is a row of
+    :data:`ftacq.posesets.POSE_SETS`."""
 
     poses: np.ndarray  # (N, 6)
     joint_targets_rad: np.ndarray  # (N, 6)
@@ -40,8 +45,9 @@ class PlanReady:
 
 @dataclass(frozen=True)
 class StateChanged:
-    """The procedure entered a state: "planning", "moving", "settling", "averaging", "identifying",
-    "validating", "done", "stopped" (planned stop, data kept), "failed" (fault, data kept)."""
+    """The procedure entered a state: "planning", "moving", "settling", "averaging", "holding" (a recorded motion
+    holds still at a waypoint), "identifying", "validating", "done", "stopped" (planned stop, data kept), "failed"
+    (fault, data kept)."""
 
     state: str
     index: int | None = None  # the pose index (execution order) the state refers to, if any
@@ -220,3 +226,15 @@ class FedWrenches:
 StreamEvent = WrenchSamples | RobotState | SensorStatus | Notice | BiasDrift | FedWrenches
 Event = ProcedureEvent | StreamEvent
 Listener = Callable[[Event], None]
+
+
+def publish(listeners: Iterable[Listener], event: Event) -> None:
+    """Give ``event`` to every listener in turn: an error is logged and the next listener gets it, unless the
+    listener is ``critical`` (module docstring): then it is raised (the caller stops the robot)."""
+    for listener in listeners:
+        try:
+            listener(event)
+        except Exception:
+            if getattr(listener, "critical", False):
+                raise
+            log.warning("listener %r failed on %s", listener, type(event).__name__, exc_info=True)

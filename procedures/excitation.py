@@ -17,6 +17,7 @@ keeps what was recorded. The residual lag is measured by the identification.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,7 @@ import numpy as np
 from ftacq.dynamics.identify import MotionRecord
 from ftacq.errors import PlanError
 from ftacq.kinematics.trapezoid import trapezoid_duration_s
+from procedures import events
 from procedures.motion_runner import run_waypoints
 
 log = logging.getLogger(__name__)
@@ -98,14 +100,14 @@ def format_excitation(plan: ExcitationPlan) -> str:
 
 
 def record_excitation(plan: ExcitationPlan, robot, sensor, stream, move_timeout_s: float = 60.0,
-                      on_move=None) -> MotionRecord:
+                      listeners: Sequence[events.Listener] = ()) -> MotionRecord:
     """Run the plan (moveJ after moveJ) while recording sensor and robot (:func:`procedures.motion_runner.
-    run_waypoints`); return the record (host clock). ``on_move(i, n)`` is called before each segment (progress).
+    run_waypoints`, which publishes the run's events to ``listeners``); return the record (host clock).
     Ctrl-C or a fault stops the robot; the recording made so far is attached to the raised exception as
     ``error.motion_record``."""
     try:
         return run_waypoints(robot, sensor, stream, plan.targets_rad, plan.speed_rad_s, plan.acceleration_rad_s2,
-                             move_timeout_s=move_timeout_s, on_waypoint=on_move).record
+                             move_timeout_s=move_timeout_s, listeners=listeners).record
     except BaseException as error:
         run = getattr(error, "motion_run", None)
         if run is not None:

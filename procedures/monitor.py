@@ -55,6 +55,8 @@ import numpy as np
 
 from drivers.robot import RobotStateSource
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
+from ftacq.channels import CONTACT_COLUMNS
+from ftacq.posefile import POSE_COLUMNS
 from ftacq.timebase import SampleClock
 from ftacq.errors import DeviceTimeoutError, FtacqError
 from ftacq.so3 import rotation_from_rotvec
@@ -186,8 +188,7 @@ class MonitorSummary:
 
 
 RECORD_COLUMNS = (
-    "time_s", "x", "y", "z", "rx", "ry", "rz", "fx", "fy", "fz", "tx", "ty", "tz",
-    "contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz",
+    "time_s", *POSE_COLUMNS, *CONTACT_COLUMNS,
     "sequence", "status", "sample_saturated", "sample_time_s", "device_time_s", "clock_uncertainty_s",
 )
 """Columns of the ``--record`` CSV, one row per sample: host receive time (s, monotonic clock); the flange pose

@@ -10,12 +10,18 @@ shift) and robot states through the controller's timestamps, each through the mi
 recording (:func:`ftacq.timebase.device_to_host_clock`); q̈ is the physical arm's (``target_qdd`` of the measured
 servo lag earlier, :func:`ftacq.dynamics.acceleration.physical_acceleration`). Ctrl-C or a fault stops the robot and
 keeps what was recorded: the partial run is attached to the raised exception as ``error.motion_run``.
+
+A run publishes :mod:`procedures.events` to its listeners as the full run does, so the dashboard and the progress
+bar follow every motion alike: :class:`~procedures.events.PlanReady` (the waypoints), a
+:class:`~procedures.events.StateChanged` per move ("moving") and hold ("holding"), then "done", "stopped"
+(Ctrl-C) or "failed"; and a :class:`~procedures.events.WrenchSamples` per sensor read, with the newest robot state.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -24,10 +30,14 @@ import numpy as np
 from drivers.ur_connection import E_SERIES_RATE_HZ
 from ftacq.dynamics.acceleration import physical_acceleration
 from ftacq.dynamics.identify import MotionRecord
+from ftacq.kinematics import flange_pose
+from ftacq.kinematics.trapezoid import move_duration_s
 from ftacq.timebase import device_to_host_clock
+from procedures import events
 
 if TYPE_CHECKING:
     from drivers.sensor import ForceTorqueSensor, WrenchBatch
+    from ftacq.kinematics import URModel
 
 SENSOR_READ_TIMEOUT_S = 0.5
 MAX_SILENT_READS = 6
@@ -39,13 +49,17 @@ SETTLE_STATES = 5
 @dataclass
 class MotionRecorder:
     """Reads the sensor in a thread ("ftacq-motion-sensor") until stopped, keeping every batch; :meth:`record`
-    assembles them with the robot states the stream received since :meth:`start`."""
+    assembles them with the robot states the stream received since :meth:`start`. Each batch is published to
+    ``listeners`` as a :class:`~procedures.events.WrenchSamples` with the newest robot state (its flange pose by
+    ``model``'s forward kinematics, when a model is given)."""
 
     sensor: ForceTorqueSensor
     stream: object
     batches: list[WrenchBatch] = field(default_factory=list)
     error: BaseException | None = None
     first_robot: int = 0
+    listeners: Sequence[events.Listener] = ()
+    model: URModel | None = None
 
     def __post_init__(self) -> None:
         self._stop = threading.Event()
@@ -67,8 +81,19 @@ class MotionRecorder:
                 silent = 0
                 if len(batch):
                     self.batches.append(batch)
+                    if self.listeners:
+                        events.publish(self.listeners, self._samples(batch))
         except BaseException as error:  # noqa: BLE001 - reported by the caller after the robot stopped
             self.error = error
+
+    def _samples(self, batch: WrenchBatch) -> events.WrenchSamples:
+        """The batch as an event, with the newest robot state (none before the first)."""
+        newest = self.stream.window(last=1)  # type: ignore[attr-defined]
+        if not len(newest):
+            return events.WrenchSamples(batch)
+        q = np.array(newest.q[-1])
+        return events.WrenchSamples(batch, flange_pose=None if self.model is None else flange_pose(self.model, q),
+                                    joint_positions_rad=q)
 
     def start(self) -> None:
         """Drop what the sensor buffered before, note the first robot state, start reading."""
@@ -118,37 +143,55 @@ class MotionRun:
 
 
 def run_waypoints(robot, sensor, stream, waypoints_rad: np.ndarray, speed_rad_s: float, acceleration_rad_s2: float,
-                  hold_s: Sequence[float] | np.ndarray | None = None, move_timeout_s: float = 60.0,
-                  on_waypoint: Callable[[int, int], None] | None = None,
-                  on_hold: Callable[[int, bool], None] | None = None) -> MotionRun:
+                  hold_s: Sequence[float] | np.ndarray | None = None, move_timeout_s: float = 60.0, *,
+                  labels: Sequence[str] | None = None, set_names: Sequence[str] | None = None,
+                  listeners: Sequence[events.Listener] = ()) -> MotionRun:
     """Move through ``waypoints_rad`` (W, 6; checked before) by moveJ while recording, holding still ``hold_s[k]``
     seconds (a count of robot states at the stream's RTDE rate) after waypoint k; return the :class:`MotionRun`.
 
-    ``on_waypoint(k, W)`` before each move, ``on_hold(k, started)`` at a hold's start (True) and end (False).
+    ``labels`` and ``set_names`` (:data:`ftacq.posesets.POSE_SETS`) name the waypoints in the events published to
+    ``listeners`` (module docstring; default "W01"…, set "M"); flange poses come from the robot driver's model.
     ``stream`` is a started :class:`drivers.ur_stream.URStateStream`. Ctrl-C or a fault stops the robot; the run so
     far is attached to the raised exception as ``error.motion_run``."""
+    from ftacq.posesets import MOTION_SET
+
     waypoints = np.asarray(waypoints_rad, dtype=float).reshape(-1, 6)
-    holds_s = np.zeros(len(waypoints)) if hold_s is None else np.asarray(hold_s, dtype=float)
+    count = len(waypoints)
+    holds_s = np.zeros(count) if hold_s is None else np.asarray(hold_s, dtype=float)
+    names = tuple(labels) if labels is not None else tuple(f"W{k + 1:02d}" for k in range(count))
     rate_hz = float(getattr(stream, "frequency_hz", E_SERIES_RATE_HZ))  # the controller's RTDE rate (CB3: 125 Hz)
-    holds = np.full((len(waypoints), 2), -1, dtype=int)
-    recorder = MotionRecorder(sensor, stream)
-    recorder.start()
+    holds = np.full((count, 2), -1, dtype=int)
+    model = getattr(robot, "model", None)
+    listeners = list(listeners)
     completed = 0
+
+    def state(name: str, k: int | None = None, message: str = "") -> None:
+        events.publish(listeners, events.StateChanged(name, k, message, label="" if k is None else names[k],
+                                                      measured=completed, total=count))
+
+    if listeners:
+        start_q = np.asarray(robot.joint_positions(), dtype=float)
+        path = np.vstack([start_q, waypoints])
+        events.publish(listeners, events.PlanReady(
+            poses=np.array([flange_pose(model, q) if model is not None else np.full(6, np.nan) for q in waypoints]),
+            joint_targets_rad=waypoints, labels=names,
+            set_names=tuple(set_names) if set_names is not None else (MOTION_SET,) * count,
+            estimated_duration_s=float(holds_s.sum()) + sum(
+                move_duration_s(a, b, speed_rad_s, acceleration_rad_s2) for a, b in zip(path[:-1], path[1:])),
+            joint_travel_rad=float(np.abs(np.diff(path, axis=0)).sum())))
+    recorder = MotionRecorder(sensor, stream, listeners=listeners, model=model)
+    recorder.start()
     try:
         for k, (target, hold) in enumerate(zip(waypoints, holds_s)):
-            if on_waypoint is not None:
-                on_waypoint(k, len(waypoints))
+            state("moving", k)
             if recorder.error is not None:
                 raise recorder.error
             robot.move_joints(target, speed_rad_s, acceleration_rad_s2, timeout_s=move_timeout_s)
             if hold > 0:
-                if on_hold is not None:
-                    on_hold(k, True)
+                state("holding", k)
                 begin = stream.count
                 stream.wait_for_samples(begin + int(round(hold * rate_hz)), timeout_s=hold + 1.0)
                 holds[k] = (begin - recorder.first_robot, stream.count - recorder.first_robot)
-                if on_hold is not None:
-                    on_hold(k, False)
             completed = k + 1
         stream.wait_for_samples(stream.count + SETTLE_STATES, timeout_s=1.0)  # a few states at rest at the end
     except BaseException as error:
@@ -157,10 +200,16 @@ def run_waypoints(robot, sensor, stream, waypoints_rad: np.ndarray, speed_rad_s:
         finally:
             recorder.stop()
             error.motion_run = MotionRun(recorder.record(), holds, completed)  # type: ignore[attr-defined]
+        interrupted = isinstance(error, KeyboardInterrupt)
+        with contextlib.suppress(Exception):  # a critical listener's error must not hide the one that stopped the run
+            state("stopped" if interrupted else "failed", None,
+                  "interrupted" if interrupted else f"{type(error).__name__}: {error}")
         raise
     recorder.stop()
     if recorder.error is not None:
+        state("failed", None, f"sensor: {recorder.error}")
         raise recorder.error
+    state("done", None, f"{count} waypoints reached")
     return MotionRun(recorder.record(), holds, completed)
 
 

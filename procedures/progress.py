@@ -19,11 +19,14 @@ class ProgressListener:
     line per measured pose, so CI logs stay readable. The ETA is the mean time per pose measured in this session
     times the poses left (before the first pose: the plan's estimate for the poses left). Call :meth:`close`
     when the run ends.
+
+    A recorded motion (:mod:`procedures.motion_runner`: ``motion`` names it, "excitation") counts waypoints
+    reached instead of poses measured, and without a terminal prints one line per move.
     """
 
     def __init__(self, total: int, estimated_s: float, stream: TextIO | None = None,
                  clock_s: Callable[[], float] = time.monotonic, force_terminal: bool | None = None,
-                 done: int = 0) -> None:
+                 done: int = 0, motion: str = "") -> None:
         from rich.console import Console
 
         self.total = max(int(total), 1)
@@ -34,6 +37,7 @@ class ProgressListener:
         self._start = clock_s()
         self._state = "starting"
         self._label = ""
+        self._motion = motion
         self._stream = stream or sys.stderr
         self.console = Console(file=self._stream, force_terminal=force_terminal, stderr=stream is None)
         self._progress = None
@@ -63,7 +67,8 @@ class ProgressListener:
 
     def _where(self) -> str:
         return f"{self._state} {self._label}".strip() + (
-            f" (pose {min(self.done + 1, self.total)}/{self.total})" if self._label else "")
+            f" ({'waypoint' if self._motion else 'pose'} {min(self.done + 1, self.total)}/{self.total})"
+            if self._label else "")
 
     def __call__(self, event) -> None:
         if isinstance(event, (events.WrenchSamples, events.RobotState, events.SensorStatus)):
@@ -73,13 +78,16 @@ class ProgressListener:
             if event.total is not None:
                 self.total = max(int(event.total), 1)
             if event.measured is not None:
-                if self.done == self._done_at_start:  # nothing measured here yet: the procedure knows best
+                if self.done == self._done_at_start and not self._motion:  # nothing measured here yet: the procedure knows best
                     self._done_at_start = int(event.measured)
                 self.done = int(event.measured)
             if event.index is not None:
                 self._label = event.label or self._label
             else:
                 self._label = ""
+            if self._motion and event.state == "moving" and event.index is not None and self._progress is None:
+                self.console.print(f"{self._motion}: waypoint {event.index + 1}/{self.total} {event.label}, ETA "
+                                   f"{self._format(self.eta_s())}", highlight=False, soft_wrap=True)
             if event.state in ("done", "stopped", "failed"):
                 self.close()
                 return

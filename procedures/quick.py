@@ -24,8 +24,8 @@ whose rows carry the sensor's bare noise (no motion noise, no timing error) with
 carry the biases, the mass, the rotation and the tilt; the moves between them carry the inertia and the lag.
 Among the candidates within :data:`DEFAULT_BUDGET_S` of motion the lowest worst ratio is kept (ties: log det).
 
-Recording (:func:`record_quick`) reuses the excitation stage's recorder (procedures/excitation.py: the sensor in
-its own thread, every robot state; the sensor's times from its own sample counter, the robot's from the
+Recording (:func:`record_quick`) is the motion runner's (procedures/motion_runner.py, the excitation stage's too:
+the sensor in its own thread, every robot state, events to the listeners; the sensor's times from its own sample counter, the robot's from the
 controller's timestamps, both put on the host clock by the minimum-delay line there and nowhere else); each hold
 is a count of robot states at the stream's RTDE rate, so its window is known in the robot's own samples.
 """
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,6 +43,8 @@ from ftacq.dynamics.identify import MotionRecord
 from ftacq.kinematics.trapezoid import move_duration_s, move_profile
 from ftacq.dynamics.joint import LINEAR, NONLINEAR
 from ftacq.errors import PlanError
+from ftacq.posesets import IDENTIFICATION_SETS, QUICK_SET, SPECIAL_SET, VALIDATION_SET
+from procedures import events
 
 log = logging.getLogger(__name__)
 
@@ -97,11 +100,16 @@ class QuickPlan:
     predicted_sigma_ratio: dict[str, float] = field(default_factory=dict)
     """Per :data:`SIGMA_GROUPS` entry: the design's predicted 1σ over the full run's (the choice's criterion)."""
 
+    @property
+    def set_names(self) -> tuple[str, ...]:
+        """Each waypoint's pose set (:data:`ftacq.posesets.POSE_SETS`): validation holds V, the others Q."""
+        return tuple(VALIDATION_SET if p == VALIDATE else QUICK_SET for p in self.purposes)
+
     def to_json(self) -> str:
         return json.dumps({"start_q_rad": self.start_q_rad.tolist(), "waypoints_rad": self.waypoints_rad.tolist(),
                            "hold_s": self.hold_s.tolist(), "purposes": list(self.purposes),
                            "labels": list(self.labels),
-                           "set_names": ["V" if p == VALIDATE else "Q" for p in self.purposes], "speed_rad_s": self.speed_rad_s,
+                           "set_names": list(self.set_names), "speed_rad_s": self.speed_rad_s,
                            "acceleration_rad_s2": self.acceleration_rad_s2,
                            "estimated_duration_s": self.estimated_duration_s,
                            "information_logdet": self.information_logdet, "candidates": self.candidates,
@@ -202,7 +210,7 @@ def full_run_sigmas(settings, pose_plan) -> dict[str, float]:
     """The full run's predicted 1σ per :data:`SIGMA_GROUPS` entry: its fitted poses (sets A and E) each averaged
     still for ``sampling.average_time_s`` at :data:`DESIGN_RATE_HZ` (the static model: the inertia and the lag are
     not seen, so left out)."""
-    fitted = [i for i, name in enumerate(pose_plan.set_names) if name in ("A", "E")]
+    fitted = [i for i, name in enumerate(pose_plan.set_names) if name in IDENTIFICATION_SETS]
     rows = max(int(round(float(settings.average_time_s) * DESIGN_RATE_HZ)), 1)
     q = np.repeat(np.asarray(pose_plan.joint_targets_rad)[fitted], rows, axis=0)
     still = np.zeros_like(q)
@@ -277,8 +285,8 @@ def design_quick(settings, start_q_rad: np.ndarray, pose_plan=None, budget_s: fl
 
     start = np.asarray(start_q_rad, dtype=float).reshape(6)
     plan = pose_plan if pose_plan is not None else make_plan(settings, start)
-    special = [i for i, s in enumerate(plan.set_names) if s == "A"]
-    validation = [i for i, s in enumerate(plan.set_names) if s == "V"]
+    special = [i for i, s in enumerate(plan.set_names) if s == SPECIAL_SET]
+    validation = [i for i, s in enumerate(plan.set_names) if s == VALIDATION_SET]
     if not special:
         raise PlanError("the quick calibration needs the special orientations (CELL.toml poses.special = true)")
     targets = np.asarray(plan.joint_targets_rad)
@@ -400,22 +408,18 @@ class QuickRecording:
     completed: int
 
 
-def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float = 60.0, on_waypoint=None,
-                 on_hold=None) -> QuickRecording:
-    """Run the plan while recording (:func:`procedures.motion_runner.run_waypoints`, the excitation stage's runner);
-    return the recording. ``on_waypoint(k, n)`` before each move, ``on_hold(k, purpose, started)`` around each hold
-    (True at its start, False at its end). Ctrl-C or a fault stops the robot; the partial recording is attached to
-    the raised exception as ``error.quick_recording``."""
+def record_quick(plan: QuickPlan, robot, sensor, stream, move_timeout_s: float = 60.0,
+                 listeners: Sequence[events.Listener] = ()) -> QuickRecording:
+    """Run the plan while recording (:func:`procedures.motion_runner.run_waypoints`, the excitation stage's runner,
+    which publishes the run's events to ``listeners``: a hold is a "holding" state of its waypoint, in the set
+    :attr:`QuickPlan.set_names` gives it); return the recording. Ctrl-C or a fault stops the robot; the partial recording
+    is attached to the raised exception as ``error.quick_recording``."""
     from procedures.motion_runner import run_waypoints
-
-    def hold_event(k: int, started: bool) -> None:
-        if on_hold is not None:
-            on_hold(k, plan.purposes[k], started)
 
     try:
         run = run_waypoints(robot, sensor, stream, plan.waypoints_rad, plan.speed_rad_s, plan.acceleration_rad_s2,
-                            hold_s=plan.hold_s, move_timeout_s=move_timeout_s, on_waypoint=on_waypoint,
-                            on_hold=hold_event)
+                            hold_s=plan.hold_s, move_timeout_s=move_timeout_s, labels=plan.labels,
+                            set_names=plan.set_names, listeners=listeners)
     except BaseException as error:
         partial = getattr(error, "motion_run", None)
         if partial is not None:

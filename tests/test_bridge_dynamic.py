@@ -45,9 +45,16 @@ def robot(cell):
         yield ur
 
 
-STALL_S, RECOVERY_S = 0.01, 0.1
+STALL_S, RECOVERY_S = 0.01, 0.02
 """A simulated device descheduled for more than STALL_S (the controller's cycle, or the sensor's newest sample at a
-write) puts the next RECOVERY_S of the log out of the comparison: a real controller and sensor keep their clocks."""
+write) puts the next RECOVERY_S of the log out of the comparison (a real controller and sensor keep their clocks):
+the feed's low-pass (2nd order, 100 Hz at 500 Hz) forgets a stall's samples within it. (The 0.1 s once left out
+also covered the sensor clock's fit leaning on growing delays, since replaced by ftacq/timebase.py's minimum-delay
+line: the error in the 0.02-0.1 s after a stall is now the error elsewhere.)"""
+MIN_VALUES, MAX_SWINGS = 100, 20
+"""The arm swings out and back until MIN_VALUES values written while it moved are clear of stalls, at most
+MAX_SWINGS times: one swing on a quiet machine (≈ 500 values at 500 Hz); at load 8 on 2 cores (two busy loops
+beside the other work) the static feed kept ≈ 12 a swing, the dynamic 10-50 (the two models differ fiftyfold)."""
 
 
 def after_a_stall(rows: np.ndarray) -> np.ndarray:
@@ -61,9 +68,18 @@ def after_a_stall(rows: np.ndarray) -> np.ndarray:
     return np.any((since >= 0.0) & (since <= RECOVERY_S), axis=1)
 
 
+def compared(log: np.ndarray, swings: list[tuple[float, float]]) -> np.ndarray:
+    """The log's rows written while the arm swung (controller times within a swing) and clear of stalls."""
+    rows = log[np.isfinite(log[:, 2])]
+    moving = np.zeros(len(rows), dtype=bool)
+    for began, ended in swings:
+        moving |= (rows[:, 0] >= began) & (rows[:, 0] <= ended)
+    return rows[moving & ~after_a_stall(rows)]
+
+
 def feed_during_a_swing(cell, robot, calibration) -> tuple[np.ndarray, np.ndarray, str]:
-    """Run the bridge while the arm swings out and back; return (fed values written while moving, the expected
-    fed value of no contact, the bridge's compensation)."""
+    """Run the bridge while the arm swings out and back until :data:`MIN_VALUES` values are clear of stalls;
+    return (those fed values, the expected fed value of no contact, the bridge's compensation)."""
     sensor = open_sensor(cell.sensor_url)
     sensor.start()
     client = URForceTorqueInput(cell.robot_host).start()
@@ -71,17 +87,21 @@ def feed_during_a_swing(cell, robot, calibration) -> tuple[np.ndarray, np.ndarra
     bridge = Bridge(sensor, client, robot, plan, calibration, ur_model("UR5e"), SETTINGS,
                     sensor_rate_hz=SENSOR_RATE_HZ)
     stop = threading.Event()
-    moving: list[float] = []
+    swings: list[tuple[float, float]] = []
     failures: list[BaseException] = []
 
     def swing() -> None:
         try:
             wait_until(lambda: bridge.written > 50, what="the feed to start", timeout_s=20.0)
             start = robot.joint_positions()
-            moving.append(robot.controller_time_s())
-            robot.move_joints(start + SWING_RAD, LIMITS.joint_speed_rad_s, LIMITS.joint_acceleration_rad_s2)
-            robot.move_joints(start, LIMITS.joint_speed_rad_s, LIMITS.joint_acceleration_rad_s2)
-            moving.append(robot.controller_time_s())
+            for _ in range(MAX_SWINGS):
+                began = robot.controller_time_s()
+                robot.move_joints(start + SWING_RAD, LIMITS.joint_speed_rad_s, LIMITS.joint_acceleration_rad_s2)
+                robot.move_joints(start, LIMITS.joint_speed_rad_s, LIMITS.joint_acceleration_rad_s2)
+                swings.append((began, robot.controller_time_s()))
+                log = bridge._log  # the rows logged so far (any thread may read them: procedures/bridge.py _Log)
+                if len(compared(log.rows(log.first_kept, log.complete), swings)) >= MIN_VALUES:
+                    break
         except BaseException as error:  # reported by the test below
             failures.append(error)
         finally:
@@ -90,24 +110,24 @@ def feed_during_a_swing(cell, robot, calibration) -> tuple[np.ndarray, np.ndarra
     mover = threading.Thread(target=swing, daemon=True)
     mover.start()
     try:
-        summary = bridge.run(duration_s=60.0, stop=stop)
+        summary = bridge.run(duration_s=120.0, stop=stop)
     finally:
-        mover.join(30.0)
+        mover.join(60.0)
         client.close()
         sensor.close()
+        # the next feed's client may ask for the input once the controller has read this one's end (a loaded
+        # controller reads it late, and answers IN_USE meanwhile, as a real one would)
+        wait_until(lambda: not cell.controller.external_ft()["owned"], what="the controller to free the input")
     assert not failures, failures
     assert summary.trip is None, summary.trip
-    rows = summary.log[np.isfinite(summary.log[:, 2])]
-    during = (rows[:, 0] >= moving[0]) & (rows[:, 0] <= moving[1]) & ~after_a_stall(rows)
-    if during.sum() < 50:
-        pytest.skip(f"the simulated controller or sensor stalled through the swing ({during.sum()} values left); the "
-                    "machine is too loaded to compare the models")
+    during = compared(summary.log, swings)
+    assert len(during) >= MIN_VALUES, f"the simulated devices stalled through {len(swings)} swings: {len(during)} left"
     if bridge.dynamic is not None:
         dynamic, static = bridge.dynamic.dynamic_batches, bridge.dynamic.static_batches
         # a batch with no controller state within 50 ms (the simulated controller descheduled) is compensated
         # statically, as it should be; on a quiet machine that is only the first one
         assert dynamic > static, f"{static} of {dynamic + static} batches had no cycle states around them"
-    return rows[during, FED_COLUMNS], plan.fed_wrench(np.zeros(6)), summary.compensation
+    return during[:, FED_COLUMNS], plan.fed_wrench(np.zeros(6)), summary.compensation
 
 
 def test_dynamic_calibration_feeds_no_inertial_wrench_while_the_arm_swings(cell, robot):
@@ -128,8 +148,8 @@ def test_dynamic_calibration_feeds_no_inertial_wrench_while_the_arm_swings(cell,
     # the static model feeds the tool's inertial force (≈ 2 N during the swing's acceleration, ≈ 6 N of centripetal
     # force at 3 rad/s) as contact; the dynamic model leaves the filtered noise (quiet machine: median 0.1-0.3 N, 90th
     # percentile 0.4-1.2 N) except around switches of the acceleration. Under heavy load (two busy loops on two
-    # cores) the simulated devices are descheduled; the cycles just after such a stall are left out (above), and
-    # the bounds are on the median and the 75th percentile (docs/architecture.md, known test debt)
+    # cores) the simulated devices are descheduled; the cycles just after such a stall are left out and the arm
+    # swings again until enough are clear (above); the bounds are on the median and the 75th percentile
     assert np.median(error_static) > 2.0, np.median(error_static)
     assert np.median(error_dynamic) < 0.3 * np.median(error_static), (np.median(error_dynamic), np.median(error_static))
     assert np.percentile(error_dynamic, 75) < 0.5 * np.percentile(error_static, 75), (

@@ -187,6 +187,27 @@ def test_progress_counts_agree_with_the_stop_message_on_a_resumed_run():
     progress.close()
 
 
+def test_progress_of_a_recorded_motion_counts_waypoints_with_an_eta():
+    """A motion (the excitation, the quick run) has no measured poses: one line per move, the ETA from the time
+    per waypoint reached (3 s each here)."""
+    import io
+
+    from procedures.progress import ProgressListener
+
+    now = [0.0]
+    stream = io.StringIO()
+    progress = ProgressListener(total=4, estimated_s=8.0, stream=stream, clock_s=lambda: now[0],
+                                force_terminal=False, motion="excitation")
+    for k in range(3):
+        progress(events.StateChanged("moving", k, label=f"W{k + 1:02d}", measured=k, total=4))
+        now[0] += 3.0
+    assert stream.getvalue().splitlines() == ["excitation: waypoint 1/4 W01, ETA 0:08",
+                                              "excitation: waypoint 2/4 W02, ETA 0:09",
+                                              "excitation: waypoint 3/4 W03, ETA 0:06"]
+    assert progress._where() == "moving W03 (waypoint 3/4)"
+    progress(events.StateChanged("done", None, measured=4, total=4))
+
+
 def test_stop_message_counts_like_the_progress_display():
     from procedures.calibration_procedure import CalibrationProcedure, ProcedureOptions
 

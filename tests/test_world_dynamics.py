@@ -95,7 +95,7 @@ def test_at_rest_the_moving_model_is_the_static_model(tilt):
 def test_joint_state_extrapolates_exactly_across_a_change_of_acceleration():
     move = JointMove(MODEL, HOME, HOME + np.array([0.0, 0.3, -0.2, 0.9, 0.1, 0.0]), 1.0, 2.0)
     profile = move.profile
-    t0 = profile._t_acc - 0.0013  # 1.3 ms before the cruise starts
+    t0 = profile.accelerate_s - 0.0013  # 1.3 ms before the cruise starts
     q0, qd0 = move.sample(t0)
     qdd0, switch, qdd_next = move.acceleration(t0)
     assert switch[0] == pytest.approx(0.0013) and np.any(qdd0) and not np.any(qdd_next[0])

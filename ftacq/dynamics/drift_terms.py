@@ -26,10 +26,11 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from ftacq.fit_options import DRIFT_MODELS
+
 SECONDS_PER_HOUR = 3600.0
 DRIFT_COLUMNS = 6
 """One rate per channel (Fx, Fy, Fz, Tx, Ty, Tz), per hour."""
-DRIFT_MODES = ("auto", "linear", "none")
 
 
 def drift_columns(drift_time_h: np.ndarray | None, rows: np.ndarray | slice, count: int) -> np.ndarray:
@@ -94,8 +95,8 @@ def identify_with_drift(record, robot, sensor_offset_m: np.ndarray, nominal_down
     from ftacq.dynamics.joint import identify_joint
     from ftacq.identification.trend import TREND_P
 
-    if drift not in DRIFT_MODES:
-        raise ValueError(f"unknown drift model {drift!r}; choose one of {', '.join(DRIFT_MODES)}")
+    if drift not in DRIFT_MODELS:
+        raise ValueError(f"unknown drift model {drift!r}; choose one of {', '.join(DRIFT_MODELS)}")
     times = np.asarray(record.robot_time_s, dtype=float)
     reference = float(times[-1]) if reference_s is None else float(reference_s)
     s = drift_time_h(times, reference)
@@ -122,5 +123,4 @@ def identify_with_drift(record, robot, sensor_offset_m: np.ndarray, nominal_down
     return plain, DriftFit(rate, sigma, cov, chi2, p, False, chosen, reference, span)
 
 
-__all__ = ["DriftFit", "drift_columns", "drift_time_h", "drift_test", "identify_with_drift", "DRIFT_COLUMNS",
-           "DRIFT_MODES"]
+__all__ = ["DriftFit", "drift_columns", "drift_time_h", "drift_test", "identify_with_drift", "DRIFT_COLUMNS"]

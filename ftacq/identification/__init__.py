@@ -38,6 +38,7 @@ from ftacq.calfile import MODEL_CORRELATION_KEY, MODEL_CORRELATION_PARAMETERS
 from ftacq.calibration import Calibration
 from ftacq.channels import WRENCH_COLUMNS
 from ftacq.errors import IdentificationError
+from ftacq.fit_options import DRIFT_MODELS, METHODS
 from ftacq.identification import diagnostics, robust, trend
 from ftacq.identification.lrom import lrom
 from ftacq.identification.pose_error import NoiseModel, estimate_noise, fixed_noise, orientation_sensitivity
@@ -62,10 +63,6 @@ from ftacq.posefile import PoseRecord
 if TYPE_CHECKING:
     from ftacq.identification.sensor_gain import ReferenceWeight
 
-METHODS = ("auto", "srom", "lrom")
-DRIFT_MODELS = ("auto", "none", "linear")
-"""``drift``: "linear" models a linear bias drift over the recording, "none" does not, "auto" does when the
-residuals of a fit without it trend with time significantly and beyond the drift warning thresholds (trend.py)."""
 CLOSED_FORM_ROBUST_PASSES = 3
 """Closed-form re-solves with robust weights when a pose looks disturbed."""
 MAX_ROBUST_ITERATIONS = 40
@@ -303,7 +300,7 @@ def identify(
         special_tolerance_deg: how close (geodesic angle) a pose must be to a cube rotation to count as special.
         orientation_error: estimate the robot's orientation error and weight each pose with its full noise
             covariance when the residuals show it (pose_error.py); False: independent channels only.
-        drift: one of :data:`DRIFT_MODELS` (a linear bias drift over the recording; needs ``refine``).
+        drift: one of :data:`ftacq.fit_options.DRIFT_MODELS` (a linear bias drift over the recording; needs ``refine``).
         drift_warn: (N, N·m) change over the recording above which "auto" models a significant trend
             (default: CELL.toml ``sampling.drift_warn_force_n`` / ``drift_warn_torque_nm``).
         sensor_check: also fit the sensor's force gain/cross-talk matrix (sensor_gain.py) beside the parameters;

@@ -59,14 +59,7 @@ def states_along(plan: list[tuple[float, JointMove]], times_s: np.ndarray
             continue
         p = move.profile
         t = np.clip(times_s[mask] - start, 0.0, p.duration_s)
-        a, peak, t_acc, t_cruise = p.acceleration, p._peak, p._t_acc, p._t_cruise
-        s_acc = 0.5 * a * t_acc ** 2
-        td = t - t_acc - t_cruise
-        accelerating, cruising = t < t_acc, (t >= t_acc) & (t < t_acc + t_cruise)
-        s = np.where(accelerating, 0.5 * a * t * t, np.where(cruising, s_acc + peak * (t - t_acc),
-                                                              s_acc + peak * t_cruise + peak * td - 0.5 * a * td * td))
-        v = np.where(accelerating, a * t, np.where(cruising, peak, np.maximum(peak - a * td, 0.0)))
-        acc = np.where(accelerating, a, np.where(cruising, 0.0, -a))
+        s, v, acc = p.position(t), p.speed_at(t), p.acceleration_at(t)  # the controller's time law
         done = (times_s[mask] - start) >= p.duration_s
         s, v, acc = np.where(done, move.length, s), np.where(done, 0.0, v), np.where(done, 0.0, acc)
         before = times_s[mask] < start

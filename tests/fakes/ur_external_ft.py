@@ -165,7 +165,7 @@ class ExternalFTInput:
                 "sensor_cog": self.sensor_cog_m.tolist(), "wrench": self.wrench.tolist(),
                 "received": self.received.count, "cycles": len(cycles), "cycles_fed": fed,
                 "cycles_missed": len(cycles) - fed, "watchdog_trips": list(self.watchdog_trips),
-                "enable_calls": list(self.enable_calls)}
+                "enable_calls": list(self.enable_calls), "owned": self.owned}
 
     def records(self) -> dict:
         """Every received value (arrival monotonic s, controller time s, wrench) and every counted cycle."""

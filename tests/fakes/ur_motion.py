@@ -8,12 +8,11 @@ damped Newton step on the DH forward kinematics of :mod:`ftacq.kinematics`, seed
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ftacq.kinematics import URModel, dh_transforms, flange_pose
+from ftacq.kinematics.trapezoid import Trapezoid as TimeLaw
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
 
 MAX_SWITCHES = 3
@@ -26,97 +25,20 @@ IK_STEP_LIMIT_RAD = 0.5
 """A Newton step larger than this means the target is out of reach (singular or beyond the workspace)."""
 
 
-@dataclass
-class Trapezoid:
-    """A trapezoidal (or triangular) velocity profile covering ``distance`` from rest to rest.
-
-    ``s(t)`` starts at 0 with speed ``initial_speed`` (≥ 0, used by stops) and ends at ``distance`` at rest.
-    """
-
-    distance: float
-    speed: float
-    acceleration: float
-    initial_speed: float = 0.0
-    _t_acc: float = field(init=False, default=0.0)
-    _t_cruise: float = field(init=False, default=0.0)
-    _t_dec: float = field(init=False, default=0.0)
-    _peak: float = field(init=False, default=0.0)
-
-    def __post_init__(self) -> None:
-        d, v, a, v0 = max(self.distance, 0.0), self.speed, self.acceleration, self.initial_speed
-        if d <= 0.0 or a <= 0.0:
-            self._peak = 0.0
-            return
-        if v0 > 0.0 and v <= 0.0:  # pure deceleration (stop)
-            self._peak, self._t_dec = v0, v0 / a
-            return
-        v = max(v, 1e-12)
-        # distance to accelerate v0 -> v and decelerate v -> 0
-        needed = (v * v - v0 * v0) / (2 * a) + v * v / (2 * a)
-        if needed <= d:
-            self._peak = v
-            self._t_acc = (v - v0) / a
-            self._t_dec = v / a
-            self._t_cruise = (d - needed) / v
-        else:
-            peak = math.sqrt(max(a * d + v0 * v0 / 2.0, 0.0))
-            self._peak = peak
-            self._t_acc = max(peak - v0, 0.0) / a
-            self._t_dec = peak / a
-
-    @property
-    def duration_s(self) -> float:
-        return self._t_acc + self._t_cruise + self._t_dec
-
-    @property
-    def end_distance(self) -> float:
-        """Where the profile comes to rest (equals ``distance`` except for pure stops)."""
-        return self.position(self.duration_s)
-
-    def position(self, t: float) -> float:
-        """Return s(t) (clamped to the profile's end)."""
-        a, v0, peak = self.acceleration, self.initial_speed, self._peak
-        t = min(max(t, 0.0), self.duration_s)
-        if t <= self._t_acc:
-            return v0 * t + 0.5 * a * t * t
-        s_acc = v0 * self._t_acc + 0.5 * a * self._t_acc ** 2
-        if t <= self._t_acc + self._t_cruise:
-            return s_acc + peak * (t - self._t_acc)
-        td = t - self._t_acc - self._t_cruise
-        return s_acc + peak * self._t_cruise + peak * td - 0.5 * a * td * td
-
-    def acceleration_at(self, t: float) -> float:
-        """Return d²s/dt² at t: +a while accelerating, 0 cruising or at rest, −a while decelerating (phases
-        half-open on the right, so the value at a phase boundary is the next phase's)."""
-        if t < 0.0 or t >= self.duration_s or self._peak <= 0.0:
-            return 0.0
-        if t < self._t_acc:
-            return self.acceleration
-        if t < self._t_acc + self._t_cruise:
-            return 0.0
-        return -self.acceleration
+class Trapezoid(TimeLaw):
+    """The controller's time law (:class:`ftacq.kinematics.trapezoid.Trapezoid`, the planner's too) and when its
+    acceleration changes next (the simulated controller steps from switch to switch)."""
 
     def switches(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Return (times from t to each later change of acceleration (3,), the acceleration after each (3,)),
         padded with inf and 0 when fewer are left."""
         times, after = np.full(MAX_SWITCHES, np.inf), np.zeros(MAX_SWITCHES)
         k = 0
-        for boundary in (self._t_acc, self._t_acc + self._t_cruise, self.duration_s):
+        for boundary in (self.accelerate_s, self.accelerate_s + self.cruise_s, self.duration_s):
             if boundary > t and (k == 0 or boundary - t > times[k - 1]):
                 times[k], after[k] = boundary - t, self.acceleration_at(boundary)
                 k += 1
         return times, after
-
-    def speed_at(self, t: float) -> float:
-        """Return ds/dt at t."""
-        a, v0, peak = self.acceleration, self.initial_speed, self._peak
-        if t < 0.0 or t >= self.duration_s:
-            return 0.0
-        if t <= self._t_acc:
-            return v0 + a * t
-        if t <= self._t_acc + self._t_cruise:
-            return peak
-        return max(peak - a * (t - self._t_acc - self._t_cruise), 0.0)
 
 
 def joint_positions_for_pose(model: URModel, pose: np.ndarray, q_seed: np.ndarray) -> np.ndarray | None:

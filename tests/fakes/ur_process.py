@@ -219,7 +219,7 @@ class URControllerProcess:
     def external_ft(self) -> dict:
         """The external F/T input as the controller holds it: enabled, function, sensor_mass,
         sensor_measuring_offset, sensor_cog, wrench, received, cycles, cycles_fed, cycles_missed, watchdog_trips,
-        enable_calls."""
+        enable_calls, owned (an RTDE client holds the input: freed when the controller reads its connection's end)."""
         return self.control("external_ft")["external_ft"]
 
     def external_ft_records(self) -> dict:

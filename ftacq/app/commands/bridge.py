@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ftacq.bridge_convention import FEEDS
 from ftacq.errors import FtacqError, InputError
 
 SIM_SENSOR_RATE_HZ = 7000.0
@@ -68,7 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--calibration", type=Path, metavar="CAL.json",
                         help="calibration from ftacq calibrate / identify (required with --config; --sim uses the "
                              "simulated cell's ground truth, the tool's inertia included)")
-    parser.add_argument("--feed", choices=("compensated", "raw"), default="compensated",
+    parser.add_argument("--feed", choices=FEEDS, default=FEEDS[0],
                         help="compensated: ftacq removes the tool's gravity; raw: the controller does, from the "
                              "payload set from the calibration (default %(default)s)")
     parser.add_argument("--enable", choices=("ur-rtde", "program"), default="ur-rtde",

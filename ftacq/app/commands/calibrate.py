@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 from ftacq.app.dashboard.sinks import add_sink_args
 from ftacq.app.confirm import confirm_motion
+from ftacq.fit_options import DRIFT_MODELS
 from ftacq.app.helptext import examples
 from ftacq.errors import AbortedError, InputError, InterruptedByUser
 from ftacq.mounts import MOUNT_FORMS, MOUNTS
@@ -67,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "every parameter (inertia included) identified from it, judged on still validation "
                              "poses, replayed with the viewer flags; --yes saves a PASS, otherwise you are asked "
                              "(docs/quick.md)")
-    parser.add_argument("--drift", choices=("auto", "none", "linear"), default="auto",
+    parser.add_argument("--drift", choices=DRIFT_MODELS, default="auto",
                         help="model a linear drift of the sensor's zero over the run: linear, none, or auto (when "
                              "the residuals trend with time beyond the drift thresholds; default); docs/verdict.md")
     add_sensor_check_args(parser)
@@ -149,7 +150,8 @@ def sim_sampling(sampling, time_scale: float):
                    average_time_s=max(sampling.average_time_s * factor, SIM_MIN_AVERAGE_TIME_S))
 
 
-def _wants_dashboard(args: argparse.Namespace) -> bool:
+def wants_dashboard(args: argparse.Namespace) -> bool:
+    """True when an option asks for the Rerun dashboard (--rerun, --spawn, --connect, --serve, --save)."""
     return bool(getattr(args, "rerun", False) or getattr(args, "spawn", False) or getattr(args, "connect", None)
                 or getattr(args, "serve", False) or getattr(args, "save", None) is not None)
 
@@ -280,12 +282,12 @@ def run(args: argparse.Namespace) -> int:
         confirm_motion(args)
 
         # the viewer before the sensor: its time axis starts with the run, not seconds into the sensor's stream
-        dashboard, dashboard_clock = _dashboard_listener(args, stack, settings.model) if _wants_dashboard(args) \
+        dashboard, viewer = dashboard_listener(args, stack, settings.model) if wants_dashboard(args) \
             else (None, None)
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
-        if dashboard_clock is not None:
-            dashboard_clock()  # the time axis starts with the sensor's stream
+        if viewer is not None:
+            viewer.dashboard.start_clock()  # the time axis starts with the sensor's stream
         sensor.start()
 
         if folder is None:
@@ -312,7 +314,8 @@ def run(args: argparse.Namespace) -> int:
         if args.dynamic and status == 0:
             from ftacq.app.commands.dynamic_stage import run_dynamic_stage
 
-            status = run_dynamic_stage(args, stack, config, settings, robot, sensor, folder, cell, confirm_motion)
+            status = run_dynamic_stage(args, stack, config, settings, robot, sensor, folder, cell, confirm_motion,
+                                       listeners=[] if dashboard is None else [dashboard])
         return status
 
 
@@ -322,10 +325,10 @@ def _as_dict(sampling) -> dict:
     return asdict(sampling)
 
 
-def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
+def dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, model_name: str):
     """Return the dashboard as a listener in its own thread (drawing never slows the procedure; the raw stream's
     batches are dropped for the viewer rather than queued without bound), closed with the stack, and the
-    dashboard's ``start_clock`` (call it as the sensor starts)."""
+    :class:`DashboardListener` it wraps (call its ``dashboard.start_clock()`` as the sensor starts)."""
     from ftacq.app.dashboard import Dashboard, DashboardListener, close_recording, open_recording
     from ftacq.kinematics import ur_model
     from procedures.delivery import BackgroundListener
@@ -340,7 +343,7 @@ def _dashboard_listener(args: argparse.Namespace, stack: contextlib.ExitStack, m
     background = BackgroundListener([listener], name="ftacq-dashboard")
     stack.callback(listener.flush)
     stack.callback(background.close)  # runs first: deliver what is queued, then flush the arm
-    return background, listener.dashboard.start_clock
+    return background, listener
 
 
 def _finish(args, folder, plan, config, result, cell, options, sensor_info=None) -> int:

@@ -10,11 +10,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import sys
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ftacq.errors import InterruptedByUser
+
+if TYPE_CHECKING:
+    from procedures.events import Listener
 
 MOTION_CSV = "motion.csv"
 """The recorded excitation in the run folder (ftacq/dynamics/motionfile.py, docs/dynamics.md)."""
@@ -31,13 +35,10 @@ def sensor_offset_from(config, cell) -> tuple[np.ndarray, str]:
                          "measure it on the adapter drawing)")
 
 
-def _err(text: str) -> None:
-    print(text, file=sys.stderr, flush=True)
-
-
 def run_dynamic_stage(args: argparse.Namespace, stack: contextlib.ExitStack, config, settings, robot, sensor,
-                      folder, cell, confirm) -> int:
-    """Run the stage; return the exit status (0). Ctrl-C stops the robot, keeps motion.csv and raises."""
+                      folder, cell, confirm, listeners: Sequence[Listener] = ()) -> int:
+    """Run the stage; return the exit status (0). The motion's events go to a progress display and ``listeners``
+    (the run's dashboard). Ctrl-C stops the robot, keeps motion.csv and raises."""
     import time
 
     from drivers.ur_stream import URStateStream
@@ -47,6 +48,7 @@ def run_dynamic_stage(args: argparse.Namespace, stack: contextlib.ExitStack, con
     from ftacq.dynamics.report import format_dynamics
     from ftacq.kinematics import ur_model
     from procedures.excitation import format_excitation, plan_excitation, record_excitation
+    from procedures.progress import ProgressListener
     from procedures.run_folder import CALIBRATION_JSON
 
     calibration = load_calibration(folder.path / CALIBRATION_JSON)
@@ -63,8 +65,10 @@ def run_dynamic_stage(args: argparse.Namespace, stack: contextlib.ExitStack, con
     started = time.monotonic()
     motion_path = folder.path / MOTION_CSV
     try:
+        progress = ProgressListener(len(plan.targets_rad), plan.estimated_duration_s, motion="excitation")
+        stack.callback(progress.close)
         record = record_excitation(plan, robot, sensor, stream, config.robot.move_timeout_s,
-                                   on_move=lambda i, n: _err(f"excitation segment {i + 1}/{n}"))
+                                   listeners=[progress, *listeners])
     except KeyboardInterrupt as interrupt:
         partial = getattr(interrupt, "motion_record", None)
         if partial is not None and len(partial.robot_time_s):

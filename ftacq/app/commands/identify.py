@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ftacq.app.helptext import examples
+from ftacq.fit_options import DRIFT_MODELS, METHODS
 from ftacq.imports.options import WRENCH_FRAMES, ImportOptions
 from ftacq.mounts import MOUNT_FORMS
 
@@ -60,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                             "base frame (rotated into the flange frame before the fit); the verdict names a wrong one")
     parser.add_argument(
         "--method",
-        choices=("auto", "srom", "lrom"),
+        choices=METHODS,
         default="auto",
         help="first estimate of the weight in the base frame: SROM (needs the 24 special orientations), "
         "LROM (any orientations) or auto (SROM when all 24 are present; default)",
@@ -75,7 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--drift",
-        choices=("auto", "none", "linear"),
+        choices=DRIFT_MODELS,
         default="auto",
         help="model a linear drift of the sensor's zero over the recording (time from t_start_s/t_end_s, else the "
         "row order): linear, none, or auto (when the residuals trend with time significantly and beyond CELL.toml "

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
+from procedures.quick import VALIDATE
 from procedures.quick_analysis import analyse_quick, hold_windows
 from procedures.run_report import write_quick_report  # the report with the full run's sections and plots
 
@@ -42,9 +43,9 @@ def _g(values) -> str:
     return "[" + ", ".join(f"{v:.2g}" for v in np.ravel(values)) + "]"
 
 
-def replay(args: argparse.Namespace, recording, calibration, model_name: str) -> None:
-    """Raw vs compensated (dynamic model) over the whole run, and the arm, in the Rerun dashboard."""
-    from ftacq.app.dashboard import Dashboard, close_recording, open_recording
+def replay(dashboard, recording, calibration, model_name: str) -> None:
+    """Raw vs compensated (dynamic model) over the whole run, and the arm, on the run's ``dashboard`` (the motion's
+    plan and states came live; the wrenches are drawn once, on the record's clock)."""
     from ftacq.dynamics import compensate_moving
     from ftacq.kinematics import flange_pose, ur_model
 
@@ -56,16 +57,43 @@ def replay(args: argparse.Namespace, recording, calibration, model_name: str) ->
     lag = float(calibration.metadata.get("quick", {}).get("lag_ms", 0.0)) * 1e-3
     compensated = compensate_moving(calibration, raw, record.q, record.qd, record.qdd, robot=robot,
                                     sensor_time_s=times - lag, robot_time_s=record.robot_time_s)
-    rec = open_recording(args)
-    try:
-        dashboard = Dashboard(rec)
-        dashboard.log_wrench_batch(times, raw, compensated)
-        arm_rows = slice(None, None, 10)
-        poses = np.array([flange_pose(robot, q) for q in record.q[arm_rows]])
-        dashboard.log_arm(record.robot_time_s[arm_rows], poses, record.q[arm_rows])
-        dashboard.flush_columns()
-    finally:
-        close_recording(rec)
+    dashboard.log_wrench_batch(times, raw, compensated)
+    arm_rows = slice(None, None, 10)
+    poses = np.array([flange_pose(robot, q) for q in record.q[arm_rows]])
+    dashboard.log_arm(record.robot_time_s[arm_rows], poses, record.q[arm_rows])
+    dashboard.flush_columns()
+
+
+def _live_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, plan, cell, model_name: str):
+    """The quick motion's listeners (progress; the dashboard's steps, without the raw stream that :func:`replay`
+    draws; the simulated wrong tool during the validation holds) and the dashboard (None when not asked for)."""
+    from ftacq.app.commands.calibrate import dashboard_listener, wants_dashboard
+    from procedures import events
+    from procedures.progress import ProgressListener
+
+    progress = ProgressListener(len(plan.waypoints_rad), plan.estimated_duration_s, motion="quick trajectory")
+    stack.callback(progress.close)
+    listeners: list[events.Listener] = [progress]
+    viewer = None
+    if wants_dashboard(args):
+        background, viewer = dashboard_listener(args, stack, model_name)
+
+        def steps(event: events.Event) -> None:
+            if not isinstance(event, events.WrenchSamples):
+                background(event)
+
+        listeners.append(steps)
+    if cell is not None and args.sim_wrong_tool:
+        extra_kg = sys.modules[type(cell).__module__].WRONG_TOOL_EXTRA_MASS_KG  # the simulated cell's own knob
+
+        def wrong_tool(event: events.Event) -> None:  # a part in the gripper during the validation holds only
+            if isinstance(event, events.StateChanged):
+                held_out = event.state == "holding" and event.index is not None and plan.purposes[event.index] == VALIDATE
+                cell.swap_tool(cell.truth.mass_kg + extra_kg) if held_out else cell.swap_tool()
+
+        wrong_tool.critical = True  # type: ignore[attr-defined]
+        listeners.insert(0, wrong_tool)
+    return listeners, viewer
 
 
 def _end_unfinished(folder, error: BaseException | None, restart: str) -> bool:
@@ -111,7 +139,7 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
     from ftacq.mounts import mount_of
     from ftacq.verdict import format_verdict
     from procedures.plan import make_plan
-    from procedures.quick import FIT, VALIDATE, check_quick, design_quick, format_quick, record_quick
+    from procedures.quick import FIT, check_quick, design_quick, format_quick, record_quick
     from procedures.run_folder import RunFolder
 
     restart = ftacq_command("calibrate", *(["--sim"] if args.sim else ["--config", args.config or "CELL.toml"]),
@@ -146,8 +174,11 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
             return 0
         confirm_motion(args)
         confirmed = time.monotonic()
+        listeners, viewer = _live_listeners(args, stack, plan, cell, settings.model)
         sensor = open_sensor(config.sensor.url)
         stack.callback(sensor.close)
+        if viewer is not None:
+            viewer.dashboard.start_clock()  # the time axis starts with the sensor's stream
         sensor.start()
         extra = {"mode": QUICK_MODE, **({"sim": sim_info} if args.sim else {})}
         folder = RunFolder.create(out_parent, config.to_dict(), plan.to_json(), extra=extra)
@@ -158,17 +189,10 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
         stack.callback(stream.close)
         stream.start()
 
-        def on_hold(k: int, purpose: str, begins: bool) -> None:
-            if cell is not None and args.sim_wrong_tool and purpose == VALIDATE:
-                extra_kg = sys.modules[type(cell).__module__].WRONG_TOOL_EXTRA_MASS_KG  # the simulated cell's own knob
-                cell.swap_tool(cell.truth.mass_kg + extra_kg) if begins else cell.swap_tool()
-
         motion_path = folder.path / MOTION_CSV
         moving = time.monotonic()
         try:
-            recording = record_quick(plan, robot, sensor, stream, config.robot.move_timeout_s,
-                                     on_waypoint=lambda k, n: _err(f"quick trajectory: waypoint {k + 1}/{n}"),
-                                     on_hold=on_hold)
+            recording = record_quick(plan, robot, sensor, stream, config.robot.move_timeout_s, listeners=listeners)
         except (KeyboardInterrupt, FtacqError) as error:
             partial = getattr(error, "quick_recording", None)
             if partial is not None and len(partial.record.robot_time_s):
@@ -219,9 +243,8 @@ def run_quick(args: argparse.Namespace, config, sim_info: dict, out_parent: Path
                   f"                                        1σ         {_g(result.sigma['inertia_kg_m2'])}",
                   flush=True)
         print(format_verdict(verdict), flush=True)
-        if getattr(args, "rerun", False) or getattr(args, "save", None) is not None or getattr(args, "spawn", False) \
-                or getattr(args, "connect", None) or getattr(args, "serve", False):
-            replay(args, recording, calibration, settings.model)
+        if viewer is not None:
+            replay(viewer.dashboard, recording, calibration, settings.model)
         saved = _save_or_discard(args, verdict)
         report = write_quick_report(folder.path, result, verdict, plan, wall, truth, motion=recording.record,
                                     robot=settings.ur, saved=saved, analysis=analysis)
