@@ -78,6 +78,7 @@ class URStateReader:
         self._last_change_s = 0.0
         self._timestamps_advance = False
         self.software_version: str | None = None
+        self._pose_of: tuple[bytes, np.ndarray] = (b"", np.zeros(6))  # (actual_q's bytes, its flange pose)
 
     def start(self) -> "URStateReader":
         """Connect. The RTDE handshake is walked first with a deadline (:func:`drivers.ur_connection.probe_rtde`):
@@ -156,7 +157,11 @@ class URStateReader:
         """Flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame from the nominal FK of ``actual_q``."""
         if self.model is None:
             raise RobotError(f"robot controller {self.host}: unknown robot model; pass model= (e.g. 'UR5e')")
-        return flange_pose(self.model, self.joint_positions())
+        q = self.joint_positions()
+        key = q.tobytes()
+        if self._pose_of[0] != key:  # the forward kinematics once per state (the monitor asks at every read)
+            self._pose_of = (key, flange_pose(self.model, q))
+        return self._pose_of[1].copy()
 
     def controller_time_s(self) -> float:
         """The controller's timestamp (s since it started)."""
