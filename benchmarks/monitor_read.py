@@ -75,12 +75,12 @@ def timed_stages():
             setattr(owner, name, original)
 
 
-def run(cell_args: list[str], seconds: float, ros2: bool) -> dict[str, list[float]]:
-    """One ``ftacq monitor`` run; the CPU µs of each stage per call."""
+def run(cell_args: list[str], seconds: float, ros2: bool, folder: Path) -> dict[str, list[float]]:
+    """One ``ftacq monitor`` run (its viewer recording in ``folder``); the CPU µs of each stage per call."""
     from drivers.ros2.node import LOCALHOST_CONFIG
     from ftacq.app.cli import main as ftacq_main
 
-    command = ["monitor", *cell_args, "--seconds", str(seconds)]
+    command = ["monitor", *cell_args, "--seconds", str(seconds), "--save", str(folder / f"{uuid.uuid4().hex[:6]}.rrd")]
     if ros2:
         token = uuid.uuid4()
         command += ["--ros2", "--ros2-domain-id", str(1 + token.int % 200), "--ros2-namespace", f"/m{token.hex[:8]}"]
@@ -103,7 +103,7 @@ def main() -> None:
     print(f"load average before: {os.getloadavg()[0]:.1f}; {args.seconds:g} s per run")
     with tempfile.TemporaryDirectory() as folder, cell_outside(Path(folder)) as cell_args:
         for ros2 in ([True] if args.ros2_only else [False, True]):
-            cpu = run(cell_args, args.seconds, ros2)
+            cpu = run(cell_args, args.seconds, ros2, Path(folder))
             steps = np.array(cpu["step"][5:])  # the first reads hold the start-up's backlog
             print(f"{'--ros2' if ros2 else 'without --ros2'}: {len(steps) / args.seconds:.0f} reads/s, loop CPU "
                   f"{steps.sum() / 1e4 / args.seconds:.1f} % of one core; µs of CPU per read, p50 / mean:")

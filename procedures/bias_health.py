@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ftacq.drift_health import BiasHealth, HealthNotice
-from ftacq.so3 import rotation_from_rotvec
+from ftacq.so3 import rotation_of_rotvec
 from procedures.events import BiasDrift, Notice
 
 if TYPE_CHECKING:
@@ -149,7 +149,7 @@ class DriftCompensator:
         rotvec = np.asarray(flange_pose, dtype=float)[3:6]
         key = rotvec.tobytes()
         if self._rotation_of[0] != key:
-            rotation = rotation_from_rotvec(rotvec).T
+            rotation = rotation_of_rotvec(rotvec).T
             rotation.flags.writeable = False  # shared by the reads that follow
             self._rotation_of = (key, rotation)
         return self._rotation_of[1]
