@@ -19,6 +19,8 @@ uncompensated rather than use a pose from another time.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from drivers.ur_connection import E_SERIES_RATE_HZ
@@ -65,9 +67,10 @@ class FlangeOrientations:
         self._known_position = np.empty((0, 3))
         self._positions: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.empty(0), np.empty(0), np.empty((0, 3)))
         """(sample times, state times, state positions) of the last answer: :attr:`position_m` when asked."""
-        self._read: dict[str, tuple[tuple[int, int], object]] = {}
-        """Per kind of query, ((the stream's count, rows), the window) of its last read: a query that comes before
-        the next state reads nothing (the rows and their host times change only when a state is stored)."""
+        self._read: dict[str, tuple[int, int, Any, bool]] = {}
+        """Per kind of query, (the stream's count, rows asked, the window, its controller times in order) of its last
+        read: a query that comes before the next state reads nothing (rows and host times change only when one is
+        stored)."""
         self._last_rows: dict[str, int] = {}
         """Per kind of query, the rows its last one needed back to its oldest time (plus a margin)."""
         self.computed = 0
@@ -124,15 +127,18 @@ class FlangeOrientations:
             rows = int(min(max(2 * rows, span_rows), MAX_ROWS))
 
     def _window(self, rows: int, query: str):
-        """The stream's newest ``rows`` (``window(last=rows)``), kept per ``query`` until the stream's count moves."""
+        """The stream's newest ``rows`` (``window(last=rows)``), or the last read of this ``query`` while the stream's
+        count has not moved: the rows asked for then, or more when their controller times are in order (their host
+        times are then those of a read of fewer: the same line maps the same rows)."""
         count = stream_count(self.stream)  # read before the window: a state stored meanwhile is read again
-        if count is not None:
-            kept = self._read.get(query)
-            if kept is not None and kept[0] == (count, rows):
-                return kept[1]
+        kept = self._read.get(query)
+        if count is not None and kept is not None and kept[0] == count and (
+                kept[1] == rows or (kept[1] > rows and kept[3])):
+            return kept[2]
         window = self.stream.window(last=rows)
         if count is not None:
-            self._read[query] = ((count, rows), window)
+            times = window.controller_time_s
+            self._read[query] = (count, rows, window, not bool((times[1:] < times[:-1]).any()))
         return window
 
     def still_between(self, start_s: float, end_s: float, tolerance_rad: float) -> bool:
