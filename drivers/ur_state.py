@@ -6,8 +6,8 @@ described in docs/protocols-ur.md ("RTDE state the driver reads"). A lost link s
 (``isConnected() == False``) or as a controller timestamp that stops advancing (silence); both are reported
 within :data:`CONNECTION_STALE_S`.
 
-The flange pose here is UR's nominal DH forward kinematics of ``actual_q`` (:func:`ftacq.kinematics.flange_pose`),
-never ``actual_TCP_pose``, so a TCP offset held by the controller cannot leak in.
+The flange pose here is UR's nominal DH forward kinematics of ``actual_q`` (:func:`ftacq.kinematics.flange_pose`, through
+Pinocchio), never ``actual_TCP_pose``, so a TCP offset held by the controller cannot leak in.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from drivers.robot import RobotStatus
 from drivers.ur_connection import PROBE_TIMEOUT_S, RTDE_PORT, call_with_deadline, probe_rtde
 from drivers.ur_dashboard_server import read_controller_info
 from ftacq.errors import ConfigError, DeviceConnectionError, DeviceError, DeviceTimeoutError, RobotError
-from ftacq.kinematics import URModel, flange_pose, ur_model
+from ftacq.kinematics import FlangeRotation, URModel, ur_model
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +78,8 @@ class URStateReader:
         self._last_change_s = 0.0
         self._timestamps_advance = False
         self.software_version: str | None = None
+        self._pose_of: tuple[bytes, np.ndarray] = (b"", np.zeros(6))  # (actual_q's bytes, its flange pose)
+        self._flange_rotation: FlangeRotation | None = None  # the model's, once a pose is asked
 
     def start(self) -> "URStateReader":
         """Connect. The RTDE handshake is walked first with a deadline (:func:`drivers.ur_connection.probe_rtde`):
@@ -156,7 +158,22 @@ class URStateReader:
         """Flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame from the nominal FK of ``actual_q``."""
         if self.model is None:
             raise RobotError(f"robot controller {self.host}: unknown robot model; pass model= (e.g. 'UR5e')")
-        return flange_pose(self.model, self.joint_positions())
+        q = self.joint_positions()
+        key = q.tobytes()
+        if self._pose_of[0] != key:  # the forward kinematics once per state (the monitor asks at every read)
+            self._pose_of = (key, self._flange_pose(q))
+        return self._pose_of[1].copy()
+
+    def _flange_pose(self, q: np.ndarray) -> np.ndarray:
+        """:func:`ftacq.kinematics.flange_pose` of ``q`` through Pinocchio's model of the same DH chain
+        (:class:`ftacq.kinematics.FlangeRotation`, equal to 1e-12: ~20 µs against ~75 µs of numpy per read)."""
+        import pinocchio as pin
+
+        assert self.model is not None
+        if self._flange_rotation is None:
+            self._flange_rotation = FlangeRotation(self.model)
+        base_R_flange, position_m = self._flange_rotation.placement(q)
+        return np.concatenate([position_m, pin.log3(base_R_flange)])
 
     def controller_time_s(self) -> float:
         """The controller's timestamp (s since it started)."""

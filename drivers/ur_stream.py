@@ -84,8 +84,8 @@ class StateWindow:
         timestamp = rows[:, 1]
         time_s = timestamp + rows[:, OFFSET_COLUMN]
         since = clock.valid_from_s if clock is not None else None
-        if since is not None and clock is not None and timestamp.size and not np.any(np.diff(timestamp) < 0):
-            first = int(np.searchsorted(timestamp, since, side="left"))
+        if since is not None and clock is not None and timestamp.size and not (timestamp[1:] < timestamp[:-1]).any():
+            first = int(timestamp.searchsorted(since, side="left"))
             if first < timestamp.size:
                 time_s[first:] = clock.map_times(timestamp[first:])
         return cls(time_s, rows[:, 0], timestamp, rows[:, 2:8], rows[:, 8:14], rows[:, 20:26], rows[:, 14:20])
@@ -264,8 +264,11 @@ class URStateStream:
             n = min(count, capacity)
             if last is not None:
                 n = min(n, last)
-            index = np.arange(count - n, count) % capacity
-            rows = self._rows[index]
+            start = (count - n) % capacity
+            if start + n <= capacity:  # one slice, copied (the reader rewrites rows and offsets): no index array
+                rows = self._rows[start:start + n].copy()
+            else:
+                rows = np.concatenate((self._rows[start:], self._rows[:start + n - capacity]))
         window = StateWindow.from_rows(rows, self.clock)
         if since_s is not None:
             window = StateWindow.from_rows(rows[window.time_s >= since_s], self.clock)

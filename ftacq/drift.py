@@ -246,8 +246,18 @@ class DriftTracker:
         return self._state_at(time_s)[0][:, 0]
 
     def sigma(self, time_s: float | None = None) -> np.ndarray:
-        """Return the 1σ (6,) of :meth:`offset` at ``time_s``."""
-        return np.sqrt(self._state_at(time_s)[1][:, 0, 0])
+        """Return the 1σ (6,) of :meth:`offset` at ``time_s`` (the offset's variance of :meth:`_propagate`, the same
+        operations on that entry only: the live monitor asks at every read)."""
+        dt = 0.0 if self.time_s is None or time_s is None else time_s - self.time_s
+        P = self.P
+        if dt <= 0:
+            return np.sqrt(P[:, 0, 0])
+        s = self.settings
+        q_rate = s.q_rate + np.minimum(self.x[:, 1] ** 2 + P[:, 1, 1], s.max_rate**2) / s.warmup_time_constant_s
+        variance = P[:, 0, 0] + dt * P[:, 1, 0]
+        variance += dt * (P[:, 0, 1] + dt * P[:, 1, 1])
+        variance += s.q_bias * dt + q_rate * dt**3 / 3.0
+        return np.sqrt(variance)
 
     def model_error(self, flange_R_base: np.ndarray | None) -> np.ndarray:
         """(6,) the estimated model error at ``flange_R_base``: the common part c, plus m where it is the last

@@ -28,6 +28,15 @@ def rotation_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     return np.eye(3) + a * k + b * (k @ k)
 
 
+def rotation_of_rotvec(rotvec) -> np.ndarray:
+    """The rotation matrix (3, 3) of one rotation vector (3,), rad: Pinocchio's ``exp3`` (equal to
+    :func:`rotation_from_rotvec` to 1e-15, tests/test_so3.py), ~0.5 µs against ~70 µs of numpy calls: once per live
+    monitor read."""
+    import pinocchio as pin
+
+    return pin.exp3(np.ascontiguousarray(rotvec, dtype=float))
+
+
 def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """Return rotation vectors (…, 3), angle in [0, π], of rotation matrices (…, 3, 3): vectorised (axis·sin θ from
     the skew part, scaled by θ / sin θ); the angles within 1e-4 rad of π (where sin θ vanishes: a tool pointing down)

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ftacq.drift_health import BiasHealth, HealthNotice
-from ftacq.so3 import rotation_from_rotvec
+from ftacq.so3 import rotation_of_rotvec
 from procedures.events import BiasDrift, Notice
 
 if TYPE_CHECKING:
@@ -90,6 +90,7 @@ class DriftCompensator:
 
     def __post_init__(self) -> None:
         self._base = self.health.tracker.calibration  # what ``moving`` (or, without it, this) compensates with
+        self._rotation_of: tuple[bytes, np.ndarray] = (b"", np.eye(3))  # (rotation vector's bytes, flange_R_base)
 
     @property
     def calibration(self):
@@ -114,7 +115,7 @@ class DriftCompensator:
         self.still_now = False
         if robot is None:
             return None
-        flange_R_base = rotation_from_rotvec(np.asarray(robot.flange_pose, dtype=float)[3:6]).T
+        flange_R_base = self._flange_R_base(robot.flange_pose)
         if self.moving is not None:
             residual = self.moving.compensate(batch, robot)
             if residual is None:
@@ -141,6 +142,17 @@ class DriftCompensator:
         if self.health.auto_tare:  # the tracked offset while trusted, nothing once it is not (BiasHealth.correction)
             residual -= self.health.correction(float(time_s[-1]), flange_R_base)
         return residual
+
+    def _flange_R_base(self, flange_pose) -> np.ndarray:
+        """flange_R_base (3, 3) of a UR pose (the robot's newest), kept while the pose stays the same (an arm at
+        rest: the same state read batch after batch)."""
+        rotvec = np.asarray(flange_pose, dtype=float)[3:6]
+        key = rotvec.tobytes()
+        if self._rotation_of[0] != key:
+            rotation = rotation_of_rotvec(rotvec).T
+            rotation.flags.writeable = False  # shared by the reads that follow
+            self._rotation_of = (key, rotation)
+        return self._rotation_of[1]
 
     def sample_flange_pose(self) -> np.ndarray | None:
         """The flange pose (N, 6) at each sample's time of the last batch, as ``moving`` says it (None when it

@@ -53,6 +53,7 @@ from procedures.flange_orientation import (
     FlangeOrientations,
     pose_rows,
     still_over,
+    stream_count,
 )
 
 PREDICTION_WINDOW_S = 2.0
@@ -159,6 +160,8 @@ class DynamicCompensator:
         """The longest wait, s."""
         self._silent_at_count: int | None = None
         """The stream's count when a wait last timed out: not waited for again until a state comes."""
+        self._updated_at_count: int | None = None
+        """The stream's count when the predictions were last brought up to date (its ``count``, when it has one)."""
 
     def _kept(self) -> tuple[np.ndarray, np.ndarray]:
         """(host times (K,), predicted wrenches (K, 6)) of the newest K ≤ window_rows states, oldest first."""
@@ -168,7 +171,11 @@ class DynamicCompensator:
         return self._ring_times[start:stop], self._ring_predicted[start:stop]
 
     def _update_predictions(self) -> None:
+        count = stream_count(self.stream)  # read before the window: a state stored meanwhile is read again
+        if count is not None and count == self._updated_at_count:
+            return  # no state since the last update (the monitor reads on data faster than 500 Hz)
         window = self.stream.window(last=TAIL_ROWS)
+        self._updated_at_count = count
         new = window.controller_time_s > self._last_controller_time
         fresh = int(np.count_nonzero(new))
         if fresh == 0:

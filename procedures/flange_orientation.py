@@ -19,6 +19,8 @@ uncompensated rather than use a pose from another time.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from drivers.ur_connection import E_SERIES_RATE_HZ
@@ -65,6 +67,10 @@ class FlangeOrientations:
         self._known_position = np.empty((0, 3))
         self._positions: tuple[np.ndarray, np.ndarray, np.ndarray] = (np.empty(0), np.empty(0), np.empty((0, 3)))
         """(sample times, state times, state positions) of the last answer: :attr:`position_m` when asked."""
+        self._read: dict[str, tuple[int, int, Any, bool]] = {}
+        """Per kind of query, (the stream's count, rows asked, the window, its controller times in order) of its last
+        read: a query that comes before the next state reads nothing (rows and host times change only when one is
+        stored)."""
         self._last_rows: dict[str, int] = {}
         """Per kind of query, the rows its last one needed back to its oldest time (plus a margin)."""
         self.computed = 0
@@ -108,17 +114,32 @@ class FlangeOrientations:
         caller, whose last read sizes this one."""
         rows = self._last_rows.get(query, READ_MARGIN_ROWS)  # as many as its last query needed: usually one read
         while True:
-            window = self.stream.window(last=rows)
+            window = self._window(rows, query)
             if len(window) == 0 or newest_s > window.time_s[-1] + self.max_gap_s:
                 return None  # the newest state does not reach these samples
             if len(window) < rows or window.time_s[0] <= oldest_s or rows >= MAX_ROWS:
                 if window.time_s[0] <= oldest_s:  # the rows from the last one at or before oldest_s, and a margin
-                    first = int(np.searchsorted(window.time_s, oldest_s, side="right")) - 1
+                    first = int(window.time_s.searchsorted(oldest_s, side="right")) - 1
                     self._last_rows[query] = len(window) - first + READ_MARGIN_ROWS
                 return window
             # read further back: as far as the stream's rate says, at least twice as far
             span_rows = (float(window.time_s[-1]) - oldest_s) / self._period_s + 2
             rows = int(min(max(2 * rows, span_rows), MAX_ROWS))
+
+    def _window(self, rows: int, query: str):
+        """The stream's newest ``rows`` (``window(last=rows)``), or the last read of this ``query`` while the stream's
+        count has not moved: the rows asked for then, or more when their controller times are in order (their host
+        times are then those of a read of fewer: the same line maps the same rows)."""
+        count = stream_count(self.stream)  # read before the window: a state stored meanwhile is read again
+        kept = self._read.get(query)
+        if count is not None and kept is not None and kept[0] == count and (
+                kept[1] == rows or (kept[1] > rows and kept[3])):
+            return kept[2]
+        window = self.stream.window(last=rows)
+        if count is not None:
+            times = window.controller_time_s
+            self._read[query] = (count, rows, window, not bool((times[1:] < times[:-1]).any()))
+        return window
 
     def still_between(self, start_s: float, end_s: float, tolerance_rad: float) -> bool:
         """True when the robot states cover host times [start_s, end_s] (s; no gap longer than ``max_gap_s``, the
@@ -127,13 +148,14 @@ class FlangeOrientations:
         window = self._rows(start_s, end_s, "still")
         if window is None or len(window) == 0 or window.time_s[0] > start_s:
             return False
-        state = window.time_s
-        low = int(np.searchsorted(state, start_s, side="right")) - 1
-        high = int(np.searchsorted(state, end_s, side="left")) + 1
-        if np.any(np.diff(state[low:high]) > self.max_gap_s):
+        state = window.time_s  # (ndarray methods, not numpy's module functions: this runs at every read)
+        low = int(state.searchsorted(start_s, side="right")) - 1
+        high = int(state.searchsorted(end_s, side="left")) + 1
+        span = state[low:high]
+        if span.size > 1 and (span[1:] - span[:-1]).max() > self.max_gap_s:
             return False
         q = window.q[low:high]
-        return bool(np.all(q.max(axis=0) - q.min(axis=0) <= tolerance_rad))
+        return bool((q.max(axis=0) - q.min(axis=0) <= tolerance_rad).all())
 
     @property
     def position_m(self) -> np.ndarray:
@@ -171,13 +193,20 @@ class FlangeOrientations:
         return rotations, positions
 
 
+def stream_count(stream) -> int | None:
+    """The states ``stream`` has stored so far (:attr:`drivers.ur_stream.URStateStream.count`), or None when it does
+    not say: its rows (and their host times) change only when this moves."""
+    count = getattr(stream, "count", None)
+    return count if isinstance(count, int) else None
+
+
 def pose_rows(position_m: np.ndarray, flange_R_base: np.ndarray) -> np.ndarray:
     """UR poses (N, 6) (x, y, z m; rotation vector of base_R_flange, rad) from positions (N, 3) and flange_R_base
     (N, 3, 3)."""
     return np.hstack([position_m, rotvec_from_rotation(np.swapaxes(flange_R_base, 1, 2))])
 
 
-__all__ = ["FlangeOrientations", "MAX_STATE_GAP_S", "pose_rows"]
+__all__ = ["FlangeOrientations", "MAX_STATE_GAP_S", "pose_rows", "stream_count"]
 
 
 def still_over(orientations: FlangeOrientations, sample_times_s: np.ndarray, window_s: float,

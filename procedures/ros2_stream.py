@@ -89,8 +89,11 @@ class WindowMean:
         if open_from == 0:
             return _NO_TIMES, self._values[:0]
         window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
-        starts = np.flatnonzero(np.diff(window, prepend=window[0] - 1))
-        counts = np.diff(starts, append=open_from)
+        bounds = np.empty(open_from + 1, dtype=np.int64)  # each window's first sample, then open_from (no np.diff:
+        changes = np.flatnonzero(window[1:] != window[:-1]) + 1  # its prepend/append cost more than the rest)
+        bounds[0], bounds[1:changes.size + 1], bounds[changes.size + 1] = 0, changes, open_from
+        bounds = bounds[:changes.size + 2]
+        starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         return (np.add.reduceat(time_s, starts) / counts,
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
 

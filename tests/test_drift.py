@@ -93,6 +93,17 @@ def test_tracker_follows_a_slow_drift(calibration) -> None:
     assert not any(n.level == "WARN" for n in feeder.notices)
 
 
+def test_sigma_is_the_propagated_state_s_to_the_last_bit(calibration) -> None:
+    feeder = Feeder(calibration, CellTruth())
+    feeder.still(12.0)
+    tracker = feeder.health.tracker
+    assert tracker.accepted and tracker.time_s is not None
+    for dt in (-1.0, 0.0, 1e-3, 0.37, 60.0, 3600.0):  # sigma() reproduces _propagate's operations on P[0, 0]
+        propagated = np.sqrt(tracker._state_at(tracker.time_s + dt)[1][:, 0, 0])
+        assert np.array_equal(tracker.sigma(tracker.time_s + dt), propagated)
+    assert np.array_equal(tracker.sigma(), np.sqrt(tracker.P[:, 0, 0]))
+
+
 @pytest.mark.parametrize("tremble", [False, True])
 def test_a_push_while_still_is_not_absorbed(calibration, tremble) -> None:
     """A push of 4 N held 3 s on the still arm (steady, or trembling as a hand does) leaves the bias estimate where

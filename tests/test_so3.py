@@ -4,7 +4,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from ftacq.so3 import angle_between_deg, cube_rotations, rotation_from_rotvec, rotation_zyx_deg, rotvec_from_rotation
+from ftacq.so3 import (angle_between_deg, cube_rotations, rotation_from_rotvec, rotation_of_rotvec, rotation_zyx_deg,
+                       rotvec_from_rotation)
 
 
 def test_rotvec_round_trip_matches_pinocchio():
@@ -23,6 +24,13 @@ def test_rotvec_edge_angles(angle):
     matrix = pin.exp3(axis * angle)
     back = rotation_from_rotvec(rotvec_from_rotation(matrix))
     np.testing.assert_allclose(back, matrix, atol=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-10, 1e-5, 1.0, np.pi - 1e-6, np.pi])
+def test_one_rotation_is_the_batched_one(angle):
+    rotvec = np.array([0.48, -0.6, 0.64]) * angle
+    np.testing.assert_allclose(rotation_of_rotvec(rotvec), rotation_from_rotvec(rotvec), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(rotation_of_rotvec(list(rotvec)), rotation_from_rotvec(rotvec), rtol=0, atol=1e-15)
 
 
 def test_cube_group_identities_used_by_srom():

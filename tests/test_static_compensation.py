@@ -232,3 +232,42 @@ def test_stillness_is_judged_at_the_samples_time_not_when_they_are_read():
     static.compensate(batch_at(0.6))  # taken 0.3 s after the stop
     assert static.still_over(STILL_WINDOW_S, STILL_TOLERANCE_RAD)
 
+
+
+class _CountedStates(CycleStates):
+    """CycleStates that say their ``count`` (as drivers.ur_stream.URStateStream does) and count their reads."""
+
+    reads = 0
+
+    @property
+    def count(self) -> int:
+        return self._count
+
+    def window(self, last: int):
+        self.reads += 1
+        return super().window(last)
+
+
+def test_a_stillness_query_before_the_next_robot_state_reads_nothing_and_one_after_it_sees_it():
+    states = _CountedStates(capacity=1024)
+
+    def append_still(t: float, q_offset_rad: float = 0.0) -> None:
+        cycle = controller_cycle(0.0)
+        states.append(replace(cycle, timestamp_s=t, received_s=HOST_OFFSET_S + t + 2e-4,
+                              q=cycle.q + np.array([q_offset_rad, 0, 0, 0, 0, 0])))
+
+    for k in range(300):
+        append_still(k * 0.002)
+    orientations = FlangeOrientations(MODEL, states)
+    newest_s = float(states.window(last=1).time_s[-1])
+    for _ in range(2):  # the first query sizes the reads of the next ones
+        assert orientations.still_between(newest_s - 0.25, newest_s, 2e-4)
+    reads = states.reads
+    for start_s in (newest_s - 0.25, newest_s - 0.2):  # no state since: the rows read are kept
+        assert orientations.still_between(start_s, newest_s, 2e-4)
+    assert states.reads == reads
+    append_still(0.6, q_offset_rad=1e-3)  # the arm moved in the next state: read, and seen
+    newest_s = float(states.window(last=1).time_s[-1])
+    reads = states.reads
+    assert not orientations.still_between(newest_s - 0.25, newest_s, 2e-4)
+    assert states.reads > reads
