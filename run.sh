@@ -30,7 +30,7 @@ setup() {
 cmd="${1:-}"; shift || true
 case "$cmd" in
   demo) setup; exec .venv/bin/ftacq calibrate --sim --yes "$@" ;;
-  test) setup; exec .venv/bin/python -m pytest -n 2 --dist loadgroup "$@" ;;
+  test) setup; exec .venv/bin/python -m pytest -n 3 --dist loadgroup "$@" ;;
   check) setup; .venv/bin/ruff check ftacq drivers procedures tests benchmarks
          if grep -q '^\[tool.mypy\]' pyproject.toml; then .venv/bin/mypy; fi ;;
   setup) setup ;;
