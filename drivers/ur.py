@@ -95,7 +95,8 @@ JOINT_TARGET_TOLERANCE_RAD = 1e-3
 ARRIVAL_CONFIRM_S = 0.25
 """At the target and steady this long counts as arrived even while the async progress word still says running."""
 STALL_GRACE_S = 1.0
-"""A move that is not running, not moving and not at its target for this long has been stopped."""
+"""A move that is not running, not moving and not at its target for this long (s of the controller's clock, in the
+state stream) has been stopped."""
 FK_CROSS_CHECK_M, FK_CROSS_CHECK_DEG = 0.05, 5.0
 """Controller FK further than this from the nominal DH model is not trusted (wrong model or a broken reply)."""
 FK_CALL_TIMEOUT_S = 2.0
@@ -469,8 +470,11 @@ class URRobot:
             else:
                 arrived_since = None
             if status.steady and not self._async_running():
-                idle_since = idle_since or now
-                if now - idle_since > STALL_GRACE_S:
+                # on the controller's clock, as the state stream shows it: a stream that lags behind the control
+                # connection (a loaded host) shows the arm still on its way, never a stall that did not happen
+                stamp_s = self._reader.controller_time_s()
+                idle_since = stamp_s if idle_since is None else idle_since
+                if stamp_s - idle_since > STALL_GRACE_S:
                     raise RobotError(f"robot {self.host}: the arm stopped before reaching the {method} target "
                                      f"{np.round(target, 5).tolist()} (stopped from the pendant or another client?)")
             else:

@@ -193,6 +193,36 @@ def test_program_stopped_raises_and_restarting_the_script_recovers(fake, ready):
     np.testing.assert_allclose(ready.joint_positions(), HOME_Q + 0.1, atol=1e-12)
 
 
+def test_a_move_halted_by_another_client_is_a_robot_error_naming_the_target(fake, ready):
+    """The arm halted mid-move while the control program keeps running (another client's stopj): move_joints
+    says so once the state stream has shown it still, off target, for STALL_GRACE_S of the controller's clock."""
+    from drivers.ur import STALL_GRACE_S
+    from ftacq.errors import RobotError
+
+    fake.set_time_scale(1.0)
+    target = HOME_Q + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # ≈ 4.6 s: halted long before
+    outcome: dict = {}
+
+    def move() -> None:
+        try:
+            ready.move_joints(target, 0.3, 0.5, timeout_s=20.0)
+            outcome["result"] = "arrived"
+        except Exception as error:  # noqa: BLE001 - checked below
+            outcome["result"] = error
+
+    mover = threading.Thread(target=move, name="test-mover")
+    mover.start()
+    wait_until(lambda: fake.state()["q"][0] > 0.02, what="the arm moving")
+    fake.control("halt")
+    halted_at_s = ready.controller_time_s()
+    mover.join(timeout=10.0)
+    assert not mover.is_alive()
+    assert isinstance(outcome["result"], RobotError), outcome
+    assert "stopped before reaching the moveJ target" in str(outcome["result"])
+    assert ready.controller_time_s() - halted_at_s >= STALL_GRACE_S  # not before the grace, controller's clock
+    assert abs(ready.joint_positions()[0] - HOME_Q[0]) < 1.0  # it did not arrive
+
+
 def test_stop_mid_move_decelerates_and_the_waiting_move_is_aborted(fake, ready):
     fake.set_time_scale(1.0)
     target = HOME_Q + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # ≈ 4.6 s: stopped long before

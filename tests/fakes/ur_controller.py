@@ -636,6 +636,10 @@ class ControllerServer:
                 scale = sim.motion_time_scale()
                 duration_s = sim.motion.duration_s / scale if accepted and scale > 0 else 0.0
             return {"accepted": accepted, "duration_s": duration_s}
+        if command == "halt":  # another client's stopj (a program on the pendant, a second RTDE client): the
+            with sim.lock:      # move ends where the arm is, the control program keeps running
+                sim._halt_motion()
+            return {}
         if command == "quit":
             threading.Timer(0.05, self.stop_event.set).start()
             return {}
