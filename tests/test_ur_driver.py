@@ -193,26 +193,33 @@ def test_program_stopped_raises_and_restarting_the_script_recovers(fake, ready):
     np.testing.assert_allclose(ready.joint_positions(), HOME_Q + 0.1, atol=1e-12)
 
 
+def _long_move_started(fake, robot: URRobot) -> tuple[threading.Thread, dict]:
+    """A 1.2 rad moveJ of joint 1 at real time (≈ 4.6 s) waited on in a thread, returned once the arm moves;
+    ``outcome["result"]`` is "arrived" or the exception move_joints raised."""
+    fake.set_time_scale(1.0)
+    target = HOME_Q + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])
+    outcome: dict = {}
+
+    def move() -> None:
+        try:
+            robot.move_joints(target, 0.3, 0.5, timeout_s=20.0)
+            outcome["result"] = "arrived"
+        except Exception as error:  # noqa: BLE001 - checked by the caller
+            outcome["result"] = error
+
+    mover = threading.Thread(target=move, name="test-mover")
+    mover.start()
+    wait_until(lambda: fake.state()["q"][0] > 0.02, what="the arm moving")
+    return mover, outcome
+
+
 def test_a_move_halted_by_another_client_is_a_robot_error_naming_the_target(fake, ready):
     """The arm halted mid-move while the control program keeps running (another client's stopj): move_joints
     says so once the state stream has shown it still, off target, for STALL_GRACE_S of the controller's clock."""
     from drivers.ur import STALL_GRACE_S
     from ftacq.errors import RobotError
 
-    fake.set_time_scale(1.0)
-    target = HOME_Q + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # ≈ 4.6 s: halted long before
-    outcome: dict = {}
-
-    def move() -> None:
-        try:
-            ready.move_joints(target, 0.3, 0.5, timeout_s=20.0)
-            outcome["result"] = "arrived"
-        except Exception as error:  # noqa: BLE001 - checked below
-            outcome["result"] = error
-
-    mover = threading.Thread(target=move, name="test-mover")
-    mover.start()
-    wait_until(lambda: fake.state()["q"][0] > 0.02, what="the arm moving")
+    mover, outcome = _long_move_started(fake, ready)
     fake.control("halt")
     halted_at_s = ready.controller_time_s()
     mover.join(timeout=10.0)
@@ -224,20 +231,7 @@ def test_a_move_halted_by_another_client_is_a_robot_error_naming_the_target(fake
 
 
 def test_stop_mid_move_decelerates_and_the_waiting_move_is_aborted(fake, ready):
-    fake.set_time_scale(1.0)
-    target = HOME_Q + np.array([1.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # ≈ 4.6 s: stopped long before
-    outcome: dict = {}
-
-    def move() -> None:
-        try:
-            ready.move_joints(target, 0.3, 0.5, timeout_s=20.0)
-            outcome["result"] = "arrived"
-        except Exception as error:  # noqa: BLE001 - checked below
-            outcome["result"] = error
-
-    mover = threading.Thread(target=move, name="test-mover")
-    mover.start()
-    wait_until(lambda: fake.state()["q"][0] > 0.02, what="the arm moving")
+    mover, outcome = _long_move_started(fake, ready)
     ready.stop()
     mover.join(timeout=10.0)
     assert not mover.is_alive()
