@@ -37,6 +37,14 @@ def rotation_of_rotvec(rotvec) -> np.ndarray:
     return pin.exp3(np.ascontiguousarray(rotvec, dtype=float))
 
 
+def rotvec_of_rotation(rotation) -> np.ndarray:
+    """The rotation vector (3,), rad, angle in [0, π], of one rotation matrix (3, 3): Pinocchio's ``log3`` (equal to
+    :func:`rotvec_from_rotation`, tests/test_so3.py), ~1 µs against ~100 µs of numpy calls: once per pose read."""
+    import pinocchio as pin
+
+    return pin.log3(np.ascontiguousarray(rotation, dtype=float))
+
+
 def rotvec_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """Return rotation vectors (…, 3), angle in [0, π], of rotation matrices (…, 3, 3): vectorised (axis·sin θ from
     the skew part, scaled by θ / sin θ); the angles within 1e-4 rad of π (where sin θ vanishes: a tool pointing down)

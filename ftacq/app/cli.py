@@ -26,9 +26,10 @@ from ftacq.app.signals import sigterm_as_interrupt, stack_dump_on_sigusr1
 from ftacq.errors import AbortedError, FtacqError, InputError, InterruptedByUser
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-"""One BLAS thread (set before anything imports numpy, which loads OpenBLAS; a user's own setting wins): ftacq's matrices are small (22
-columns) and its acquisition threads need the cores; OpenBLAS's extra threads spin between calls, and on a 2-core
-cell PC the quick design took 2× the CPU and up to 3× the time with them (benchmarks/README.md)."""
+"""One BLAS thread (set before anything imports numpy, which loads OpenBLAS; a user's own setting wins): ftacq's
+matrices are small (22 columns) and its acquisition threads need the cores; OpenBLAS's extra threads spin between
+calls, and on a 2-core cell PC the quick design took 2× the CPU and up to 3× the time with them
+(benchmarks/quick_design.py, benchmarks/README.md)."""
 
 COMMAND_MODULES = (
     "ftacq.app.commands.importing",

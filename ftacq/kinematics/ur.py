@@ -166,11 +166,9 @@ def flange_pose(model: URModel, q_rad: np.ndarray) -> np.ndarray:
 
 def pose_of_transform(base_T_frame: np.ndarray) -> np.ndarray:
     """Return [x, y, z (m), rx, ry, rz (rad)] of a (4, 4) transform: a pose as a UR controller reports one."""
-    import pinocchio as pin
+    from ftacq.so3 import rotvec_of_rotation
 
-    # Pinocchio's log3 for one rotation (equal to rotvec_from_rotation, tests/test_so3.py): ~1 µs against ~100 µs
-    # of numpy calls, once per live monitor read and per simulated controller tick
-    return np.concatenate([base_T_frame[:3, 3], pin.log3(np.ascontiguousarray(base_T_frame[:3, :3]))])
+    return np.concatenate([base_T_frame[:3, 3], rotvec_of_rotation(base_T_frame[:3, :3])])
 
 
 def dh_transforms_batch(model: URModel, q_rad: np.ndarray) -> np.ndarray:
