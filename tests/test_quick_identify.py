@@ -102,3 +102,29 @@ def test_the_streams_lag_is_fitted_with_the_parameters(plan):
     assert np.all(np.abs(rotation) <= 4 * np.array(result.sigma["sensor_rotation_rad"])), rotation
     tilt = np.array(result.calibration.base_tilt_deg) - np.array(truth.base_tilt_deg)
     assert np.all(np.abs(tilt) <= 4 * np.array(result.sigma["base_tilt_deg"])), tilt
+
+
+@pytest.mark.parametrize("drift", [False, True])
+def test_the_fast_prediction_and_the_lag_derivative_equal_what_they_replace(plan, drift):
+    """JointModel.predict equals the regressor times x (the fit's cost uses the one, its Jacobian the other), and
+    the cached time derivative equals numpy.gradient, on the quick plan's rows, with and without a drift's columns."""
+    from ftacq.dynamics.joint import JointModel, _Timing
+
+    settings, designed = plan
+    record = record_of(settings, designed, CellTruth())
+    model = JointModel(settings.ur, np.array([0.0, 0.0, 0.03]), record.q, record.qd, record.qdd, np.eye(3),
+                       np.array([0.0, 0.0, -1.0]))
+    rng = np.random.default_rng(1)
+    model.drift_time_h = np.linspace(-0.02, 0.0, len(record.q)) if drift else None
+    x, theta = rng.standard_normal(16 + 6 * drift), 0.1 * rng.standard_normal(5)
+    rows = np.sort(rng.choice(len(record.q), 2000, replace=False))
+    for chosen in (rows, slice(None)):
+        expected = model.regressor(theta, chosen) @ x
+        np.testing.assert_allclose(model.predict(theta, x, chosen), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    timing = _Timing(record.robot_time_s[rows], 1e-4 * rng.random(rows.size))
+    values = model.regressor(theta, rows)
+    np.testing.assert_allclose(timing.derivative(values), np.gradient(values, timing.time_s, axis=0), rtol=1e-12,
+                               atol=1e-9)
+    np.testing.assert_allclose(timing.shifted(values, 3e-4),
+                               values - np.gradient(values, timing.time_s, axis=0) * (3e-4 - timing.offset_s)[:, None, None],
+                               rtol=1e-12, atol=1e-9)
