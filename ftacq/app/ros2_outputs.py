@@ -57,9 +57,8 @@ def add_ros2_args(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--ros2-reliable", action="store_true",
                        help="reliable wrench topics (default: ROS 2's sensor-data QoS, best effort, keep last 5)")
     group.add_argument("--ros2-distro", choices=ROS2_DISTROS,
-                       help="ROS 2 release of the nodes that should list ftacq's node (default: CELL.toml "
-                            f"sensor.ros2_distro, {setting_of('sensor.ros2_distro').default}; Humble's discovery "
-                            "message differs)")
+                       help="ROS 2 release of the graph, for ros2 node list (default: CELL.toml sensor.ros2_distro, "
+                            f"{setting_of('sensor.ros2_distro').default})")
     group.add_argument("--ros2-frame-id", metavar="FRAME",
                        help="header.frame_id of the wrenches: the sensor frame's name (default: CELL.toml "
                             "sensor.frame, ft_sensor)")
