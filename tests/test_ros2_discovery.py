@@ -50,7 +50,8 @@ class Watcher:
         try:
             line = self._lines.get(timeout=max(0.0, deadline_s - time.monotonic()))
         except queue.Empty:
-            raise AssertionError("the watcher printed nothing in time") from None
+            raise AssertionError(f"the watcher printed nothing in time ({len(self.infos)} announcements, "
+                                 f"{len(self.endpoints)} endpoints so far)") from None
         assert line, f"the watcher ended: {self.process.stderr.read()}"
         return line
 
@@ -58,7 +59,8 @@ class Watcher:
         """Read lines until ``condition()`` is true (returns it); fails after DEADLINE_S."""
         deadline_s = time.monotonic() + DEADLINE_S
         while not (result := condition()):
-            assert time.monotonic() < deadline_s, what
+            assert time.monotonic() < deadline_s, (f"{what}: {len(self.infos)} announcements, endpoints "
+                                                   f"{sorted(e['topic'] for e in self.endpoints.values())}")
             entry = json.loads(self._line(deadline_s))
             if "info" in entry:
                 self.infos.append(bytes.fromhex(entry["info"]))
