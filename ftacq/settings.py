@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.errors import ConfigError
 from ftacq.kinematics import UR_MODELS, URModel, ur_model
 from ftacq.mounts import MOUNT_FORMS, check_mount
-from ftacq.ros2_names import FRAME_FORMS, NAMESPACE_FORMS, check_frame_id, check_namespace
+from ftacq.ros2_names import FRAME_FORMS, NAMESPACE_FORMS, ROS2_DISTROS, check_frame_id, check_namespace
 from ftacq.validation import shown
 
 KINDS = ("float", "int", "bool", "str", "vec3", "poses")
@@ -307,6 +307,8 @@ class SensorConfig:
                          "the MCAP record: docs/ros2.md)", parse=check_frame_id, forms=FRAME_FORMS)
     ros2_namespace: str = setting("/ftacq", "ROS 2 namespace of ftacq monitor --ros2's topics and service (and of "
                                   "the MCAP record's topics)", parse=check_namespace, forms=NAMESPACE_FORMS)
+    ros2_distro: str = setting("jazzy", "ROS 2 release of the nodes that should list ftacq's node (ros2 node list; "
+                               "its discovery message differs up to Humble: docs/ros2.md)", choices=ROS2_DISTROS)
     check: bool = setting(True, "fit the sensor's force gains and cross-talk beside every calibration (the verdict's "
                           "sensor line; docs/verdict.md)")
     accuracy_percent: float = setting(1.25, "the sensor's stated accuracy (its calibration certificate), per axis: the "

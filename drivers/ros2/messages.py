@@ -104,6 +104,47 @@ class TriggerResponse(idl.IdlStruct, typename="std_srvs::srv::dds_::Trigger_Resp
     message: str = ""
 
 
+def discovery_types(gid_bytes: int) -> tuple[type, type, type]:
+    """rmw_dds_common's ``Gid``, ``NodeEntitiesInfo`` and ``ParticipantEntitiesInfo`` with a ``Gid`` of
+    ``gid_bytes`` (:data:`ftacq.ros2_names.GID_BYTES`: 24 up to Humble, 16 since Iron), the message every ROS 2 node
+    sends on ``ros_discovery_info`` (:class:`drivers.ros2.node.NodeAnnouncer`)::
+
+        Gid:                     char[24] data (Humble) | char[16] data (Iron, Jazzy)
+        NodeEntitiesInfo:        string<=256 node_namespace, string<=256 node_name, Gid[] reader_gid_seq,
+                                 Gid[] writer_gid_seq
+        ParticipantEntitiesInfo: Gid gid, NodeEntitiesInfo[] node_entities_info_seq
+
+    ``char`` is one byte on the wire (a ``uint8`` here)."""
+    cached = _DISCOVERY_TYPES.get(gid_bytes)
+    if cached is not None:
+        return cached
+
+    @dataclass
+    @annotate.final
+    class Gid(idl.IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+        data: types.array[types.uint8, gid_bytes] = field(default_factory=lambda: [0] * gid_bytes)
+
+    @dataclass
+    @annotate.final
+    class NodeEntitiesInfo(idl.IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+        node_namespace: types.bounded_str[256] = ""
+        node_name: types.bounded_str[256] = ""
+        reader_gid_seq: types.sequence[Gid] = field(default_factory=list)
+        writer_gid_seq: types.sequence[Gid] = field(default_factory=list)
+
+    @dataclass
+    @annotate.final
+    class ParticipantEntitiesInfo(idl.IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+        gid: Gid = field(default_factory=Gid)
+        node_entities_info_seq: types.sequence[NodeEntitiesInfo] = field(default_factory=list)
+
+    made = _DISCOVERY_TYPES[gid_bytes] = (Gid, NodeEntitiesInfo, ParticipantEntitiesInfo)
+    return made
+
+
+_DISCOVERY_TYPES: dict[int, tuple[type, type, type]] = {}
+
+
 _SEPARATOR = "=" * 80
 _TIME = "int32 sec\nuint32 nanosec\n"
 _HEADER = "builtin_interfaces/Time stamp\nstring frame_id\n"
@@ -135,4 +176,4 @@ MESSAGE_TYPES: dict[str, type] = {
 
 
 __all__ = ["Time", "Header", "Vector3", "Wrench", "WrenchStamped", "String", "JointState", "TriggerRequest",
-           "TriggerResponse", "DEFINITIONS", "MESSAGE_TYPES", "dds_type_name"]
+           "TriggerResponse", "DEFINITIONS", "MESSAGE_TYPES", "dds_type_name", "discovery_types"]

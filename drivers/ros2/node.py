@@ -12,6 +12,15 @@ the domain sees the topics); ``CYCLONEDDS_URI`` as for any Cyclone DDS program; 
 ``ROS_LOCALHOST_ONLY=1`` or ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` keep it on this host (:data:`LOCALHOST_CONFIG`:
 loopback, unicast discovery to the local participants, no multicast: what the tests use).
 
+The node in the ROS 2 graph (``ros2 node list``, ``ros2 node info``, rqt_graph): as every ROS 2 node since Foxy,
+:class:`NodeAnnouncer` publishes on the DDS topic ``ros_discovery_info`` (QoS :data:`LATCHED`) an
+``rmw_dds_common/msg/ParticipantEntitiesInfo``: the participant's GID, and for its one node the name and namespace
+(:func:`ftacq.ros2_names.node_of_namespace`) with the GIDs of the node's readers and writers; at start and again
+whenever a writer, reader or service is added. A GID is the entity's DDS GUID (16 bytes, what other participants
+see in their built-in DCPSPublication / DCPSSubscription topics) zero-padded to the release's ``Gid`` size
+(rmw_cyclonedds_cpp ``convert_guid_to_gid``), so the graph ties each topic to the node. The participant's user data
+``enclave=/;`` is rmw_cyclonedds_cpp's.
+
 The Trigger service answers requests as rmw_cyclonedds_cpp does: the reply carries the request's header (client
 writer handle, sequence number), and is sent once the caller's reply reader is matched (its ``clientid`` user data,
 at most :data:`REPLY_MATCH_TIMEOUT_S`), so a ROS 2 client that uses Cyclone DDS (``RMW_IMPLEMENTATION=
@@ -35,9 +44,10 @@ from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
-from drivers.ros2.messages import TriggerRequest, TriggerResponse
+from drivers.ros2.messages import TriggerRequest, TriggerResponse, discovery_types
 from ftacq.errors import DeviceConnectionError
-from ftacq.ros2_names import normalize_namespace
+from ftacq.ros2_names import GID_BYTES, node_of_namespace, normalize_namespace
+from ftacq.settings import setting_of
 
 try:  # writes bytes already serialized (drivers/ros2/cdr.py) without one Python object per message
     from cyclonedds._clayer import ddspy_write_ts
@@ -71,6 +81,11 @@ LATCHED = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.Hi
               Policy.Durability.TransientLocal, _XCDR1)
 SERVICES = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(10),
                Policy.Durability.Volatile, _XCDR1)
+
+DISCOVERY_TOPIC = "ros_discovery_info"
+"""The DDS topic (no ``rt`` prefix: not a ROS topic) on which ROS 2 nodes announce themselves (rmw_dds_common)."""
+ENCLAVE_USER_DATA = b"enclave=/;"
+"""The participant's user data, as rmw_cyclonedds_cpp sets it (the ROS 2 security enclave: the root, none)."""
 
 LOCALHOST_CONFIG = (
     '<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>'
@@ -119,18 +134,63 @@ class Writer:
         return len(self.writer.get_matched_subscriptions())
 
 
-class Ros2Node:
-    """A DDS participant on ``domain_id`` publishing under ``namespace`` (module docstring). Close it (or use it
-    as a context manager): the service thread is joined and the participant deleted."""
+class NodeAnnouncer:
+    """Announces the participant's one ROS 2 node on ``ros_discovery_info`` (module docstring), with ``Gid`` as the
+    ROS 2 release ``distro`` has it (:data:`ftacq.ros2_names.GID_BYTES`). :meth:`add` an entity of the node: the
+    message is sent again."""
 
-    def __init__(self, namespace: str, domain_id: int = 0, config: str | None = None) -> None:
+    def __init__(self, participant: DomainParticipant, publisher: Publisher, namespace: str, distro: str) -> None:
+        if distro not in GID_BYTES:
+            raise ValueError(f"ROS 2 release {distro!r} is not one of {', '.join(GID_BYTES)}")
+        self.distro = distro
+        self.gid_bytes = GID_BYTES[distro]
+        self._gid_type, self._node_type, info_type = discovery_types(self.gid_bytes)
+        self.node_namespace, self.node_name = node_of_namespace(namespace)
+        self.participant_gid = self.gid(participant)
+        self.reader_gids: list[bytes] = []
+        self.writer_gids: list[bytes] = []
+        self._lock = threading.Lock()
+        self.writer = DataWriter(publisher, Topic(participant, DISCOVERY_TOPIC, info_type, qos=LATCHED), qos=LATCHED)
+        self.message_type = info_type
+        self.announce()
+
+    def gid(self, entity) -> bytes:
+        """A DDS entity's ROS 2 GID: its GUID (16 bytes), zero-padded to the release's ``Gid``."""
+        return entity.guid.bytes.ljust(self.gid_bytes, b"\x00")
+
+    def message(self):
+        """The ``ParticipantEntitiesInfo`` now."""
+        gid = self._gid_type
+        with self._lock:
+            node = self._node_type(self.node_namespace, self.node_name, [gid(list(g)) for g in self.reader_gids],
+                                   [gid(list(g)) for g in self.writer_gids])
+        return self.message_type(gid(list(self.participant_gid)), [node])
+
+    def announce(self) -> None:
+        self.writer.write(self.message())
+
+    def add(self, *entities: DataReader | DataWriter) -> None:
+        """Count readers and writers as the node's (a service: its request reader and reply writer), announce."""
+        with self._lock:
+            for entity in entities:
+                (self.reader_gids if isinstance(entity, DataReader) else self.writer_gids).append(self.gid(entity))
+        self.announce()
+
+
+class Ros2Node:
+    """A DDS participant on ``domain_id`` publishing under ``namespace``, announced as a ROS 2 node to the nodes of
+    release ``distro`` (module docstring; default CELL.toml's ``sensor.ros2_distro``). Close it (or use it as a
+    context manager): the service thread is joined and the participant deleted."""
+
+    def __init__(self, namespace: str, domain_id: int = 0, config: str | None = None,
+                 distro: str | None = None) -> None:
         self.namespace = normalize_namespace(namespace)
         self.domain_id = int(domain_id)
         if config is None and localhost_only():
             config = LOCALHOST_CONFIG
         try:
             self._domain = Domain(self.domain_id, config) if config is not None else None
-            self.participant = DomainParticipant(self.domain_id)
+            self.participant = DomainParticipant(self.domain_id, qos=Qos(Policy.Userdata(ENCLAVE_USER_DATA)))
         except Exception as error:  # DDSException: a bad CYCLONEDDS_URI, no usable network interface, …
             raise DeviceConnectionError(f"ROS 2: no DDS participant on domain {self.domain_id} ({error}); check "
                                         "CYCLONEDDS_URI and the network interfaces") from None
@@ -139,6 +199,12 @@ class Ros2Node:
         self._topics: dict[str, Topic] = {}
         self._services: list[TriggerServer] = []
         self._closed = False
+        try:
+            self.announcer = NodeAnnouncer(self.participant, self._publisher, self.namespace,
+                                            distro if distro is not None else setting_of("sensor.ros2_distro").default)
+        except BaseException:
+            self.participant.__del__()
+            raise
 
     def __enter__(self) -> "Ros2Node":
         return self
@@ -160,7 +226,9 @@ class Ros2Node:
         """A writer of the ROS topic ``<namespace>/name`` (DDS topic ``rt<namespace>/name``)."""
         ros_name = self.ros_name(name)
         topic = self._topic("rt" + ros_name, data_type, qos)
-        return Writer(ros_name, ros_type, DataWriter(self._publisher, topic, qos=qos))
+        writer = DataWriter(self._publisher, topic, qos=qos)
+        self.announcer.add(writer)
+        return Writer(ros_name, ros_type, writer)
 
     def trigger_service(self, name: str, handler: Callable[[], tuple[bool, str]]) -> "TriggerServer":
         """Serve ``std_srvs/srv/Trigger`` as ``<namespace>/name``: ``handler()`` → (success, message), called in
@@ -171,6 +239,7 @@ class Ros2Node:
         server = TriggerServer(ros_name, DataReader(self._subscriber, request_topic, qos=SERVICES),
                                DataWriter(self._publisher, reply_topic, qos=SERVICES), handler, self.participant)
         self._services.append(server)
+        self.announcer.add(server.reader, server.writer)
         server.start()
         return server
 
@@ -275,5 +344,5 @@ class _ignored_errors:
         return kind is not None and issubclass(kind, Exception)
 
 
-__all__ = ["Ros2Node", "Writer", "TriggerServer", "SENSOR_DATA", "RELIABLE", "LATCHED", "SERVICES",
+__all__ = ["Ros2Node", "NodeAnnouncer", "Writer", "TriggerServer", "DISCOVERY_TOPIC", "ENCLAVE_USER_DATA", "SENSOR_DATA", "RELIABLE", "LATCHED", "SERVICES",
            "LOCALHOST_CONFIG", "RELIABLE_DEPTH", "localhost_only", "reliable"]

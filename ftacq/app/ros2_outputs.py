@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ftacq.errors import ConfigError
+from ftacq.ros2_names import ROS2_DISTROS
+from ftacq.settings import setting_of
 
 DOMAIN_ID_MAX = 232
 """The largest DDS domain id with Cyclone DDS's default port mapping (ROS 2: 0-101 and 215-232 are safe on Linux)."""
@@ -54,6 +56,9 @@ def add_ros2_args(parser: argparse.ArgumentParser) -> None:
                        help="wrench messages per second, each the mean of its window (default 1000; 0: every sample)")
     group.add_argument("--ros2-reliable", action="store_true",
                        help="reliable wrench topics (default: ROS 2's sensor-data QoS, best effort, keep last 5)")
+    group.add_argument("--ros2-distro", choices=ROS2_DISTROS,
+                       help="ROS 2 release of the graph, for ros2 node list (default: CELL.toml sensor.ros2_distro, "
+                            f"{setting_of('sensor.ros2_distro').default})")
     group.add_argument("--ros2-frame-id", metavar="FRAME",
                        help="header.frame_id of the wrenches: the sensor frame's name (default: CELL.toml "
                             "sensor.frame, ft_sensor)")
@@ -156,6 +161,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
         sensor = SensorConfig()
     namespace = args.ros2_namespace if args.ros2_namespace is not None else sensor.ros2_namespace
     frame_id = args.ros2_frame_id or sensor.frame
+    distro = args.ros2_distro or sensor.ros2_distro
     rate_hz = DEFAULT_RATE_HZ if args.ros2_rate is None else args.ros2_rate
 
     calibration_json = CalibrationText(calibration)
@@ -180,7 +186,7 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
     if args.ros2:
         from drivers.ros2.node import Ros2Node
 
-        node = Ros2Node(namespace, _domain_id(args))
+        node = Ros2Node(namespace, _domain_id(args), distro=distro)
         stack.callback(node.close)
         publisher = Ros2Publisher(node, rate_hz, args.ros2_reliable, calibration_json,
                                   tare=None if tare is None else (lambda: tare().estimate.change))
