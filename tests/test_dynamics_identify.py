@@ -36,13 +36,18 @@ def excitation_plan(seed: int = 3, moves: int = 8) -> list[tuple[float, JointMov
 
 
 def states_at(plan: list[tuple[float, JointMove]], times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(q, q̇, q̈) (N, 6) of the plan at ``times``, exactly (the moves' own profiles)."""
+    """(q, q̇, q̈) (N, 6) of the plan at ``times``, exactly (the moves' own profiles, each move's times at once)."""
     starts = np.array([start for start, _ in plan])
+    which = np.maximum(np.searchsorted(starts, times, side="right") - 1, 0)
     out = np.empty((3, len(times), 6))
-    for i, t in enumerate(times):
-        start, move = plan[max(int(np.searchsorted(starts, t, side="right")) - 1, 0)]
-        out[0, i], out[1, i] = move.sample(t - start)
-        out[2, i] = move.acceleration(t - start)[0]
+    for k, (start, move) in enumerate(plan):
+        rows = np.flatnonzero(which == k)
+        tau = np.asarray(times, dtype=float)[rows] - start
+        position = np.asarray(move.profile.position(tau))
+        q = move.q_start + np.outer(position, move.direction)
+        q[position >= move.length] = move.q_target  # JointMove.at_distance: the target once the path is done
+        out[0, rows], out[1, rows] = q, np.outer(move.profile.speed_at(tau), move.direction)
+        out[2, rows] = np.outer(move.profile.acceleration_at(tau), move.direction)
     return out[0], out[1], out[2]
 
 
