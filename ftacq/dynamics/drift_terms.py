@@ -92,7 +92,7 @@ def identify_with_drift(record, robot, sensor_offset_m: np.ndarray, nominal_down
                         metadata: dict | None = None):
     """:func:`ftacq.dynamics.joint.identify_joint` with a linear bias drift (module docstring). Returns
     (JointResult, DriftFit). ``reference_s``: the drift's zero (default the last robot sample's time)."""
-    from ftacq.dynamics.joint import identify_joint
+    from ftacq.dynamics.joint import RobotPart, identify_joint
     from ftacq.identification.trend import TREND_P
 
     if drift not in DRIFT_MODELS:
@@ -107,8 +107,9 @@ def identify_with_drift(record, robot, sensor_offset_m: np.ndarray, nominal_down
         result = identify_joint(record, robot, sensor_offset_m, nominal_down, rows=rows, metadata=metadata)
         return result, DriftFit(none, np.full(6, np.inf), np.zeros((6, 6)), 0.0, 1.0, False,
                                 "asked for (none)", reference, span)
+    part = RobotPart.of(robot, sensor_offset_m, record.q, record.qd, record.qdd)  # both fits' robot part
     result = identify_joint(record, robot, sensor_offset_m, nominal_down, rows=rows, metadata=metadata,
-                            drift_time_h=s)
+                            drift_time_h=s, robot_part=part)
     rate, cov, chi2, p = drift_test(result.optimum, result.covariance)
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
     if drift == "linear":
@@ -118,7 +119,7 @@ def identify_with_drift(record, robot, sensor_offset_m: np.ndarray, nominal_down
                   f"p = {p:.2g} < {TREND_P:g}")
         return result, DriftFit(rate, sigma, cov, chi2, p, True, chosen, reference, span)
     plain = identify_joint(record, robot, sensor_offset_m, nominal_down, rows=rows, metadata=metadata,
-                           rotation_start=result.calibration.sensor_rotation)
+                           rotation_start=result.calibration.sensor_rotation, robot_part=part)
     chosen = f"not needed: the rates are not significant (χ² = {chi2:.1f}, p = {p:.2g} ≥ {TREND_P:g})"
     return plain, DriftFit(rate, sigma, cov, chi2, p, False, chosen, reference, span)
 

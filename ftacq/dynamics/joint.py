@@ -140,6 +140,23 @@ def _vech_to_matrix(v: np.ndarray) -> np.ndarray:
     return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
 
 
+@dataclass(frozen=True)
+class RobotPart:
+    """What equation (1) takes from the arm alone, over a motion's rows: the frame O's orientation base_R_o (N, 3, 3)
+    and the motion's regressor D (N, 6, 10) in frame O (no gravity); one pass of Pinocchio over the rows, shared by
+    the fits of one record (:func:`ftacq.dynamics.drift_terms.identify_with_drift` fits twice)."""
+
+    base_R_o: np.ndarray
+    motion_part: np.ndarray
+
+    @classmethod
+    def of(cls, robot: URModel, sensor_offset_m: np.ndarray, q: np.ndarray, qd: np.ndarray,
+           qdd: np.ndarray) -> "RobotPart":
+        dynamics = SensorDynamics(robot, np.eye(3), sensor_offset_m)
+        motion = dynamics.motion(q, qd, qdd)  # the orientation depends on q alone
+        return cls(motion.base_R_sensor, dynamics.regressor(q, qd, qdd, np.zeros(3), motion=motion))
+
+
 class JointModel:
     """Equation (1) over a motion's rows: the robot's part computed once, θ and x applied per call.
 
@@ -149,10 +166,11 @@ class JointModel:
     """
 
     def __init__(self, robot: URModel, sensor_offset_m: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
-                 rotation0: np.ndarray, down0: np.ndarray) -> None:
-        dynamics = SensorDynamics(robot, np.eye(3), sensor_offset_m)
-        self.base_R_o = dynamics.motion(q, np.zeros_like(q), np.zeros_like(q)).base_R_sensor  # (N, 3, 3)
-        self.motion_part = dynamics.regressor(q, qd, qdd, np.zeros(3))  # D (N, 6, 10), frame O
+                 rotation0: np.ndarray, down0: np.ndarray, robot_part: "RobotPart | None" = None) -> None:
+        if robot_part is None:
+            robot_part = RobotPart.of(robot, sensor_offset_m, q, qd, qdd)
+        self.base_R_o = robot_part.base_R_o  # (N, 3, 3)
+        self.motion_part = robot_part.motion_part  # D (N, 6, 10), frame O
         self.offset = np.asarray(sensor_offset_m, dtype=float)
         self.rotation0 = np.asarray(rotation0, dtype=float)
         self.down0 = np.asarray(down0, dtype=float) / np.linalg.norm(down0)
@@ -288,20 +306,21 @@ def _row_weights(residual: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, n
 def identify_joint(record: MotionRecord, robot: URModel, sensor_offset_m: np.ndarray, nominal_down: np.ndarray, *,
                    rows: np.ndarray | None = None, lag_s: float | None = None,
                    rotation_start: np.ndarray | None = None, metadata: dict | None = None,
-                   drift_time_h: np.ndarray | None = None) -> JointResult:
+                   drift_time_h: np.ndarray | None = None, robot_part: RobotPart | None = None) -> JointResult:
     """Identify every parameter of ``record`` (module docstring).
 
     ``nominal_down``: the mount's unit gravity direction in the base frame (the start of the tilt).
     ``rows``: a boolean mask over the robot samples to fit (default all; the stage leaves the validation holds
     out). ``lag_s`` None measures it. ``rotation_start`` skips the quasi-static start of the rotation.
     ``drift_time_h`` (M,) per robot sample: a linear bias drift is fitted too (:mod:`ftacq.dynamics.drift_terms`).
+    ``robot_part``: :meth:`RobotPart.of` this record's states and ``sensor_offset_m``, when the caller has it.
     Raises InputError when the record is too short or does not excite every parameter.
     """
     if len(record.robot_time_s) < MIN_ROWS:
         raise InputError(f"motion record: only {len(record.robot_time_s)} robot samples (need {MIN_ROWS})")
     mask = np.ones(len(record.robot_time_s), dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
     model = JointModel(robot, sensor_offset_m, record.q, record.qd, record.qdd,
-                       np.eye(3) if rotation_start is None else rotation_start, nominal_down)
+                       np.eye(3) if rotation_start is None else rotation_start, nominal_down, robot_part)
     model.drift_time_h = drift_time_h
     mask = mask & ~_near_acceleration_steps(record.qdd)
 

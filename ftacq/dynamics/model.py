@@ -132,10 +132,12 @@ class SensorDynamics:
             acceleration[k] = pin.getFrameAcceleration(model, data, frame, pin.LOCAL).vector
         return SensorMotion(rotations, velocity, acceleration)
 
-    def regressor(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, gravity_base_m_s2: np.ndarray) -> np.ndarray:
-        """Return R (N, 6, 10): the wrench the tool exerts on the sensor is R π (+ biases), sensor frame."""
+    def regressor(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, gravity_base_m_s2: np.ndarray,
+                  motion: SensorMotion | None = None) -> np.ndarray:
+        """Return R (N, 6, 10): the wrench the tool exerts on the sensor is R π (+ biases), sensor frame.
+        ``motion``: :meth:`motion` of these states when the caller has it already (one pass of Pinocchio)."""
         pin = self._pin
-        motion = self.motion(q, qd, qdd)
+        motion = self.motion(q, qd, qdd) if motion is None else motion
         gravity_sensor = np.einsum("nji,j->ni", motion.base_R_sensor, np.asarray(gravity_base_m_s2, dtype=float))
         out = np.empty((motion.velocity.shape[0], 6, 10))
         for k in range(out.shape[0]):
