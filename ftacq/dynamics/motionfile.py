@@ -47,11 +47,16 @@ def write_motion_csv(path: str | os.PathLike, record: MotionRecord, model: str |
         if notes:
             handle.write("# ftacq motion record, " + ", ".join(notes) + "\n")
         handle.write(",".join(COLUMNS) + "\n")
-        for t, w in zip(np.asarray(record.sensor_time_s), np.asarray(record.wrench)):
-            handle.write(f"sensor,{t:.7f}," + ",".join(f"{v:.7g}" for v in w) + empty_joints + "\n")
-        joints = np.hstack([record.q, record.qd, record.qdd]) if len(record.robot_time_s) else np.empty((0, 18))
-        for t, j in zip(np.asarray(record.robot_time_s), joints):
-            handle.write(f"robot,{t:.7f}" + empty_wrench + "," + ",".join(f"{v:.10g}" for v in j) + "\n")
+        # each source's rows formatted by one %-operation over all of them (in C; a row's line is what
+        # f"{t:.7f}", f"{v:.7g}" and f"{v:.10g}" write)
+        sensor = np.column_stack([np.asarray(record.sensor_time_s, dtype=float).reshape(-1),
+                                  np.asarray(record.wrench, dtype=float).reshape(-1, 6)])
+        line = "sensor,%.7f," + ",".join(["%.7g"] * 6) + empty_joints + "\n"
+        handle.write((line * len(sensor)) % tuple(sensor.ravel().tolist()))
+        robot = np.column_stack([np.asarray(record.robot_time_s, dtype=float).reshape(-1),
+                                 *(np.asarray(x, dtype=float).reshape(-1, 6) for x in (record.q, record.qd, record.qdd))])
+        line = "robot,%.7f" + empty_wrench + "," + ",".join(["%.10g"] * 18) + "\n"
+        handle.write((line * len(robot)) % tuple(robot.ravel().tolist()))
 
 
 def read_motion_csv(path: str | os.PathLike) -> tuple[MotionRecord, str | None]:
