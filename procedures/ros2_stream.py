@@ -98,15 +98,15 @@ class WindowMean:
         last_done = False
         if self.margin_s > 0:  # the samples that complete their window, and those dated inside a window sent
             done = time_s + self.margin_s >= (window + 1) * self.period_s
-            closed = np.maximum.accumulate(np.where(done, window, self._closed))
-            before = np.empty_like(closed)  # the newest window sent before each sample
-            before[0], before[1:] = self._closed, closed[:-1]
-            late = window <= before
-            if late.any():  # (a late sample is at a window's start: it completes nothing, as period_s > margin_s)
-                window[late] = before[late] + 1
-                time_s[late] = np.maximum(time_s[late], window[late] * self.period_s)
-                done[late] = False
-            self._closed, last_done = int(closed[-1]), bool(done[-1])
+            last_done = bool(done[-1])
+            # usually none is late: the first is past the window sent last, and no sample follows one that completed
+            # its own window (two within a sample period of a window's end: the mapping moved). Only the last
+            # sample's window can then be one sent early (windows ascend)
+            if window[0] > self._closed and not (done[:-1] & (window[1:] == window[:-1])).any():
+                if last_done:
+                    self._closed = int(window[-1])
+            else:
+                last_done = self._late(time_s, window, done)
         self._floor_s = time_s[-1]  # the newest time seen: a window sent ended before it (batching-independent)
         if len(self._time_s):
             time_s = np.concatenate((self._time_s, time_s))
@@ -125,6 +125,20 @@ class WindowMean:
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         return (np.add.reduceat(time_s, starts) / counts,
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
+
+    def _late(self, time_s: np.ndarray, window: np.ndarray, done: np.ndarray) -> bool:
+        """Move the samples dated inside a window already sent (by an earlier sample of it, or of an earlier read)
+        to the next window's start, in place; return whether the last sample completes its window."""
+        closed = np.maximum.accumulate(np.where(done, window, self._closed))
+        before = np.empty_like(closed)  # the newest window sent before each sample
+        before[0], before[1:] = self._closed, closed[:-1]
+        late = window <= before
+        if late.any():  # (a late sample is at a window's start: it completes nothing, as period_s > margin_s)
+            window[late] = before[late] + 1
+            time_s[late] = np.maximum(time_s[late], window[late] * self.period_s)
+            done[late] = False
+        self._closed = int(closed[-1])
+        return bool(done[-1])
 
     def _copy_state(self, other: "WindowMean", values: np.ndarray) -> None:
         self._time_s, self._window, self._values = other._time_s, other._window, values

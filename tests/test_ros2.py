@@ -135,13 +135,14 @@ def test_a_window_is_sent_with_its_last_sample():
     assert _feed_all(WindowMean(1e-3), time_s, values, [14] * 500)[0][:2] == [1, 2]
 
 
-def test_early_windows_keep_the_invariants_whatever_the_batches():
-    """Sent early, windows still give the same means however the samples are batched; a sample dated inside a
-    window already sent (the clock's mapping stepped back 0.3 ms, then jitter) counts in the next window; every
-    stamp is later than the one before; no sample is lost (a column of ones summed over windows' counts)."""
+@pytest.mark.parametrize("jitter_s", [3e-6, 3e-5])
+def test_early_windows_keep_the_invariants_whatever_the_batches(jitter_s):
+    """Sent early, windows still give the same means however the samples are batched, and every stamp is later
+    than the one before: with the clock's mapping stepping back 0.3 ms, and with jitter (3 µs, and 30 µs: two
+    samples within a sample period of a window's end, the second dated inside the window the first sent)."""
     rng = np.random.default_rng(5)
     n = 3000
-    time_s = 3.0 + np.arange(n) / 7000.0 * (1 + 2e-4) + rng.normal(0, 3e-6, n)
+    time_s = 3.0 + np.arange(n) / 7000.0 * (1 + 2e-4) + rng.normal(0, jitter_s, n)
     time_s[1000:] -= 3e-4  # the mapping steps back
     values = np.column_stack([np.ones(n), rng.normal(size=(n, 5))])
     results = []
