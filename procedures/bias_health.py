@@ -5,7 +5,8 @@
 returns the residual minus the tracker's correction when ``auto_tare`` is on (unchanged otherwise). The notices
 it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.events.BiasDrift` snapshot (for the dashboard's bias
 drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
-acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window.
+acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window; the tracker learns from
+a batch in the check, after the read is published (the update delays no message).
 
 Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over ``window_s`` before the batch's
 samples and while they were taken, from the RTDE state stream at the samples' time (``moving.still_over``: a
@@ -91,6 +92,7 @@ class DriftCompensator:
     def __post_init__(self) -> None:
         self._base = self.health.tracker.calibration  # what ``moving`` (or, without it, this) compensates with
         self._rotation_of: tuple[bytes, np.ndarray] = (b"", np.eye(3))  # (rotation vector's bytes, flange_R_base)
+        self._pending: tuple | None = None  # the last batch's arguments of BiasHealth.feed, until :meth:`track`
 
     @property
     def calibration(self):
@@ -102,14 +104,29 @@ class DriftCompensator:
         constants of both models, so subtracting their change from the residual is the same compensation. The drift
         tracker restarts from them (just measured: age 0); ``auto_tare`` is kept."""
         with self.lock:
+            self._track()  # the batches compensated before the tare are the old biases' residuals
             self.bias_offset = (np.concatenate([calibration.force_bias, calibration.torque_bias])
                                 - np.concatenate([self._base.force_bias, self._base.torque_bias]))
             self.health = BiasHealth(calibration, self.health.settings, age_s=0.0, auto_tare=self.health.auto_tare)
 
     def compensate(self, batch, robot) -> np.ndarray | None:
-        """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one)."""
+        """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one). The
+        tracker learns from it at :meth:`track` (the monitor's :class:`DriftCheck`, once the read is published: a
+        rest window's update, ~1-2 ms, then delays no message), or at the next call, whichever comes first; the
+        correction applied is the tracker's up to the batch before."""
         with self.lock:
+            self._track()
             return self._compensate(batch, robot)
+
+    def track(self) -> None:
+        """Feed the last compensated batch to the drift tracker, if not yet done (its notices join :attr:`notices`)."""
+        with self.lock:
+            self._track()
+
+    def _track(self) -> None:
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            self.notices += self.health.feed(*pending)
 
     def _compensate(self, batch, robot) -> np.ndarray | None:
         self.still_now = False
@@ -135,10 +152,10 @@ class DriftCompensator:
             still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
         self.still_now = bool(still)
         good = ~np.asarray(batch.saturated, dtype=bool)
-        if still and not good.all():
-            self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window
-        elif good.any():
-            self.notices += self.health.feed(time_s[good], residual[good], still, flange_R_base)
+        if still and not good.all():  # a saturated sample breaks the rest window
+            self._pending = (time_s[:1].copy(), residual[:1].copy(), False)
+        elif good.any():  # (copies: the caller owns residual and the correction is taken off it in place)
+            self._pending = (time_s[good], residual[good], still, flange_R_base)
         if self.health.auto_tare:  # the tracked offset while trusted, nothing once it is not (BiasHealth.correction)
             residual -= self.health.correction(float(time_s[-1]), flange_R_base)
         return residual
@@ -180,7 +197,9 @@ class DriftCheck:
         self._last_s = -np.inf
 
     def check(self, samples) -> list:
-        """Return the notices caused since the last call, plus a BiasDrift snapshot when one is due."""
+        """Return the notices caused since the last call, plus a BiasDrift snapshot when one is due (the tracker
+        first learns from the read's samples: :meth:`DriftCompensator.track`)."""
+        self.compensator.track()
         out: list = [Notice(n.text, level=n.level, source="health", time_s=n.time_s)
                      for n in self.compensator.notices]
         self.compensator.notices.clear()

@@ -211,6 +211,43 @@ def test_drift_compensator_applies_the_tracked_offset_only_with_auto_tare(calibr
     np.testing.assert_allclose(results[True][:3], 0.0, atol=0.003)  # auto-tare removed it
 
 
+def test_the_tracker_learns_from_a_read_after_it_is_published(calibration) -> None:
+    """A rest window's update (1-2 ms) must not delay the read's messages: compensate() leaves its batch to
+    DriftCheck.check, which the monitor runs once the read is published; a batch no check took is fed at the next
+    compensate(), and a tare (rebase) feeds it to the old biases' tracker first. Every batch once, in order."""
+    from procedures.bias_health import DriftCheck, DriftCompensator
+
+    compensator = DriftCompensator(BiasHealth(calibration, DriftSettings(), age_s=3600.0))
+    check = DriftCheck(compensator, period_s=1.0)
+    fed: list[float] = []
+    health = compensator.health
+    feed = health.feed
+
+    def counted(time_s, *args):
+        fed.append(float(time_s[0]))
+        return feed(time_s, *args)
+
+    health.feed = counted  # type: ignore[method-assign]
+    batches = [_Batch(k * BATCH_S + np.arange(10) / RATE_HZ, np.zeros((10, 6))) for k in range(4)]
+
+    def compensate(k: int) -> None:
+        compensator.compensate(batches[k], _Robot(batches[k].time_s[-1], np.zeros(6)))
+
+    compensate(0)
+    assert fed == []  # compensated, not yet learnt from
+    check.check(_Samples(batches[0]))
+    check.check(_Samples(batches[0]))
+    assert fed == [0.0]  # once
+    compensate(1)
+    compensate(2)
+    assert fed == [0.0, BATCH_S]  # no check after batch 1: fed before batch 2 is compensated
+    compensator.rebase(calibration)
+    assert fed == [0.0, BATCH_S, 2 * BATCH_S] and compensator.health is not health  # to the old tracker
+    compensate(3)
+    check.check(_Samples(batches[3]))
+    assert len(fed) == 3 and compensator.health.observations == 0 and compensator._pending is None
+
+
 def test_the_monitors_drift_line_prints_each_sigma_with_two_significant_digits(calibration) -> None:
     """The summary line of `ftacq monitor` gives the tracked offset ± 1σ; 1σ of a few 10⁻⁴ N or 10⁻⁵ N·m printed
     with a fixed 4 or 5 decimals showed one significant digit."""
