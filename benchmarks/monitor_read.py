@@ -12,7 +12,11 @@ clock (``time.thread_time``: what the thread spent, not what it waited or was pr
 - compensate: the compensator (dynamic model, flange orientation) and the drift tracker with its stillness check
   (``still`` on its own);
 - published: the listeners' hand-over (with ``--ros2`` the ROS 2 messages and their DDS writes);
-- step: the whole read (the above, the sample clock, the record, the health checks, the periodic events).
+- clock: the samples' times on the host clock (ftacq.timebase.SampleClock);
+- checks: the health checks (the drift tracker's events); periodic: the arm's and the stream's periodic events;
+- step: the whole read (the above and the record's hand-over).
+
+A stage's p99 and max show work that lands on some reads only (a refit, a periodic event).
 
 Reads per second are the loop's rate: ``--ros2`` reads on data (ftacq.app.ros2_outputs.ROS2_READ_PERIOD_S), more
 and smaller reads than the 10 ms period without it, so a fixed cost per read weighs more.
@@ -37,7 +41,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-STAGES = ("step", "read", "compensate", "still", "published")
+STAGES = ("step", "read", "clock", "compensate", "still", "published", "checks", "periodic")
 
 
 @contextlib.contextmanager
@@ -47,12 +51,14 @@ def timed_stages():
     from procedures.bias_health import DriftCompensator
     from procedures.delivery import Fanout
     from procedures.dynamic_compensation import DynamicCompensator
+    from ftacq.timebase import SampleClock
     from procedures.monitor import LiveMonitor
 
     cpu: dict[str, list[float]] = defaultdict(list)
-    patches = [(LiveMonitor, "step", "step"), (SensorBase, "read", "read"),
+    patches = [(LiveMonitor, "step", "step"), (SensorBase, "read", "read"), (SampleClock, "host_times", "clock"),
                (DriftCompensator, "compensate", "compensate"), (DynamicCompensator, "still_over", "still"),
-               (Fanout, "__call__", "published")]
+               (Fanout, "__call__", "published"), (LiveMonitor, "_run_checks", "checks"),
+               (LiveMonitor, "_publish_periodic", "periodic")]
     originals = [getattr(owner, name) for owner, name, _ in patches]
 
     def timed(function, stage):
@@ -106,10 +112,11 @@ def main() -> None:
             cpu = run(cell_args, args.seconds, ros2, Path(folder))
             steps = np.array(cpu["step"][5:])  # the first reads hold the start-up's backlog
             print(f"{'--ros2' if ros2 else 'without --ros2'}: {len(steps) / args.seconds:.0f} reads/s, loop CPU "
-                  f"{steps.sum() / 1e4 / args.seconds:.1f} % of one core; µs of CPU per read, p50 / mean:")
+                  f"{steps.sum() / 1e4 / args.seconds:.1f} % of one core; µs of CPU per call, p50 / mean / p99 / max:")
             for stage in STAGES:
                 values = np.array(cpu.get(stage, [0.0])[5:] or [0.0])
-                print(f"  {stage:11s} {np.median(values):7.0f} / {values.mean():7.0f}")
+                print(f"  {stage:11s} {np.median(values):7.0f} / {values.mean():7.0f} / "
+                      f"{np.percentile(values, 99):7.0f} / {values.max():7.0f}")
     print(f"load average after: {os.getloadavg()[0]:.1f}")
 
 

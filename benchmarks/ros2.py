@@ -25,8 +25,9 @@ Printed per run:
   onto it with the publisher's stamp offset): stamp (the window's mean sample time) → the window's newest sample
   (half a window) → its datagram stamped by the driver's receive thread ("host receipt": the device, the simulator
   and the kernel, and the receive thread's wake-up) → the read that returned it → compensated → handed to the ROS 2
-  path → (the read whose next sample closes the window, handed) → written to DDS → the subscriber's receipt; and
-  the product's own latency, host receipt of the window's newest sample → the subscriber's receipt;
+  path → (the read that sent the window: its newest sample's, or a later one that showed it complete) → written
+  to DDS → the subscriber's receipt; and the product's own latency, host receipt of the window's newest sample →
+  the subscriber's receipt;
 - CPU, % of one core: what --ros2 and --record .mcap add: the acquisition thread's time in the ROS 2 listener
   (messages made and written to DDS: procedures.ros2_stream.Ros2Stream), the bag's thread, Cyclone DDS's own
   threads; the monitor's loop (the main thread, that listener included); the whole process while it streamed,
@@ -210,15 +211,15 @@ class Probe:
         stamp_ns = stamp_ns[keep]
         subscriber_s = np.array([e["received_s"] for e in received])[keep] - self.offset_s
         stamp_s = stamp_ns * 1e-9 - self.offset_s
-        if self.period_s > 0:  # the window's newest sample, and the first sample after it (which closed it)
+        if self.period_s > 0:  # the window's newest sample
             window = np.floor(sample_s / self.period_s)
             newest = np.searchsorted(window, np.floor(stamp_s / self.period_s), side="right") - 1
-            closing = np.minimum(newest + 1, len(sample_s) - 1)
         else:
             after = np.clip(np.searchsorted(sample_s, stamp_s), 1, len(sample_s) - 1)  # the nearest sample
-            newest = closing = after - (stamp_s - sample_s[after - 1] < sample_s[after] - stamp_s)
-        r, c = read_of[newest], read_of[closing]
+            newest = after - (stamp_s - sample_s[after - 1] < sample_s[after] - stamp_s)
         written = np.array([written_s[int(s)] for s in stamp_ns])
+        # the read that sent the window (it, or a later one that showed it complete): the last handed before the write
+        r, c = read_of[newest], np.maximum(np.searchsorted(handed_s, written, side="right") - 1, read_of[newest])
         steady = r > 0  # the first read holds what came since the sensor started (start-up, not the stream)
         newest, r, c, written, subscriber_s, stamp_s = (a[steady] for a in (newest, r, c, written, subscriber_s,
                                                                            stamp_s))
@@ -228,7 +229,7 @@ class Probe:
                 "→ read returned (driver hold, read pacing)": ms * (read_s[r] - receipt_s[newest]),
                 "→ compensated": ms * (compensated_s[r] - read_s[r]),
                 "→ handed to ROS 2": ms * (handed_s[r] - compensated_s[r]),
-                "→ window closed (a later read, handed)": ms * (handed_s[c] - handed_s[r]),
+                "→ window closed (its read or a later one)": ms * (handed_s[c] - handed_s[r]),
                 "→ DDS written (means, CDR, write)": ms * (written - handed_s[c]),
                 "→ subscriber receipt": ms * (subscriber_s - written),
                 "PRODUCT: host receipt → subscriber": ms * (subscriber_s - receipt_s[newest]),

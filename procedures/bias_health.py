@@ -5,7 +5,8 @@
 returns the residual minus the tracker's correction when ``auto_tare`` is on (unchanged otherwise). The notices
 it causes (an at-rest warning, its clearing) and a periodic :class:`procedures.events.BiasDrift` snapshot (for the dashboard's bias
 drift plot and the console) are collected by :class:`DriftCheck`, the monitor's health check. Both run in the
-acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window.
+acquisition thread: a few numpy operations per batch, a Kalman update per 0.5 s rest window; the tracker learns from
+the batches in the check, after the read is published (the update delays no message), every 10 ms of samples.
 
 Stillness: the arm is still when every joint stayed within ``tolerance_rad`` over ``window_s`` before the batch's
 samples and while they were taken, from the RTDE state stream at the samples' time (``moving.still_over``: a
@@ -36,6 +37,10 @@ STILL_WINDOW_S = 0.25
 """Joint angles must stay within STILL_TOLERANCE_RAD for this long, s."""
 DRIFT_EVENT_PERIOD_S = 1.0
 """A BiasDrift snapshot is published at most this often, s (sample clock)."""
+TRACK_PERIOD_S = 0.01
+"""The drift tracker learns from the compensated samples in batches spanning at least this much sample time, s (the
+monitor's read period without --ros2; with it the monitor reads every burst, ~2 ms, and a feed's fixed cost, ~60 µs,
+was a tenth of a read). Rest windows last 0.5 s: the tracker's updates come this much later at most."""
 
 
 class StillDetector:
@@ -91,6 +96,7 @@ class DriftCompensator:
     def __post_init__(self) -> None:
         self._base = self.health.tracker.calibration  # what ``moving`` (or, without it, this) compensates with
         self._rotation_of: tuple[bytes, np.ndarray] = (b"", np.eye(3))  # (rotation vector's bytes, flange_R_base)
+        self._pending: list[tuple] = []  # the arguments of BiasHealth.feed of the batches not yet learnt from
 
     @property
     def calibration(self):
@@ -102,14 +108,40 @@ class DriftCompensator:
         constants of both models, so subtracting their change from the residual is the same compensation. The drift
         tracker restarts from them (just measured: age 0); ``auto_tare`` is kept."""
         with self.lock:
+            self._track(force=True)  # the batches compensated before the tare are the old biases' residuals
             self.bias_offset = (np.concatenate([calibration.force_bias, calibration.torque_bias])
                                 - np.concatenate([self._base.force_bias, self._base.torque_bias]))
             self.health = BiasHealth(calibration, self.health.settings, age_s=0.0, auto_tare=self.health.auto_tare)
 
     def compensate(self, batch, robot) -> np.ndarray | None:
-        """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one)."""
+        """Return the contact wrench (N, 6) of ``batch`` given the robot's latest state (None without one). The
+        tracker learns from it at :meth:`track` (the monitor's :class:`DriftCheck`, once the read is published: a
+        rest window's update, ~1-2 ms, then delays no message), or here, before a later batch, once the batches
+        waiting span :data:`TRACK_PERIOD_S`; the correction applied is the tracker's up to then."""
         with self.lock:
+            self._track()
             return self._compensate(batch, robot)
+
+    def track(self, force: bool = False) -> None:
+        """Feed the drift tracker the batches compensated since it last learnt, once they span
+        :data:`TRACK_PERIOD_S` (``force``: whatever they span); their notices join :attr:`notices`."""
+        with self.lock:
+            self._track(force)
+
+    def _track(self, force: bool = False) -> None:
+        pending = self._pending
+        if not pending or (not force and pending[-1][0][-1] - pending[0][0][0] < TRACK_PERIOD_S):
+            return
+        self._pending = []
+        start = 0
+        for end in range(1, len(pending) + 1):  # one feed per run of batches alike still (or not)
+            if end < len(pending) and pending[end][2] == pending[start][2]:
+                continue
+            run = pending[start:end]
+            feed = run[0] if len(run) == 1 else (np.concatenate([item[0] for item in run]),
+                                                  np.concatenate([item[1] for item in run]), run[0][2], run[-1][3])
+            self.notices += self.health.feed(*feed)
+            start = end
 
     def _compensate(self, batch, robot) -> np.ndarray | None:
         self.still_now = False
@@ -122,7 +154,7 @@ class DriftCompensator:
                 return None
             at_samples = getattr(self.moving, "flange_R_base", None)  # the static one's, at the samples' time
             if at_samples is not None and len(at_samples) == len(residual):
-                flange_R_base = at_samples[-1]
+                flange_R_base = at_samples[-1].copy()  # (kept until the tracker learns)
         else:
             residual = self._base.compensate(batch.wrench, flange_R_base)
         if self.bias_offset.any():
@@ -135,10 +167,10 @@ class DriftCompensator:
             still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
         self.still_now = bool(still)
         good = ~np.asarray(batch.saturated, dtype=bool)
-        if still and not good.all():
-            self.health.feed(time_s[:1], residual[:1], False)  # a saturated sample breaks the rest window
-        elif good.any():
-            self.notices += self.health.feed(time_s[good], residual[good], still, flange_R_base)
+        if still and not good.all():  # a saturated sample breaks the rest window
+            self._pending.append((time_s[:1].copy(), residual[:1].copy(), False, None))
+        elif good.any():  # (copies: the caller owns residual and the correction is taken off it in place)
+            self._pending.append((time_s[good], residual[good], bool(still), flange_R_base))
         if self.health.auto_tare:  # the tracked offset while trusted, nothing once it is not (BiasHealth.correction)
             residual -= self.health.correction(float(time_s[-1]), flange_R_base)
         return residual
@@ -180,15 +212,18 @@ class DriftCheck:
         self._last_s = -np.inf
 
     def check(self, samples) -> list:
-        """Return the notices caused since the last call, plus a BiasDrift snapshot when one is due."""
+        """Return the notices caused since the last call, plus a BiasDrift snapshot when one is due (the tracker
+        first learns from the reads' samples: :meth:`DriftCompensator.track`, every TRACK_PERIOD_S)."""
+        self.compensator.track()
         out: list = [Notice(n.text, level=n.level, source="health", time_s=n.time_s)
                      for n in self.compensator.notices]
         self.compensator.notices.clear()
         now_s = float(samples.batch.time_s[-1])
         if now_s - self._last_s >= self.period_s and self.compensator.health.observations:
+            self.compensator.track(force=True)
             out.append(self.compensator.snapshot(now_s))
             self._last_s = now_s
         return out
 
 
-__all__ = ["StillDetector", "DriftCompensator", "DriftCheck", "STILL_TOLERANCE_RAD", "STILL_WINDOW_S"]
+__all__ = ["StillDetector", "DriftCompensator", "DriftCheck", "STILL_TOLERANCE_RAD", "STILL_WINDOW_S", "TRACK_PERIOD_S"]

@@ -12,7 +12,7 @@ What they send (ROS names under the node's namespace, docs/ros2.md):
   frame's name; ``header.stamp`` the sample's time: its time on the host monotonic clock (the record's
   ``sample_time_s``) + (UNIX − monotonic) taken once at the start (:class:`StampClock`), i.e. ROS time on this host.
   At ``rate_hz`` (default 1 kHz) each message is the mean of the samples in one window [k/rate, (k+1)/rate) of
-  sample time, stamped with the mean of their times, sent once a later sample shows the window complete; rate 0:
+  sample time, stamped with the mean of their times, sent as soon as its last sample arrives; rate 0:
   one message per sample. A read left uncompensated (no robot state near its samples) sends no compensated message.
 - ``calibration`` (``std_msgs/msg/String``, latched): the calibration in force as its JSON document.
 - ``bias``, ``bias_sigma`` (``geometry_msgs/msg/WrenchStamped``, one each per drift-tracker update, about 1 Hz): the
@@ -58,16 +58,30 @@ class StampClock:
 
 
 class WindowMean:
-    """Means over consecutive windows of ``period_s`` of sample time (0: every sample as it is). A window is sent
-    once a sample of a later window arrives; its samples wait in between. The times sent never go back: a sample
-    dated before a sample already seen (the sensor clock's mapping moved back, by less than a millisecond) counts
-    at that sample's time, so every topic's stamps increase, whatever the batches."""
+    """Means over consecutive windows [k·period_s, (k+1)·period_s) of sample time (0: every sample as it is).
 
-    def __init__(self, period_s: float, columns: int = 6) -> None:
+    A window is sent as soon as it is known complete: it holds its last expected sample (one whose next sample,
+    ``sample_period_s`` later, falls in the next window: the sensor sends in bursts, and waiting for the next burst
+    to show the window complete cost up to a burst's period), or a sample of a later window has arrived (a lost
+    sample, an unknown sample period: 0). Its samples wait in between. The invariants, whatever the batches:
+
+    - the times sent never go back: a sample dated before a sample already seen (the sensor clock's mapping moved
+      back, by less than a millisecond) counts at that sample's time, and one dated inside a window already sent
+      counts at the start of the next window, so every topic's stamps strictly increase;
+    - the same samples give the same means however they are batched (each decision is the sample's own).
+    """
+
+    def __init__(self, period_s: float, columns: int = 6, sample_period_s: float = 0.0) -> None:
         self.period_s = float(period_s)
+        # a sample within (1 - EARLY_CLOSE_TOLERANCE) sample periods of its window's end is its last one; only
+        # for windows longer than a sample period (else each would hold one sample: every sample is the mode then)
+        self.margin_s = (float(sample_period_s) * (1.0 - EARLY_CLOSE_TOLERANCE)
+                         if 0.0 < sample_period_s < self.period_s else 0.0)
         self._time_s = np.empty(0)
+        self._window = np.empty(0, dtype=np.int64)
         self._values = np.empty((0, columns))
         self._floor_s = -np.inf
+        self._closed = _NO_WINDOW  # the newest window sent early: later samples count in later windows
 
     def feed(self, time_s: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Add samples (N,) s and (N, C); return the completed windows' (mean time (M,), mean values (M, C)).
@@ -76,16 +90,31 @@ class WindowMean:
         if not len(time_s):
             return _NO_TIMES, self._values[:0]
         np.maximum(time_s, self._floor_s, out=time_s)
-        self._floor_s = time_s[-1]  # the newest time seen: a window sent ended before it (batching-independent)
         values = np.asarray(values, dtype=float)
         if self.period_s <= 0:
+            self._floor_s = time_s[-1]
             return time_s, values
+        window = np.floor(time_s / self.period_s).astype(np.int64)
+        last_done = False
+        if self.margin_s > 0:  # the samples that complete their window, and those dated inside a window sent
+            done = time_s + self.margin_s >= (window + 1) * self.period_s
+            last_done = bool(done[-1])
+            # usually none is late: the first is past the window sent last, and no sample follows one that completed
+            # its own window (two within a sample period of a window's end: the mapping moved). Only the last
+            # sample's window can then be one sent early (windows ascend)
+            if window[0] > self._closed and not (done[:-1] & (window[1:] == window[:-1])).any():
+                if last_done:
+                    self._closed = int(window[-1])
+            else:
+                last_done = self._late(time_s, window, done)
+        self._floor_s = time_s[-1]  # the newest time seen: a window sent ended before it (batching-independent)
         if len(self._time_s):
             time_s = np.concatenate((self._time_s, time_s))
+            window = np.concatenate((self._window, window))
             values = np.concatenate((self._values, values))
-        window = np.floor(time_s / self.period_s).astype(np.int64)
-        open_from = int(np.searchsorted(window, window[-1]))  # the newest window may still grow (windows ascend)
-        self._time_s, self._values = time_s[open_from:], values[open_from:]
+        # the newest window may still grow (windows ascend), unless its last sample came
+        open_from = len(window) if last_done else int(np.searchsorted(window, window[-1]))
+        self._time_s, self._window, self._values = time_s[open_from:], window[open_from:], values[open_from:]
         if open_from == 0:
             return _NO_TIMES, self._values[:0]
         window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
@@ -97,26 +126,48 @@ class WindowMean:
         return (np.add.reduceat(time_s, starts) / counts,
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
 
+    def _late(self, time_s: np.ndarray, window: np.ndarray, done: np.ndarray) -> bool:
+        """Move the samples dated inside a window already sent (by an earlier sample of it, or of an earlier read)
+        to the next window's start, in place; return whether the last sample completes its window."""
+        closed = np.maximum.accumulate(np.where(done, window, self._closed))
+        before = np.empty_like(closed)  # the newest window sent before each sample
+        before[0], before[1:] = self._closed, closed[:-1]
+        late = window <= before
+        if late.any():  # (a late sample is at a window's start: it completes nothing, as period_s > margin_s)
+            window[late] = before[late] + 1
+            time_s[late] = np.maximum(time_s[late], window[late] * self.period_s)
+            done[late] = False
+        self._closed = int(closed[-1])
+        return bool(done[-1])
+
+    def _copy_state(self, other: "WindowMean", values: np.ndarray) -> None:
+        self._time_s, self._window, self._values = other._time_s, other._window, values
+        self._floor_s, self._closed, self.margin_s = other._floor_s, other._closed, other.margin_s
 
     def split(self, columns: int) -> tuple["WindowMean", "WindowMean"]:
         """Two means of this one's first ``columns`` and its other columns, from the same state."""
         parts = WindowMean(self.period_s, columns), WindowMean(self.period_s, self._values.shape[1] - columns)
         for part, values in zip(parts, (self._values[:, :columns], self._values[:, columns:])):
-            part._time_s, part._values, part._floor_s = self._time_s, values, self._floor_s
+            part._copy_state(self, values)
         return parts
 
     @staticmethod
     def joined(first: "WindowMean", second: "WindowMean") -> "WindowMean | None":
         """One mean of both's columns when they hold the same samples' times (what :meth:`split` made), else None."""
-        if first._floor_s != second._floor_s or not np.array_equal(first._time_s, second._time_s):
+        if (first._floor_s != second._floor_s or first._closed != second._closed
+                or not np.array_equal(first._time_s, second._time_s)):
             return None
         both = WindowMean(first.period_s, first._values.shape[1] + second._values.shape[1])
-        both._time_s, both._floor_s = first._time_s, first._floor_s
-        both._values = np.hstack((first._values, second._values))
+        both._copy_state(first, np.hstack((first._values, second._values)))
         return both
 
 
+EARLY_CLOSE_TOLERANCE = 0.01
+"""A sample closes its window early when its next sample, (1 − this) sample periods later, would be past the
+window's end: the mapped sample period differs from the sensor's nominal one by the crystals' rate error (< 0.05 %);
+a sample that still lands in a window already sent counts in the next one."""
 _NO_TIMES = np.empty(0)
+_NO_WINDOW = np.iinfo(np.int64).min // 2
 
 
 def _sample_times(samples: events.WrenchSamples) -> np.ndarray:
@@ -128,15 +179,24 @@ class _WrenchStreams:
     both, one :class:`WindowMean` of their 12 columns (half the numpy calls; the same means, the same stamps); a read
     without a compensated wrench parts them until their open windows hold the same samples again."""
 
-    def __init__(self, frame_id: str, rate_hz: float, clock: StampClock) -> None:
+    def __init__(self, frame_id: str, rate_hz: float, clock: StampClock,
+                 sample_period_s: Callable[[], float] | None = None) -> None:
         self.encoder = WrenchStampedEncoder(frame_id)
         self.clock = clock
-        period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
-        self.both: WindowMean | None = WindowMean(period_s, 12)
-        self.raw, self.compensated = WindowMean(period_s), WindowMean(period_s)  # (used while apart)
+        self.period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
+        self._sample_period_s = sample_period_s  # asked at the first samples (the sensor is open by then)
+        self._start(0.0)
+
+    def _start(self, sample_period_s: float) -> None:
+        self.both: WindowMean | None = WindowMean(self.period_s, 12, sample_period_s)
+        self.raw = WindowMean(self.period_s, 6, sample_period_s)  # (raw and compensated: used while apart)
+        self.compensated = WindowMean(self.period_s, 6, sample_period_s)
 
     def messages(self, samples: events.WrenchSamples) -> list[Message]:
         """``wrench_raw`` and (when known) ``wrench_compensated`` messages for the windows ``samples`` complete."""
+        if self._sample_period_s is not None:
+            self._start(self._sample_period_s())
+            self._sample_period_s = None
         time_s = _sample_times(samples)
         if self.both is not None and samples.compensated is not None:
             mean_time_s, mean = self.both.feed(time_s, np.hstack((samples.batch.wrench, samples.compensated)))
@@ -175,13 +235,16 @@ class Ros2Messages:
         reference_bias: () → the calibration's biases now (6,) [N, N·m], for ``bias``.
         joint_states: also ``joint_states`` from the RobotState events (the bag's; no topic carries them).
         joint_names: their names. clock: the stamps' :class:`StampClock`.
+        sample_period_s: () → the sensor's sample period, s (1 / its rate), asked at the first samples: a window
+            is sent as soon as it holds its last sample (:class:`WindowMean`); None: once a later sample arrives.
     """
 
     def __init__(self, frame_id: str, rate_hz: float = DEFAULT_RATE_HZ,
                  reference_bias: Callable[[], np.ndarray] = lambda: np.zeros(6), joint_states: bool = False,
-                 joint_names: tuple[str, ...] = UR_JOINT_NAMES, clock: StampClock | None = None) -> None:
+                 joint_names: tuple[str, ...] = UR_JOINT_NAMES, clock: StampClock | None = None,
+                 sample_period_s: Callable[[], float] | None = None) -> None:
         self.clock = clock or StampClock()
-        self.streams = _WrenchStreams(frame_id, rate_hz, self.clock)
+        self.streams = _WrenchStreams(frame_id, rate_hz, self.clock, sample_period_s)
         self.reference_bias = reference_bias
         self.joint_states = joint_states
         self.joint_names = list(joint_names)

@@ -211,6 +211,57 @@ def test_drift_compensator_applies_the_tracked_offset_only_with_auto_tare(calibr
     np.testing.assert_allclose(results[True][:3], 0.0, atol=0.003)  # auto-tare removed it
 
 
+def test_the_tracker_learns_from_reads_after_they_are_published(calibration) -> None:
+    """A rest window's update (1-2 ms) must not delay a read's messages, nor a feed's fixed cost weigh on every 2 ms
+    read: compensate() leaves its batch to DriftCheck.check, which the monitor runs once the read is published and
+    which feeds the tracker once the batches waiting span TRACK_PERIOD_S, one feed per run of batches alike still
+    (or not); a batch no check took is fed before a later compensate(), and a tare (rebase) feeds what waits to the
+    old biases' tracker first. Every sample once, in order."""
+    from procedures.bias_health import TRACK_PERIOD_S, DriftCheck, DriftCompensator
+
+    class Still:  # the stillness of each batch, as scripted
+        window_s, tolerance_rad = 0.25, 1e-4
+
+        def __init__(self, flags) -> None:
+            self.flags = iter(flags)
+
+        def update(self, time_s, q) -> bool:
+            return next(self.flags)
+
+    compensator = DriftCompensator(BiasHealth(calibration, DriftSettings(), age_s=3600.0),
+                                   still=Still([False] + [True] * 6))  # type: ignore[arg-type]
+    check = DriftCheck(compensator, period_s=1.0)
+    fed: list[tuple[float, int, bool]] = []
+    health = compensator.health
+    feed = health.feed
+
+    def counted(time_s, residual, still, *args):
+        fed.append((float(time_s[0]), len(time_s), still))
+        return feed(time_s, residual, still, *args)
+
+    health.feed = counted  # type: ignore[method-assign]
+    period_s = 0.4 * TRACK_PERIOD_S  # 8 samples per batch, batches back to back
+    batches = [_Batch(k * period_s + np.arange(8) * period_s / 8, np.zeros((8, 6))) for k in range(7)]
+
+    def read(k: int, checked: bool = True) -> None:
+        compensator.compensate(batches[k], _Robot(batches[k].time_s[-1], np.zeros(6)))
+        if checked:
+            check.check(_Samples(batches[k]))
+
+    read(0)
+    read(1)
+    assert fed == []  # compensated and published, 0.75 TRACK_PERIOD_S waiting: not yet learnt from
+    read(2)
+    assert fed == [(0.0, 8, False), (period_s, 16, True)]  # one feed per run of stillness
+    for k in (3, 4, 5):
+        read(k, checked=False)
+    assert fed[2:] == []  # at batch 5's compensation, 0.75 TRACK_PERIOD_S were waiting
+    read(6, checked=False)
+    assert fed[2:] == [(3 * period_s, 24, True)]  # fed before batch 6 is compensated
+    compensator.rebase(calibration)
+    assert fed[3:] == [(6 * period_s, 8, True)] and compensator.health is not health  # to the old tracker
+
+
 def test_the_monitors_drift_line_prints_each_sigma_with_two_significant_digits(calibration) -> None:
     """The summary line of `ftacq monitor` gives the tracked offset ± 1σ; 1σ of a few 10⁻⁴ N or 10⁻⁵ N·m printed
     with a fixed 4 or 5 decimals showed one significant digit."""

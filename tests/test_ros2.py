@@ -109,6 +109,75 @@ def test_window_stamps_never_go_back():
         np.testing.assert_allclose(np.concatenate([m1, m2]), 1.0)
 
 
+def _feed_all(window: WindowMean, time_s: np.ndarray, values: np.ndarray, sizes) -> tuple[list, np.ndarray,
+                                                                                          np.ndarray]:
+    """Feed ``time_s``, ``values`` in batches of ``sizes``; return the windows sent per batch and all of them."""
+    per_batch, times, means = [], [], []
+    for part in np.split(np.arange(len(time_s)), np.cumsum(sizes)[:-1]):
+        t, m = window.feed(time_s[part], values[part])
+        per_batch.append(len(t))
+        times.append(t)
+        means.append(m)
+    return per_batch, np.concatenate(times), np.concatenate(means)
+
+
+def test_a_window_is_sent_with_its_last_sample():
+    """The Net F/T sends 14 samples every 2 ms: each burst ends with the last sample of a 1 kHz window. Knowing the
+    sample period, a window is sent in the read that brings its last sample (both of a burst's windows at once),
+    not when the next burst shows it complete; the means are those of all samples at once."""
+    time_s = 10.0 + (np.arange(7000) + 0.5) / 7000.0
+    values = np.random.default_rng(2).normal(size=(7000, 6))
+    index = np.floor(time_s / 1e-3).astype(int)
+    per_batch, times, means = _feed_all(WindowMean(1e-3, sample_period_s=1 / 7000.0), time_s, values, [14] * 500)
+    assert per_batch == [2] * 500  # (without the sample period: one in the first read, the last window held)
+    np.testing.assert_allclose(means, [values[index == k].mean(axis=0) for k in np.unique(index)], atol=1e-12)
+    np.testing.assert_allclose(times, [time_s[index == k].mean() for k in np.unique(index)], rtol=1e-15)
+    assert _feed_all(WindowMean(1e-3), time_s, values, [14] * 500)[0][:2] == [1, 2]
+
+
+@pytest.mark.parametrize("jitter_s", [3e-6, 3e-5])
+def test_early_windows_keep_the_invariants_whatever_the_batches(jitter_s):
+    """Sent early, windows still give the same means however the samples are batched, and every stamp is later
+    than the one before: with the clock's mapping stepping back 0.3 ms, and with jitter (3 µs, and 30 µs: two
+    samples within a sample period of a window's end, the second dated inside the window the first sent)."""
+    rng = np.random.default_rng(5)
+    n = 3000
+    time_s = 3.0 + np.arange(n) / 7000.0 * (1 + 2e-4) + rng.normal(0, jitter_s, n)
+    time_s[1000:] -= 3e-4  # the mapping steps back
+    values = np.column_stack([np.ones(n), rng.normal(size=(n, 5))])
+    results = []
+    for sizes in ([1] * n, [14] * (n // 14) + [n % 14], list(np.diff([0, *sorted(rng.choice(n, 150, replace=False)),
+                                                                       n]))):
+        sizes = [s for s in sizes if s]
+        window = WindowMean(1e-3, sample_period_s=1 / 7000.0)
+        _, times, means = _feed_all(window, time_s, values, sizes)
+        assert np.all(np.diff(times) > 0)
+        assert len(window._time_s) < 8  # at most one open window left
+        results.append((times, means))
+    for times, means in results[1:]:
+        np.testing.assert_array_equal(times, results[0][0])
+        np.testing.assert_array_equal(means, results[0][1])
+
+
+def test_a_sample_dated_inside_a_window_sent_counts_in_the_next():
+    """A window sent with its last sample; the next read's first two samples are dated inside it (the clock's
+    mapping stepped back 0.3 ms): they count at the next window's start, the window sent keeps its 7 samples."""
+    period_s, dt_s = 1e-3, 1 / 7000.0
+    end_s = (np.floor(5.0 / period_s) + 1) * period_s
+    first = end_s - (6.5 - np.arange(7)) * dt_s  # the last one half a sample period before the end
+    later = end_s + 0.5 * dt_s - 3e-4 + np.arange(10) * dt_s
+    values = np.random.default_rng(4).normal(size=(17, 6))
+    window = WindowMean(period_s, sample_period_s=dt_s)
+    t1, m1 = window.feed(first, values[:7])
+    np.testing.assert_allclose(m1, values[None, :7].mean(axis=1), atol=1e-12)
+    np.testing.assert_allclose(t1, [first.mean()], rtol=1e-15)
+    t2, m2 = window.feed(later, values[7:])
+    assert np.sum(later < end_s) == 2 and len(t2) == 1  # j = 8 is the next window's last sample: sent too
+    np.testing.assert_allclose(m2, values[None, 7:16].mean(axis=1), atol=1e-12)
+    np.testing.assert_allclose(t2, [np.r_[end_s, end_s, later[2:9]].mean()], rtol=1e-15)
+    assert t2[0] > t1[0]
+
+
 def test_the_calibration_text_is_serialized_once_per_calibration(monkeypatch):
     """A calibration without ``created_utc`` is stamped when serialized: the bag's metadata and the latched topic
     carry one text, even across a second's turn; a tare's new calibration gets its own."""

@@ -138,11 +138,13 @@ def _domain_id(args: argparse.Namespace) -> int:
 
 
 def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibration: Callable[[], Any],
-                   tare: Callable[[], Any] | None) -> tuple[list, list[str]]:
+                   tare: Callable[[], Any] | None,
+                   sensor_rate_hz: Callable[[], float] | None = None) -> tuple[list, list[str]]:
     """The listeners for ``--ros2`` and ``--record X.mcap`` (none without either), closed by ``stack`` (after the
     stream: the bag finished, the node closed). ``calibration()`` the calibration in force (None: raw only; it
     changes with a tare); ``tare()`` the session's live tare (:meth:`ftacq.app.session.Cell.tare`, a
-    :class:`procedures.tare.TareResult`), or None. Also returns a list that the run's last lines are appended to
+    :class:`procedures.tare.TareResult`), or None; ``sensor_rate_hz()`` the sensor's sample rate once it is open
+    (each window's message is sent as soon as its last sample arrives), None: unknown. Also returns a list that the run's last lines are appended to
     once ``stack`` has closed (what was published and recorded)."""
     report: list[str] = []
     if not (args.ros2 or is_bag(args.record)):
@@ -174,7 +176,12 @@ def ros2_listeners(args: argparse.Namespace, stack: contextlib.ExitStack, calibr
 
     bag_queue: BackgroundListener | None = None
     publisher: Ros2Publisher | None = None
-    messages = Ros2Messages(frame_id, rate_hz, reference_bias, joint_states=is_bag(args.record))
+    def sample_period_s() -> float:
+        rate_hz = sensor_rate_hz() if sensor_rate_hz is not None else 0.0
+        return 1.0 / rate_hz if rate_hz > 0 else 0.0
+
+    messages = Ros2Messages(frame_id, rate_hz, reference_bias, joint_states=is_bag(args.record),
+                            sample_period_s=None if sensor_rate_hz is None else sample_period_s)
     if is_bag(args.record):
         recorder = BagRecorder(args.record, namespace, calibration_json(), metadata={"source": "ftacq monitor"})
         bag_queue = BackgroundListener([recorder], max_queued=LISTENER_QUEUE_BATCHES, period_s=0.05,

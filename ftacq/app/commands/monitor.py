@@ -115,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
             cell.add_listener(dashboard)
             viewer.append(dashboard)
             listeners, report = ros2_listeners(args, stack, lambda: cell.calibration,
-                                               cell.tare if cell.calibration is not None else None)
+                                               cell.tare if cell.calibration is not None else None,
+                                               lambda: cell.sensor_rate_hz)
             for listener in listeners:  # --ros2, --record X.mcap
                 cell.add_listener(listener)
             ros2_reports.append(report)  # filled as the stack closes
