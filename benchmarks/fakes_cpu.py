@@ -47,6 +47,7 @@ def process_cpu_s(pid: int) -> float:
 
 def measure(pids: dict[str, int], seconds: float, work=None) -> dict[str, float]:
     """% of one core each process (and this one, "clients") used over ``seconds`` while ``work()`` runs."""
+    print(f"phase of {seconds:g} s starts (pids {pids})", file=sys.stderr, flush=True)
     before = {name: process_cpu_s(pid) for name, pid in pids.items()}
     own, wall = time.process_time(), time.monotonic()
     end = wall + seconds

@@ -210,6 +210,11 @@ class SettablePose:
             return self._pose.copy(), self._speed
 
 
+def any_nonzero(values) -> bool:
+    """Whether any value is non-zero (``np.any``; an array's own method costs a third: this runs per tick)."""
+    return bool(values.any()) if isinstance(values, np.ndarray) else bool(np.any(values))
+
+
 @dataclass(frozen=True)
 class JointState:
     """The controller's joint state at one tick, as published for the sensor (SI units).
@@ -237,8 +242,8 @@ class JointState:
 
     @property
     def at_rest(self) -> bool:
-        recently_moving = self.switched_ago_s < MAX_EXTRAPOLATION_S and np.any(self.qdd_before)
-        return not (np.any(self.qd) or np.any(self.qdd) or np.any(self.qdd_next) or recently_moving)
+        recently_moving = self.switched_ago_s < MAX_EXTRAPOLATION_S and any_nonzero(self.qdd_before)
+        return not (any_nonzero(self.qd) or any_nonzero(self.qdd) or any_nonzero(self.qdd_next) or recently_moving)
 
     def at(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Return (q, q̇, q̈), each (S, 6), at clock times ``times_s`` (S,): exact for the piecewise constant q̈
