@@ -417,17 +417,22 @@ class SensorPhysics:
 
     def noiseless_wrench(self, pose: np.ndarray, elapsed_s: float = 0.0) -> np.ndarray:
         """Return the wrench (6,) without noise at a flange pose, at rest, ``elapsed_s`` seconds after start (drift)."""
+        return self._load_at_rest(pose) + self.bias_at(elapsed_s)
+
+    def _load_at_rest(self, pose: np.ndarray) -> np.ndarray:
+        """The tool's weight and the contact at a flange pose, through the sensor's gain (6,): computed once per
+        pose, tool and contact (the arm at rest)."""
         tool, pose, contact = self._tool, np.asarray(pose), self.contact_wrench
         cached = self._rest_load
         key = (pose.tobytes(), np.asarray(contact).tobytes())
-        if cached is None or cached[0] != key or cached[1] is not tool:  # the arm at rest: once per pose
+        if cached is None or cached[0] != key or cached[1] is not tool:
             _mass, gravity_base, com = tool
             base_R_flange = rotation_from_rotvec(pose[3:6])
             gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
             torque = np.cross(com, gravity_sensor)
             load = np.concatenate([gravity_sensor, torque]) + contact
             cached = self._rest_load = (key, tool, load @ self._gain_t)
-        return cached[2] + self.bias_at(elapsed_s)
+        return cached[2]
 
     def tool_wrench(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Return the wrench (S, 6) of the moving tool alone (gravity and inertia; no bias, drift, contact, noise)."""
@@ -495,9 +500,10 @@ class SensorPhysics:
             times = start_time_s + np.arange(n) * (1.0 / self.rate_hz if period_s is None else period_s)
         if state is None or self.robot is None or state.at_rest:
             self._last_moving = None
-            mean = self.noiseless_wrench(pose, elapsed)
+            bias = self.bias_at(elapsed)
+            mean = self._load_at_rest(pose) + bias  # noiseless_wrench(pose, elapsed)
             if start_time_s is not None:  # the drift at each sample's own time
-                mean = mean - self.bias_at(elapsed) + self.bias_at((times - self.start_time_s)[:, None])
+                mean = mean - bias + self.bias_at((times - self.start_time_s)[:, None])
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
