@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
 
     with SimulatedCell(sensor="netft", time_scale=1.0, rate_hz=RATE_HZ, sensor_process=True) as cell:
         controller, box = cell.controller, cell.netft
-        pids = {"controller": controller._process.pid, "netft": box.pid}
+        pids = {"controller": controller.pid, "netft": box.pid}
         receive = rtde_receive.RTDEReceiveInterface(controller.host)
         control = rtde_control.RTDEControlInterface(controller.host)
         stream = URStateStream(controller.host).start()
