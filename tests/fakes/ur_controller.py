@@ -450,7 +450,7 @@ class ControllerServer:
                     if now >= connection.next_send_s:
                         if connection is not feeder and not jittered and self.send_jitter_s > 0.0:
                             jittered = True  # the rest of this cycle's packages leave a little late
-                            time.sleep(self.send_jitter_s * self._jitter_rng.random())  # < 1 ms: no stop check
+                            time.sleep(self.send_jitter_s * self._jitter_rng.random())  # a fraction of a tick
                         if connection is feeder:
                             connection.pump()  # the inputs that reached the controller before this cycle
                             with self.sim.lock:

@@ -220,8 +220,9 @@ class URSimulator:
         self.stream_period_s = 0.002  # longest period among streaming clients; set by the server
         self.on_network_fault = None  # callable(kind) installed by the server
         self._pose_cache: dict[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] = {}
-        self._rest_accelerometer: tuple[tuple[bytes, str], np.ndarray] | None = None  # (q, mount) at rest
         """(flange pose, TCP pose) by (q, TCP offset): the target's and the lagging arm's, both asked each tick."""
+        self._rest_accelerometer: tuple[tuple[bytes, str], np.ndarray] | None = None
+        """((q, mount), the accelerometer's reading at rest there): asked each tick while the arm stands still."""
         self.tcp_speed = np.zeros(6)
         self.tool_motion_outputs = True
         """Compute actual_TCP_speed and actual_tool_accelerometer each tick (the server clears it while no client's

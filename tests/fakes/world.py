@@ -383,7 +383,7 @@ class SensorPhysics:
         self._gravity_m_s2 = self.truth.gravity_base_m_s2
         self._sensor_offset = np.array(self.truth.sensor_offset_m)
         self._inertia = self.truth.inertia
-        self._rest_load: tuple | None = None  # (pose bytes, tool, contact bytes, load through the gain) at rest
+        self._rest_load: tuple | None = None  # ((pose, contact) bytes, tool, the load through the gain) at rest
         self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
         self._next_sample_s: float | None = None
         self.timeline_restarts = 0
