@@ -34,10 +34,12 @@ average_time_s = 0.1
 """
 
 
-def calibrate_command(tmp_path: Path, *extra: str) -> list[str]:
+def calibrate_command(tmp_path: Path, *extra: str, sensor: str = "netft") -> list[str]:
+    """The command on the simulated cell with ``sensor`` ("netft", or "can": the interrupted runs take the CAN board,
+    whose driver polls from the command's own process)."""
     config = tmp_path / "FAST.toml"
     config.write_text(FAST_TOML, encoding="utf-8")
-    return [sys.executable, "-m", "ftacq.app.cli", "calibrate", "--sim", "--sensor", "can", "--time-scale", "0",
+    return [sys.executable, "-m", "ftacq.app.cli", "calibrate", "--sim", "--sensor", sensor, "--time-scale", "0",
             "--yes", "--config", str(config), "--out", str(tmp_path / "runs"), *extra]
 
 
@@ -99,7 +101,7 @@ def check_resumed(run_dir: Path, rows_before: str) -> None:
 
 @pytest.mark.slow(seconds=18, group="calibrate commands")
 def test_sigint_then_resume(tmp_path, capsys):
-    process = start(calibrate_command(tmp_path))
+    process = start(calibrate_command(tmp_path, sensor="can"))
     run_dir = wait_for_rows(process, tmp_path / "runs", ROWS_BEFORE_INTERRUPT)
     process.send_signal(signal.SIGINT)
     out, err = process.communicate(timeout=EXIT_TIMEOUT_S)
@@ -133,7 +135,7 @@ def test_sigint_then_resume(tmp_path, capsys):
 
 @pytest.mark.slow(seconds=14, group="calibrate commands")
 def test_killed_process_then_resume(tmp_path):
-    process = start(calibrate_command(tmp_path), new_session=True)
+    process = start(calibrate_command(tmp_path, sensor="can"), new_session=True)
     run_dir = wait_for_rows(process, tmp_path / "runs", ROWS_BEFORE_INTERRUPT)
     os.killpg(process.pid, signal.SIGKILL)  # the whole process group: CLI, simulated controller, tracker
     process.communicate(timeout=EXIT_TIMEOUT_S)
