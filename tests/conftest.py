@@ -77,34 +77,20 @@ _BEFORE = pytest.StashKey[set]()
 
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Order and group the suite for ``./run.sh test`` (``-n 4 --dist loadgroup``): the tests marked ``slow`` first,
+    """Order and group the suite for ``./run.sh test`` (``-n 2 --dist loadgroup``): the tests marked ``slow`` first,
     longest first (``@pytest.mark.slow(seconds=…)``: the test's usual length on the 2-core machine, default
-    :data:`SLOW_TEST_S`), each dealt out alone unless its marker names a ``group`` (``slow(seconds=…, group=…)``:
-    tests that load the machine alike, run one after the other by one worker, the group placed by its total
-    length); every other test in one group per module (``xdist_group``), so a module's shared fixtures (a simulated
-    cell, an identified run) are built once. The real-time quick calibrations (a minute and a half each) run on one
-    worker from the start and the modules fill in around them, instead of one long test ending the suite while the
-    other workers idle, or two whole commands and their simulated cells starving each other's devices. Every process
-    orders alike."""
+    :data:`SLOW_TEST_S`), each dealt out alone; every other test in one group per module (``xdist_group``), so a
+    module's shared fixtures (a simulated cell, an identified run) are built once. The real-time quick calibrations
+    (a minute and a half each) then start at once on different workers and the modules fill in around them,
+    instead of one long test ending the suite while the other worker idles. Every process orders alike."""
     def expected_s(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return 0.0 if marker is None else float(marker.kwargs.get("seconds", SLOW_TEST_S))
 
-    def group_of(item: pytest.Item) -> str | None:
-        marker = item.get_closest_marker("slow")
-        return None if marker is None else marker.kwargs.get("group")
-
-    totals: dict[str, float] = {}
-    for item in items:
-        if group_of(item) is not None:
-            totals[group_of(item)] = totals.get(group_of(item), 0.0) + expected_s(item)  # type: ignore[index]
-    items.sort(key=lambda item: (-totals[group_of(item)] if group_of(item) is not None else -expected_s(item),
-                                 group_of(item) or "", -expected_s(item)))
+    items.sort(key=lambda item: -expected_s(item))
     for item in items:
         if item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
-        elif group_of(item) is not None:
-            item.add_marker(pytest.mark.xdist_group(f"slow:{group_of(item)}"))
 
 
 SLOW_TEST_S = 5.0

@@ -99,7 +99,7 @@ def check_resumed(run_dir: Path, rows_before: str) -> None:
     np.testing.assert_allclose(again.center_of_mass, calibration.center_of_mass, atol=1e-12)
 
 
-@pytest.mark.slow(seconds=18, group="calibrate commands")
+@pytest.mark.slow(seconds=18)
 def test_sigint_then_resume(tmp_path, capsys):
     process = start(calibrate_command(tmp_path, sensor="can"))
     run_dir = wait_for_rows(process, tmp_path / "runs", ROWS_BEFORE_INTERRUPT)
@@ -133,7 +133,7 @@ def test_sigint_then_resume(tmp_path, capsys):
     assert "already done" in capsys.readouterr().err
 
 
-@pytest.mark.slow(seconds=14, group="calibrate commands")
+@pytest.mark.slow(seconds=14)
 def test_killed_process_then_resume(tmp_path):
     process = start(calibrate_command(tmp_path, sensor="can"), new_session=True)
     run_dir = wait_for_rows(process, tmp_path / "runs", ROWS_BEFORE_INTERRUPT)
@@ -161,7 +161,7 @@ def test_sigterm_stops_cleanly_with_exit_130(tmp_path):
     assert read_pose_csv(run_dir / "poses.csv").labels  # kept
 
 
-@pytest.mark.slow(seconds=20, group="calibrate commands")
+@pytest.mark.slow(seconds=20)
 def test_verdict_is_printed_last_and_stored(tmp_path):
     """A right run ends with its verdict (not FAIL) on stdout, in run.json, calibration.json and report.md; a
     run whose validation poses carry a part left in the gripper ends with FAIL, the reason and exit status 1."""
@@ -188,7 +188,7 @@ def test_verdict_is_printed_last_and_stored(tmp_path):
     assert (run_dir / "calibration.json").exists()  # kept, judged unusable
 
 
-@pytest.mark.slow(seconds=20, group="calibrate commands")
+@pytest.mark.slow(seconds=20)
 def test_a_sensor_whose_own_calibration_is_off_fails_naming_the_axis(tmp_path):
     """--sim-bad-sensor: the simulated sensor reads Fz 4 % high, Fx 1.5 % low (and some cross-talk); the run's
     verdict is FAIL on its sensor line, naming Fz and the certificate's accuracy; without the check, nothing names it."""

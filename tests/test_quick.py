@@ -120,7 +120,7 @@ def test_quick_with_dynamic_is_a_one_line_input_error(tmp_path):
     assert "--quick runs alone" in done.stderr and "Traceback" not in done.stderr
 
 
-@pytest.mark.slow(seconds=90, group="quick at real time")
+@pytest.mark.slow(seconds=90)
 def test_sim_quick_with_a_wrong_tool_fails_is_not_saved_and_is_replayed(tmp_path):
     """The whole command at real time (about a minute): a 0.2 kg part in the gripper during the validation holds
     is caught (FAIL, exit 1, nothing saved); motion.csv and report.md are kept; the replay holds raw and
@@ -147,7 +147,7 @@ def test_sim_quick_with_a_wrong_tool_fails_is_not_saved_and_is_replayed(tmp_path
     assert np.median(np.linalg.norm(compensated, axis=1)) < 0.5
 
 
-@pytest.mark.slow(seconds=90, group="quick at real time")
+@pytest.mark.slow(seconds=90)
 def test_sim_quick_passes_and_saves_the_calibration_with_its_drift_model(tmp_path):
     """The whole command at real time on the default simulated cell (its tool rings after every stop): PASS, exit
     0, calibration.json saved with its inertia, the drift model's decision and each hold's settling."""
