@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -223,3 +225,45 @@ def test_sequence_wraps_at_two_to_the_32() -> None:
     top = 2**32 - 5
     feed.push(records(range(top, top + 10)), 1.0)
     assert feed.rdt == [(top + k) % 2**32 for k in range(10)] and feed.counters.lost == 0
+
+
+class StalledReceiver:
+    """Stands in for drivers/netft/receiver.RdtReceiver: batches the receive thread wrote, each with the host time
+    by which it had drained the socket (``drained_at_s``)."""
+
+    def __init__(self) -> None:
+        self.batches: list[tuple[np.ndarray, float, float]] = []
+        self.drained_at_s = 0.0
+        self.index = 0
+
+    def take(self) -> tuple[np.ndarray, np.ndarray, int]:
+        if not self.batches:
+            return records([]), np.empty(0), self.index
+        batch, at_s, self.drained_at_s = self.batches.pop(0)
+        first, self.index = self.index, self.index + len(batch)
+        return batch, np.full(len(batch), at_s), first
+
+
+def test_the_reorder_window_runs_on_the_receive_threads_clock() -> None:
+    """The reader decodes long after the receive thread drained record 4 (the machine stalled both threads); the
+    late record 3, still in the socket then, is not lost: the window is measured up to when the socket was last
+    found empty, never on the reader's clock."""
+    from drivers.netft.driver import NetFTSensor
+
+    sensor = NetFTSensor("192.0.2.1")  # never opened: the stand-in receiver feeds the decode side
+    receiver = StalledReceiver()
+    sensor._receiver = receiver
+    drained_s = time.monotonic() - 1.0  # a second ago, then the receive thread stalled
+    receiver.batches.append((records([1, 2]), drained_s - 0.001, drained_s - 0.001))
+    receiver.batches.append((records([4]), drained_s, drained_s))
+    sensor._decode()
+    sensor._decode()
+    assert sensor._tracker.held == 1 and sensor._tracker.counters.lost == 0
+    receiver.batches.append((records([3, 5]), drained_s + 1.0, drained_s + 1.0))
+    sensor._decode()
+    counters = sensor._tracker.counters
+    assert sensor._take().sequence.tolist() == [1, 2, 3, 4, 5]
+    assert (counters.lost, counters.out_of_order) == (0, 1)
+    receiver.batches.append((records([7]), drained_s + 1.001, drained_s + 1.001 + 2 * REORDER_WINDOW_S))
+    sensor._decode()  # the receive thread found the socket empty past record 7's window: 6 is lost
+    assert sensor._take().sequence.tolist() == [7] and counters.lost == 1

@@ -71,6 +71,9 @@ MAX_PENDING_SAMPLES = 1_000_000
 RATE_WINDOW_S = 1.0
 """Window of the measured rate in ``SensorHealth.rate_hz``, seconds."""
 CLOSE_JOIN_TIMEOUT_S = 2.0
+HOLD_RECHECK_S = 0.0005
+"""Shortest wait of a reader whose held records' window has expired on its clock but not yet on the receive
+thread's (``RdtReceiver.drained_at_s`` lags by up to one poll), seconds."""
 URL_FORM = ("netft://HOST[:RDT_PORT][?tcp_port=49151&http_port=80&rate_hz=R&buffered=0&buffer_size=N&timeout_s=T"
             "&counts_per_force=C&counts_per_torque=C&force_unit=N&torque_unit=N-m&status_map=auto]")
 
@@ -381,8 +384,8 @@ class NetFTSensor(SensorBase):
 
     def _wait_for_data(self, timeout_s: float) -> None:
         deadline = self._tracker.hold_deadline
-        if deadline is not None:  # held records are released when their reorder window expires
-            timeout_s = min(timeout_s, max(deadline - time.monotonic(), 0.0) + 1e-4)
+        if deadline is not None:  # held records are released when their reorder window expires (receiver's clock)
+            timeout_s = min(timeout_s, max(deadline - time.monotonic(), HOLD_RECHECK_S))
         self._started_receiver().wait(timeout_s, lambda: self._closed)
 
     def _take(self) -> WrenchBatch:
@@ -398,11 +401,13 @@ class NetFTSensor(SensorBase):
     def _decode(self) -> None:
         """Move every record the receive thread wrote into decoded batches, updating the counters."""
         with self._decode_lock:
-            records, times, first_index = self._started_receiver().take()
+            receiver = self._started_receiver()
+            drained_at_s = receiver.drained_at_s  # read before take(): all that arrived by then is taken
+            records, times, first_index = receiver.take()
             if not len(records) and not self._tracker.held:
                 return
             tracker = self._tracker
-            records, times = tracker.push(records, times, first_index, time.monotonic())
+            records, times = tracker.push(records, times, first_index, drained_at_s)
             if tracker.bias_restarted:
                 tracker.bias_restarted = False
                 self._decoded.clear()

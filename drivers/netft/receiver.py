@@ -4,7 +4,10 @@ One named thread owns a UDP socket with a large ``SO_RCVBUF``, bound to the loca
 routes to the box (found with a connected UDP probe, so no packet is sent) and an ephemeral port. It drains the
 socket with ``recvfrom_into`` straight into a preallocated byte ring (whole datagrams of N × 36 bytes), stamping
 each datagram with ``time.monotonic()`` when it drains it (after a wake-up that woke the reader the thread pauses
-``COALESCE_S`` = 1 ms, so a stamp may be up to that much after the datagram's arrival). It accepts datagrams only
+``COALESCE_S`` = 1 ms, so a stamp may be up to that much after the datagram's arrival). It also publishes
+``drained_at_s``: a host time by which every datagram that had arrived is in the ring (the socket was found empty
+after it). The reorder window is measured on that clock, not the reader's, so that a stalled receive thread (a
+loaded machine) never makes a swapped record, still waiting in the socket, look later than its window. It accepts datagrams only
 from the box's address and RDT port (others: ``foreign``); a datagram whose length is not a positive multiple of
 36 is ``malformed``. Silence longer than the stream timeout is a ``timeout``, and the start command is re-sent
 (``reconnects``) on the schedule of :func:`next_retry_interval_s`. The reader side (:meth:`RdtReceiver.take`)
@@ -54,6 +57,10 @@ long in the kernel (their receive stamp is taken when drained), seconds; 0 disab
 NOTIFY_INTERVAL_S = 0.001
 """The receive thread wakes a waiting reader at most this often, seconds: readers get batches, not single records,
 at the cost of at most this much latency."""
+RECENT_DATA_POLL_S = 0.002
+"""For RECENT_DATA_S after the latest datagram the receive thread polls at least this often, so that
+``drained_at_s`` keeps up when a stream stops with records held for reordering, seconds."""
+RECENT_DATA_S = 0.1
 BACKOFF_INITIAL_S = 0.25
 """First interval between re-sent start commands while the box is silent, seconds."""
 BACKOFF_RESTARTING_MAX_S = 0.5
@@ -126,6 +133,8 @@ class RdtReceiver:
         self._records = np.frombuffer(self._ring, dtype=RECORD_DTYPE)
         self._times = np.zeros(self._records.shape[0])
         self.written = 0  # records written into the ring (monotonic)
+        self.drained_at_s = 0.0
+        """Host time (monotonic) by which every datagram that arrived is in the ring: set after ``written``."""
         self.consumed = 0  # records taken out by the reader (monotonic)
         self.waiters = 0
         self.data_ready = threading.Condition()
@@ -203,6 +212,7 @@ class RdtReceiver:
             self._thread.join(join_timeout_s)
             if self._thread.is_alive():
                 logger.error("%s did not stop within %.1f s", self._thread.name, join_timeout_s)
+        self.drained_at_s = float("inf")  # nothing more enters the ring: no held record waits for another
         with self.data_ready:
             self.data_ready.notify_all()
 
@@ -236,10 +246,15 @@ class RdtReceiver:
         notify_pending = False
         while not stop.is_set():
             try:
-                events = poller.poll((NOTIFY_INTERVAL_S if notify_pending else POLL_S) * 1000.0)
+                if notify_pending:
+                    poll_s = NOTIFY_INTERVAL_S
+                else:
+                    poll_s = RECENT_DATA_POLL_S if monotonic() - last_data_s < RECENT_DATA_S else POLL_S
+                poller.poll(poll_s * 1000.0)
+                checked_s = monotonic()  # what had arrived by now is read below, up to an empty socket
                 written = self.written
                 got = arrived = False
-                while events:
+                while True:
                     if written - self.consumed > capacity - room_needed:
                         try:
                             sock.recv_into(scratch)
@@ -254,7 +269,10 @@ class RdtReceiver:
                     position = written & capacity_mask
                     try:
                         size, sender = sock.recvfrom_into(ring[position * RECORD_SIZE:], max_bytes)
-                    except (BlockingIOError, InterruptedError):
+                    except BlockingIOError:  # empty: everything that arrived before checked_s is in the ring
+                        self.drained_at_s = checked_s
+                        break
+                    except InterruptedError:
                         break
                     except OSError:  # ICMP port unreachable etc.: count and keep going
                         self.socket_errors += 1
@@ -266,7 +284,7 @@ class RdtReceiver:
                         counters.malformed += 1
                         continue
                     records = size // RECORD_SIZE
-                    now = monotonic()
+                    now = checked_s = monotonic()
                     if records == 1:
                         times[position] = now
                     else:

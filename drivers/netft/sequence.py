@@ -145,7 +145,8 @@ class SequenceTracker:
     def push(self, records: np.ndarray, times: np.ndarray, first_index: int, now: float) -> tuple[np.ndarray, np.ndarray]:
         """Take records (RECORD_DTYPE, arrival order) received at host ``times``; ``first_index`` is the count of
         records received before them. Return (records, times) to deliver, in sequence order (possibly held ones
-        released now that their window expired at host time ``now``)."""
+        released now that their window expired at host time ``now``: a time by which every record that had
+        arrived is among those pushed, i.e. the receive thread's, never the reader's clock)."""
         out: list[tuple[np.ndarray, np.ndarray]] = []
         n = len(records)
         self.counters.received += n
