@@ -29,7 +29,7 @@ import logging
 import struct
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import can
@@ -100,6 +100,8 @@ class FakeCanCalibration:
     counts_per_torque: int
     force_unit_code: int = 2
     torque_unit_code: int = 3
+    _poll_arrays: tuple = field(init=False, repr=False, compare=False)
+    """(SI per unit, counts per unit, the matrix as float64): what every gage poll needs, computed once."""
 
     def __post_init__(self) -> None:
         matrix = np.asarray(self.matrix, dtype=np.float32)
@@ -114,6 +116,7 @@ class FakeCanCalibration:
             raise ValueError(f"force_unit_code {self.force_unit_code} not in {sorted(FORCE_UNIT_TO_SI)}")
         if self.torque_unit_code not in TORQUE_UNIT_TO_SI:
             raise ValueError(f"torque_unit_code {self.torque_unit_code} not in {sorted(TORQUE_UNIT_TO_SI)}")
+        object.__setattr__(self, "_poll_arrays", (self.si_per_unit, self.counts_per_unit, matrix.astype(np.float64)))
 
     @property
     def counts_per_unit(self) -> np.ndarray:
@@ -129,9 +132,10 @@ class FakeCanCalibration:
 
     def gages_from_wrench(self, wrench_si: np.ndarray, gage_offset: np.ndarray) -> np.ndarray:
         """Return int16-saturated gages (6,) int64 for a wrench in N and N·m: sg = M⁻¹·(FT·Cp) + offset."""
-        counts = np.asarray(wrench_si, dtype=float) / self.si_per_unit * self.counts_per_unit
-        gages = np.linalg.solve(self.matrix.astype(np.float64), counts) + gage_offset
-        return np.clip(np.rint(gages), GAGE_MIN, GAGE_MAX).astype(np.int64)
+        si_per_unit, counts_per_unit, matrix = self._poll_arrays
+        counts = np.asarray(wrench_si, dtype=float) / si_per_unit * counts_per_unit
+        gages = np.linalg.solve(matrix, counts) + gage_offset
+        return np.minimum(np.maximum(np.rint(gages), GAGE_MIN), GAGE_MAX).astype(np.int64)
 
     def wrench_from_gages(self, gages: np.ndarray, gage_bias: np.ndarray | None = None) -> np.ndarray:
         """Return the wrench (…, 6) in N and N·m a correct host computes from gages (for tests)."""
@@ -463,7 +467,7 @@ class FakeNetCanOem:
         """Return the (opcode, payload) frames that answer a request; the request DLC is never checked."""
         firmware = tuple(self.firmware[:2])
         if opcode == OP_GAGES:
-            sg = [int(v) for v in self._gages_locked()]
+            sg = self._gages_locked().tolist()
             status = self._status_locked()
             return [
                 (OP_GAGES, struct.pack(">Hhhh", status, sg[0], sg[2], sg[4])),

@@ -126,6 +126,16 @@ class _OutputPlan:
                     source, key = src, int(name[len(prefix):])
             zero = 0.0 if rp.TYPE_FORMATS[type_name][0] == "d" else (False if type_name == "BOOL" else 0)
             self.items.append((source, key, count, zero))
+        # the whole DATA_PACKAGE (size, type, recipe id, values) in one struct: rp.frame's bytes, one call per tick
+        self.package_size = rp.HEADER_SIZE + 1 + recipe.codec.size
+        self.package_codec = struct.Struct(">HBB" + recipe.codec.format.lstrip(">"))
+
+    def package(self, snap: dict) -> bytes:
+        """The DATA_PACKAGE of this recipe for a simulator snapshot (as ``rp.frame`` of ``recipe.pack``)."""
+        if self.package_size > rp.MAX_PACKAGE_SIZE:
+            return rp.frame(rp.DATA_PACKAGE, self.recipe.pack(self.flatten(snap)))  # raises: too large
+        return self.package_codec.pack(self.package_size, rp.DATA_PACKAGE, self.recipe.recipe_id & 0xFF,
+                                       *self.flatten(snap))
 
     def flatten(self, snap: dict) -> list:
         out: list = []
@@ -179,7 +189,7 @@ class RTDEConnection:
     def send_data(self, snap: dict) -> None:
         with self.send_lock:
             if self.streaming and self.outputs is not None:
-                self._send_locked(rp.frame(rp.DATA_PACKAGE, self.outputs.recipe.pack(self.outputs.flatten(snap))))
+                self._send_locked(self.outputs.package(snap))
 
     def close(self) -> None:
         if self.closed:
@@ -440,7 +450,7 @@ class ControllerServer:
                     if now >= connection.next_send_s:
                         if connection is not feeder and not jittered and self.send_jitter_s > 0.0:
                             jittered = True  # the rest of this cycle's packages leave a little late
-                            self.stop_event.wait(self.send_jitter_s * self._jitter_rng.random())
+                            time.sleep(self.send_jitter_s * self._jitter_rng.random())  # a fraction of a tick
                         if connection is feeder:
                             connection.pump()  # the inputs that reached the controller before this cycle
                             with self.sim.lock:
@@ -462,7 +472,7 @@ class ControllerServer:
             next_tick += IDLE_TICK_S if idle and self.sim.motion is None else period
             delay = next_tick - time.monotonic()
             if delay > 0:
-                self.stop_event.wait(delay)
+                time.sleep(delay)  # at most IDLE_TICK_S; an Event's wait costs more per tick than the tick's work
             else:
                 next_tick = time.monotonic()
 

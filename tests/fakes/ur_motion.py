@@ -8,6 +8,7 @@ damped Newton step on the DH forward kinematics of :mod:`ftacq.kinematics`, seed
 
 from __future__ import annotations
 
+import functools
 
 import numpy as np
 
@@ -191,6 +192,12 @@ class _Stopping(Motion):
         return self.base.direction * self.profile.acceleration_at(t), times, np.outer(after, self.base.direction)
 
 
+@functools.lru_cache(maxsize=16)
+def _joint_limits(model: URModel) -> tuple[np.ndarray, np.ndarray]:
+    return np.array(model.joint_min_rad) - 1e-12, np.array(model.joint_max_rad) + 1e-12
+
+
 def within_joint_limits(model: URModel, q: np.ndarray) -> bool:
-    """True when every joint angle is inside the model's position limits."""
-    return bool(np.all(q >= np.array(model.joint_min_rad) - 1e-12) and np.all(q <= np.array(model.joint_max_rad) + 1e-12))
+    """True when every joint angle is inside the model's position limits (checked per tick while moving)."""
+    low, high = _joint_limits(model)
+    return bool((q >= low).all() and (q <= high).all())

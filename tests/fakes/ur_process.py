@@ -169,6 +169,13 @@ class URControllerProcess:
     def running(self) -> bool:
         return self._process is not None and self._process.poll() is None
 
+    @property
+    def pid(self) -> int:
+        """The controller process's id (e.g. for its CPU time in /proc)."""
+        if self._process is None:
+            raise RuntimeError("simulated UR controller not started")
+        return self._process.pid
+
     def __enter__(self) -> "URControllerProcess":
         return self.start()
 

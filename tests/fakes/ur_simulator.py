@@ -14,6 +14,7 @@ carries the command id, ``output_int_register_(0+off)`` is 1 (ready) / 2 (done),
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 import threading
@@ -29,7 +30,7 @@ from tests.fakes.rigid_body import flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
-from tests.fakes.world import JointState
+from tests.fakes.world import JointState, any_nonzero
 
 # robot_mode (docs/protocols-ur.md)
 ROBOT_MODE_POWER_OFF, ROBOT_MODE_POWER_ON, ROBOT_MODE_IDLE, ROBOT_MODE_RUNNING = 3, 4, 5, 7
@@ -80,6 +81,7 @@ MOUNT_GRAVITY_M_S2 = {"floor": (0.0, 0.0, -STANDARD_GRAVITY_M_S2), "wall": (-STA
 m/s²; any other mount spec: :func:`mount_gravity_m_s2`."""
 
 
+@functools.lru_cache(maxsize=32)
 def mount_gravity_m_s2(mount: str) -> tuple[float, float, float]:
     """The gravity vector (RTDE ``target_gravity``, m/s²) in the base frame for a mount name or spec."""
     down = np.array(mount_of(mount).down_base)
@@ -219,6 +221,8 @@ class URSimulator:
         self.on_network_fault = None  # callable(kind) installed by the server
         self._pose_cache: dict[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] = {}
         """(flange pose, TCP pose) by (q, TCP offset): the target's and the lagging arm's, both asked each tick."""
+        self._rest_accelerometer: tuple[tuple[bytes, str], np.ndarray] | None = None
+        """((q, mount), the accelerometer's reading at rest there): asked each tick while the arm stands still."""
         self.tcp_speed = np.zeros(6)
         self.tool_motion_outputs = True
         """Compute actual_TCP_speed and actual_tool_accelerometer each tick (the server clears it while no client's
@@ -442,7 +446,7 @@ class URSimulator:
         self._path_queue.clear()
 
     def _at_rest(self) -> None:
-        if np.any(self.qdd):  # the motion ended (or stopped) since the last tick: q̈ changes to zero now
+        if any_nonzero(self.qdd):  # the motion ended (or stopped) since the last tick: q̈ changes to zero now
             self.qdd_switched_at_s, self.qdd_before = self._last_step_s, self.qdd
         self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros((3, 6)), np.full(3, np.inf)
 
@@ -708,13 +712,13 @@ class URSimulator:
                                              self.tcp_pose_for(q, self.tcp_offset, base_T_flange))
         return poses
 
-    def actual_joints(self, now: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def actual_joints(self, now: float, state: JointState | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) of the physical arm at ``now``: the target's :attr:`servo_lag_s` of motion time ago (the
         profile followed back exactly, :meth:`tests.fakes.world.JointState.at`); the target itself without a lag,
-        with instant moves, or at rest."""
+        with instant moves, or at rest. ``state``: :meth:`joint_state` at ``now``, if the caller has it."""
         if self.servo_lag_s <= 0.0 or self.motion_time_scale() <= 0.0:
             return self.q, self.qd, self.qdd
-        state = self.joint_state(now)
+        state = self.joint_state(now) if state is None else state
         if state.at_rest:
             return self.q, self.qd, self.qdd
         q, qd, qdd = state.at(np.array([now]))
@@ -729,9 +733,12 @@ class URSimulator:
         base_R_flangeᵀ (a_E − g) (+g up at rest, as an accelerometer does)."""
         gravity = np.array(mount_gravity_m_s2(self.mount))
         q, qd, qdd = (self.q, self.qd, self.qdd) if joints is None else joints
-        if not (np.any(qd) or np.any(qdd)):
-            base_R_flange = rotation_from_rotvec(self._poses(q)[0][3:6])
-            return np.zeros(6), base_R_flange.T @ -gravity
+        if not (any_nonzero(qd) or any_nonzero(qdd)):
+            key = (q.tobytes(), self.mount)  # at rest: the accelerometer once per pose
+            if self._rest_accelerometer is None or self._rest_accelerometer[0] != key:
+                base_R_flange = rotation_from_rotvec(self._poses(q)[0][3:6])
+                self._rest_accelerometer = (key, base_R_flange.T @ -gravity)
+            return np.zeros(6), self._rest_accelerometer[1].copy()
         motion = flange_motion(self.model, q, qd, qdd)
         base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
         tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
@@ -747,7 +754,8 @@ class URSimulator:
                           max(now - self.qdd_switched_at_s, 0.0) * scale, self.qdd_before.copy())
 
     def snapshot(self, now: float, dt: float) -> dict:
-        joints = self.actual_joints(now)
+        state = self.joint_state(now)
+        joints = self.actual_joints(now, state)
         lagging = joints[0] is not self.q
         target_tcp = self._poses()[1] if lagging else None
         flange, tcp = self._poses(joints[0])
@@ -797,7 +805,7 @@ class URSimulator:
                 "in_int": list(self.in_int), "in_dbl": list(self.in_dbl),
                 "out_bits": list(self.out_bits), "in_bits": list(self.in_bits),
                 "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": flange,
-                "joint_state": self.joint_state(now)}
+                "joint_state": state}
 
     # ------------------------------------------------------------------ control channel views
     def state_view(self) -> dict:
