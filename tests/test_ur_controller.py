@@ -7,6 +7,7 @@ Every controller binds its own random 127.x.y.z, so the suite runs under ``pytes
 
 from __future__ import annotations
 
+import contextlib
 import random
 
 import numpy as np
@@ -293,3 +294,41 @@ def test_pendant_jog_moves_with_the_motion_profile_not_a_jump():
             assert process.commands()[-1]["source"] == "pendant"
     finally:
         shared.close()
+
+
+def test_a_client_that_does_not_read_loses_whole_packages_and_never_holds_up_the_tick():
+    """The controller drops data packages rather than queueing them: a client that stops reading (its buffers
+    full) loses packages, the connection stays open and each send returns at once (the old blocking send closed
+    the connection after its timeout, and held up every other client's stream meanwhile); what reaches the client
+    is whole packages."""
+    import socket
+
+    from tests.fakes import rtde_protocol as rp
+    from tests.fakes.ur_controller import RTDEConnection, _OutputPlan
+
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        client = socket.socket()
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        client.connect(listener.getsockname())
+        server_side, _ = listener.accept()
+    server_side.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)
+    connection = RTDEConnection(server=None, sock=server_side)  # type: ignore[arg-type]
+    try:
+        plan = _OutputPlan(rp.Recipe.build(1, ["timestamp", "actual_q"], rp.OUTPUT_TYPES))
+        connection.outputs, connection.streaming = plan, True
+        for k in range(20_000):  # 40 s of packages at 500 Hz, ~1.3 MB: far beyond both buffers
+            connection.send_data({"fields": {"timestamp": k * 0.002, "actual_q": [float(k)] * 6}})
+        assert not connection.closed and connection.dropped_packages > 0
+        client.setblocking(False)
+        received = bytearray()
+        with contextlib.suppress(BlockingIOError):
+            while chunk := client.recv(1 << 16):
+                received += chunk
+        whole = len(received) // plan.package_size
+        assert whole > 0
+        packages = np.frombuffer(bytes(received[:whole * plan.package_size]), dtype=np.uint8).reshape(whole, -1)
+        sizes = packages[:, 0].astype(int) << 8 | packages[:, 1]
+        assert set(sizes.tolist()) == {plan.package_size} and set(packages[:, 2].tolist()) == {rp.DATA_PACKAGE}
+    finally:
+        connection.close()
+        client.close()

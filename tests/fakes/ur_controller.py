@@ -167,6 +167,10 @@ class RTDEConnection:
         self.closed = False
         self.receive_lock = threading.Lock()
         self.received = bytearray()
+        self.unsent = b""
+        """The rest of a data package the kernel took only in part (sent first, so that packages stay whole)."""
+        self.dropped_packages = 0
+        """Data packages not sent because the client did not read them in time (a real controller drops them)."""
         sock.settimeout(None)
         sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)  # the kernel stamps when each input arrived
         # a send timeout only (a Python socket timeout would also apply to the reader thread's recv)
@@ -177,19 +181,40 @@ class RTDEConnection:
             return self._send_locked(rp.frame(package_type, payload))
 
     def _send_locked(self, data: bytes) -> bool:
+        """Send a reply (blocking up to SEND_TIMEOUT_S), after the rest of a partly sent data package."""
         if self.closed:
             return False
         try:
-            self.sock.sendall(data)
+            self.sock.sendall(self.unsent + data)
+            self.unsent = b""
             return True
         except OSError:
             self.close()
             return False
 
+    def _send_droppable(self, package: bytes) -> None:
+        """Send a data package without waiting: a client that does not read in time loses packages, whole ones,
+        and never holds up the tick (the controller drops packages rather than queueing them; docs/protocols-ur.md),
+        so one slow client cannot silence the others."""
+        if self.closed:
+            return
+        try:
+            if self.unsent:
+                self.unsent = self.unsent[self.sock.send(self.unsent, socket.MSG_DONTWAIT):]
+                if self.unsent:
+                    self.dropped_packages += 1
+                    return
+            sent = self.sock.send(package, socket.MSG_DONTWAIT)
+            self.unsent = package[sent:]
+        except BlockingIOError:
+            self.dropped_packages += 1
+        except OSError:
+            self.close()
+
     def send_data(self, snap: dict) -> None:
         with self.send_lock:
             if self.streaming and self.outputs is not None:
-                self._send_locked(self.outputs.package(snap))
+                self._send_droppable(self.outputs.package(snap))
 
     def close(self) -> None:
         if self.closed:
