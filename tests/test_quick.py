@@ -12,6 +12,7 @@ from ftacq.app.commands.quick_stage import refuse_resume
 from ftacq.dynamics import MotionRecord
 from ftacq.dynamics.joint import identify_joint
 from ftacq.errors import InputError
+from ftacq.kinematics import planning_limits_rad
 from ftacq.mounts import mount_of
 from procedures.plan import collision_checker, home_configuration_rad
 from procedures.quick import (DEFAULT_BUDGET_S, FIT, VALIDATE, QuickPlan, QuickRecording, design_quick,
@@ -35,8 +36,11 @@ def test_trajectory_stays_within_limits_and_clear_along_its_whole_path(designed)
     assert np.max(np.abs(qd)) <= settings.joint_speed_rad_s + 1e-9
     assert np.max(np.abs(qdd)) <= settings.joint_acceleration_rad_s2 + 1e-9
     checker = collision_checker(settings)
-    problems = [p for qi in q for p in checker.problems_at(qi)]
-    assert problems == []
+    clearance = checker.clearances(q)  # every sample at once: the constraints problems_at checks one by one
+    worst = np.unravel_index(np.argmin(clearance), clearance.shape)
+    assert clearance[worst] >= 0.0, checker.problems_at(q[worst[0]])
+    lower, upper = planning_limits_rad(settings.ur)  # the planning margin from every joint limit
+    assert np.all(q >= lower) and np.all(q <= upper)
     assert plan.estimated_duration_s <= DEFAULT_BUDGET_S
     assert plan.purposes.count(VALIDATE) == 3 and plan.purposes.count(FIT) >= 6
 
