@@ -174,18 +174,19 @@ class DynamicCompensator:
         count = stream_count(self.stream)  # read before the window: a state stored meanwhile is read again
         if count is not None and count == self._updated_at_count:
             return  # no state since the last update (the monitor reads on data faster than 500 Hz)
-        window = self.stream.window(last=TAIL_ROWS)
+        window = self.orientations.newest(TAIL_ROWS)  # (the stillness check's read of this state: one for both)
         self._updated_at_count = count
-        new = window.controller_time_s > self._last_controller_time
+        base = max(len(window) - TAIL_ROWS, 0)  # the newest TAIL_ROWS are window[base:]
+        new = window.controller_time_s[base:] > self._last_controller_time
         fresh = int(np.count_nonzero(new))
         if fresh == 0:
             return
-        size = len(window)
+        size = len(window) - base
         first = size - fresh
         history = self._history
         if new[first] and (first >= history or size < TAIL_ROWS) and (fresh == 1 or new[first:].all()):
-            rows: list[int] = list(range(first, size))  # the usual case: the newest few states are the new ones
-            low = max(first - history, 0)
+            rows: list[int] = list(range(base + first, base + size))  # the usual case: the newest few are new
+            low = base + max(first - history, 0)
         else:  # many new states (the first batch, a stall): the whole window, as before
             window = self.stream.window(last=self.window_rows)
             new = window.controller_time_s > self._last_controller_time
