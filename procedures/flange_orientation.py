@@ -130,8 +130,8 @@ class FlangeOrientations:
         """The stream's newest ``rows`` or more (``window(last=…)``): as many as the stillness check's next query
         (:meth:`still_between`) will read, which then reads nothing (one read of the stream per state for the
         dynamic compensator's predictions and the check: a read costs ~40 µs, and with --ros2 the monitor reads at
-        each state). The same rows,
-        host times and all, as ``window(last=rows)``: more only when their controller times are in order."""
+        each state). The same rows, host times and all, as ``window(last=rows)``: more only when their controller
+        times are in order."""
         wanted = max(rows, self._last_rows.get("still", rows))
         if wanted == rows or stream_count(self.stream) is None:
             return self._window(rows, "still")
