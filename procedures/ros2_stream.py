@@ -203,8 +203,8 @@ class _WrenchStreams:
             if not len(mean):
                 return []
             stamp_ns = self.clock.stamp_ns(mean_time_s)
-            return [("wrench_raw", WRENCH_TYPE, self.encoder.encode(stamp_ns, mean[:, :6]), stamp_ns),
-                    ("wrench_compensated", WRENCH_TYPE, self.encoder.encode(stamp_ns, mean[:, 6:]), stamp_ns)]
+            raw, compensated = self.encoder.encode_pairs(stamp_ns, mean)
+            return [("wrench_raw", WRENCH_TYPE, raw, stamp_ns), ("wrench_compensated", WRENCH_TYPE, compensated, stamp_ns)]
         if self.both is not None:
             self.raw, self.compensated = self.both.split(6)
             self.both = None
