@@ -169,8 +169,8 @@ class FlangeOrientations:
         span = state[low:high]
         if span.size > 1 and (span[1:] - span[:-1]).max() > self.max_gap_s:
             return False
-        q = window.q[low:high]
-        return bool((q.max(axis=0) - q.min(axis=0) <= tolerance_rad).all())
+        q = np.ascontiguousarray(window.q[low:high].T)  # (6, M): each joint's angles in a row (half the cost of
+        return bool((q.max(axis=1) - q.min(axis=1) <= tolerance_rad).all())  # reducing the window's strided rows)
 
     @property
     def position_m(self) -> np.ndarray:
