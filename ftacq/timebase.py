@@ -217,7 +217,7 @@ class DeviceClock:
             return
         below = arrival - device
         if device[-1] - device[0] < CLOCK_BIN_S:  # the usual batch: one point, the lowest on the current line
-            best = int(np.argmin(below - self.rate_error * device)) if self.rate_error else int(np.argmin(below))
+            best = int((below - self.rate_error * device).argmin()) if self.rate_error else int(below.argmin())
             self._push(float(device[best]), float(below[best]))
         else:
             tilted = below - self.rate_error * device

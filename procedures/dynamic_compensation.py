@@ -226,7 +226,7 @@ class DynamicCompensator:
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
             if times[-1] > state_times[-1]:  # the batch's newest samples are ahead of the RTDE stream
-                self.held_samples += int(times.size - np.searchsorted(times, state_times[-1], side="right"))
+                self.held_samples += int(times.size - times.searchsorted(state_times[-1], side="right"))
                 self.held_max_s = max(self.held_max_s, float(times[-1] - state_times[-1]))
             contact = interpolate_rows(times, state_times, predicted)
             return np.subtract(batch.wrench, contact, out=contact)

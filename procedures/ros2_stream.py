@@ -113,13 +113,13 @@ class WindowMean:
             window = np.concatenate((self._window, window))
             values = np.concatenate((self._values, values))
         # the newest window may still grow (windows ascend), unless its last sample came
-        open_from = len(window) if last_done else int(np.searchsorted(window, window[-1]))
+        open_from = len(window) if last_done else int(window.searchsorted(window[-1]))
         self._time_s, self._window, self._values = time_s[open_from:], window[open_from:], values[open_from:]
         if open_from == 0:
             return _NO_TIMES, self._values[:0]
         window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
         bounds = np.empty(open_from + 1, dtype=np.int64)  # each window's first sample, then open_from (no np.diff:
-        changes = np.flatnonzero(window[1:] != window[:-1]) + 1  # its prepend/append cost more than the rest)
+        changes = (window[1:] != window[:-1]).nonzero()[0] + 1  # its prepend/append cost more than the rest)
         bounds[0], bounds[1:changes.size + 1], bounds[changes.size + 1] = 0, changes, open_from
         bounds = bounds[:changes.size + 2]
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
@@ -199,7 +199,7 @@ class _WrenchStreams:
             self._sample_period_s = None
         time_s = _sample_times(samples)
         if self.both is not None and samples.compensated is not None:
-            mean_time_s, mean = self.both.feed(time_s, np.hstack((samples.batch.wrench, samples.compensated)))
+            mean_time_s, mean = self.both.feed(time_s, np.concatenate((samples.batch.wrench, samples.compensated), axis=1))
             if not len(mean):
                 return []
             stamp_ns = self.clock.stamp_ns(mean_time_s)

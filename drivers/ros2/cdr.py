@@ -79,7 +79,7 @@ class WrenchStampedEncoder:
         """:meth:`encode` of ``wrenches[:, :6]`` and of ``wrenches[:, 6:]`` ((M, 12): two topics' messages of the
         same stamps, e.g. raw and compensated), in one batch of 2M records (half the numpy calls)."""
         stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-        both = self.encode(np.repeat(stamp_ns, 2), np.ascontiguousarray(wrenches, dtype=float).reshape(-1, 6))
+        both = self.encode(stamp_ns.repeat(2), np.ascontiguousarray(wrenches, dtype=float).reshape(-1, 6))
         return both[0::2], both[1::2]
 
 
