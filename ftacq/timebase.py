@@ -355,6 +355,9 @@ class DeviceClock:
         return device_time_s + y0 + rate * (device_time_s - x0)
 
 
+_NO_STARTS = np.empty(0, dtype=np.intp)
+
+
 class SampleClock:
     """Host times of a sensor's samples: through :class:`DeviceClock` from the device's own sample times
     (``WrenchBatch.device_time_s``), or the arrival stamps where the device has no clock (NaN device times: a
@@ -378,7 +381,7 @@ class SampleClock:
         # (a batch that ends after it starts, within a window, holds no restart worth looking for: the usual case,
         # no per-sample check; a restart needs a step back longer than a block)
         usual = device[0] <= device[-1] <= device[0] + self.clock.window_s
-        starts = np.empty(0, dtype=np.intp) if usual else session_starts(device, self.clock.block_s, self.clock.window_s)
+        starts = _NO_STARTS if usual else session_starts(device, self.clock.block_s, self.clock.window_s)
         if starts.size == 0:
             self.clock.observe(device, arrival)
             out = self.clock.map_times(device)

@@ -198,7 +198,9 @@ class DynamicCompensator:
         # as over the window
         qdd, tracking = joint_acceleration(window.time_s[low:], window.qd[low:], window.target_qd[low:],
                                            window.qdd[low:], servo_lag_s=self.servo_lag_s)
-        self.derivative_states += len(rows) - int(np.count_nonzero(tracking[[row - low for row in rows]]))
+        tracked = tracking[rows[0] - low:] if rows[-1] - rows[0] == len(rows) - 1 and rows[-1] == len(window) - 1 \
+            else tracking[[row - low for row in rows]]  # (the new rows: usually the newest, a slice)
+        self.derivative_states += len(rows) - int(np.count_nonzero(tracked))
         q, qd, time_s = window.q, window.qd, window.time_s
         ring_times, ring_predicted, predict = self._ring_times, self._ring_predicted, self.predictor.predict_one
         kept = self.window_rows
