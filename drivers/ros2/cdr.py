@@ -29,8 +29,7 @@ NS_PER_S = 1_000_000_000
 
 def stamp_parts(stamp_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split UNIX times in integer nanoseconds (N,) into builtin_interfaces/Time's (sec, nanosec)."""
-    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    return stamp_ns // NS_PER_S, stamp_ns % NS_PER_S
+    return np.divmod(np.asarray(stamp_ns, dtype=np.int64), NS_PER_S)
 
 
 class WrenchStampedEncoder:

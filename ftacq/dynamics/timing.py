@@ -48,9 +48,7 @@ def interpolate_rows(at_s: np.ndarray, time_s: np.ndarray, values: np.ndarray) -
     start = time_s.take(index)
     span = time_s.take(following)
     span -= start
-    flat = np.greater(span, 0.0)
-    np.logical_not(flat, out=flat)
-    np.copyto(span, 1.0, where=flat)  # as np.where(span > 0, span, 1.0), NaN included
+    span = np.where(span > 0.0, span, 1.0)  # (NaN included)
     fraction = np.subtract(at_s, start, out=start)
     fraction /= span
     np.maximum(fraction, 0.0, out=fraction)
