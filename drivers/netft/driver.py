@@ -393,6 +393,8 @@ class NetFTSensor(SensorBase):
 
     def _take(self) -> WrenchBatch:
         with self._decode_lock:
+            if not self._decoded and not self._tracker.held and not self._started_receiver().has_new():
+                return _NO_SAMPLES  # what _decode would find (a read on data looks once before it waits)
             self._decode()
             if not self._decoded:
                 return _NO_SAMPLES
