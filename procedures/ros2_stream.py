@@ -117,11 +117,11 @@ class WindowMean:
         self._time_s, self._window, self._values = time_s[open_from:], window[open_from:], values[open_from:]
         if open_from == 0:
             return _NO_TIMES, self._values[:0]
-        window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
-        bounds = np.empty(open_from + 1, dtype=np.int64)  # each window's first sample, then open_from (no np.diff:
-        changes = (window[1:] != window[:-1]).nonzero()[0] + 1  # its prepend/append cost more than the rest)
-        bounds[0], bounds[1:changes.size + 1], bounds[changes.size + 1] = 0, changes, open_from
-        bounds = bounds[:changes.size + 2]
+        if open_from < len(window):
+            window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
+        # each window's first sample, then open_from: where the window changes, between two ends (no np.diff: its
+        # prepend/append cost more than the rest)
+        bounds = np.concatenate((_TRUE, window[1:] != window[:-1], _TRUE)).nonzero()[0]
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         return (np.add.reduceat(time_s, starts) / counts,
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
@@ -167,6 +167,7 @@ EARLY_CLOSE_TOLERANCE = 0.01
 window's end: the mapped sample period differs from the sensor's nominal one by the crystals' rate error (< 0.05 %);
 a sample that still lands in a window already sent counts in the next one."""
 _NO_TIMES = np.empty(0)
+_TRUE = np.ones(1, dtype=bool)
 _NO_WINDOW = np.iinfo(np.int64).min // 2
 
 
