@@ -210,7 +210,7 @@ class DeviceClock:
             if device.size == 0:
                 return
         back = device[1:] < device[:-1]
-        if back.any():  # a step back inside the batch: each run in order (_push applies the restart rule)
+        if np.count_nonzero(back):  # a step back inside the batch: each run in order (_push applies the restart rule)
             runs = np.split(np.arange(device.size), np.flatnonzero(back) + 1)
             for run in runs:
                 self.observe(device[run], arrival[run])

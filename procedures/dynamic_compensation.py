@@ -184,7 +184,8 @@ class DynamicCompensator:
         size = len(window) - base
         first = size - fresh
         history = self._history
-        if new[first] and (first >= history or size < TAIL_ROWS) and (fresh == 1 or new[first:].all()):
+        if (new[first] and (first >= history or size < TAIL_ROWS)
+                and (fresh == 1 or np.count_nonzero(new[first:]) == fresh)):
             rows: list[int] = list(range(base + first, base + size))  # the usual case: the newest few are new
             low = base + max(first - history, 0)
         else:  # many new states (the first batch, a stall): the whole window, as before

@@ -153,7 +153,7 @@ class FlangeOrientations:
         window = self.stream.window(last=rows)
         if count is not None:
             times = window.controller_time_s
-            self._read[query] = (count, rows, window, not bool((times[1:] < times[:-1]).any()))
+            self._read[query] = (count, rows, window, not np.count_nonzero(times[1:] < times[:-1]))
         return window
 
     def still_between(self, start_s: float, end_s: float, tolerance_rad: float) -> bool:
@@ -167,10 +167,11 @@ class FlangeOrientations:
         low = int(state.searchsorted(start_s, side="right")) - 1
         high = int(state.searchsorted(end_s, side="left")) + 1
         span = state[low:high]
-        if span.size > 1 and (span[1:] - span[:-1]).max() > self.max_gap_s:
+        if span.size > 1 and np.count_nonzero(span[1:] - span[:-1] > self.max_gap_s):
             return False
         q = np.ascontiguousarray(window.q[low:high].T)  # (6, M): each joint's angles in a row (half the cost of
-        return bool((q.max(axis=1) - q.min(axis=1) <= tolerance_rad).all())  # reducing the window's strided rows)
+        within = q.max(axis=1) - q.min(axis=1) <= tolerance_rad  # reducing the window's strided rows)
+        return np.count_nonzero(within) == within.size  # (.all(): numpy's reduction machinery, ~4x the cost)
 
     @property
     def position_m(self) -> np.ndarray:

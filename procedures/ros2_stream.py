@@ -102,7 +102,7 @@ class WindowMean:
             # usually none is late: the first is past the window sent last, and no sample follows one that completed
             # its own window (two within a sample period of a window's end: the mapping moved). Only the last
             # sample's window can then be one sent early (windows ascend)
-            if window[0] > self._closed and not (done[:-1] & (window[1:] == window[:-1])).any():
+            if window[0] > self._closed and not np.count_nonzero(done[:-1] & (window[1:] == window[:-1])):
                 if last_done:
                     self._closed = int(window[-1])
             else:
@@ -200,12 +200,14 @@ class _WrenchStreams:
             self._sample_period_s = None
         time_s = _sample_times(samples)
         if self.both is not None and samples.compensated is not None:
-            mean_time_s, mean = self.both.feed(time_s, np.concatenate((samples.batch.wrench, samples.compensated), axis=1))
+            both = np.concatenate((samples.batch.wrench, samples.compensated), axis=1)
+            mean_time_s, mean = self.both.feed(time_s, both)
             if not len(mean):
                 return []
             stamp_ns = self.clock.stamp_ns(mean_time_s)
             raw, compensated = self.encoder.encode_pairs(stamp_ns, mean)
-            return [("wrench_raw", WRENCH_TYPE, raw, stamp_ns), ("wrench_compensated", WRENCH_TYPE, compensated, stamp_ns)]
+            return [("wrench_raw", WRENCH_TYPE, raw, stamp_ns),
+                    ("wrench_compensated", WRENCH_TYPE, compensated, stamp_ns)]
         if self.both is not None:
             self.raw, self.compensated = self.both.split(6)
             self.both = None
