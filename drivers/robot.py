@@ -78,7 +78,8 @@ class Robot(Protocol):
 
 
 class RobotStateSource(Protocol):
-    """The robot's latest state, read without blocking (implemented by :class:`drivers.ur.URStateReader`)."""
+    """The robot's latest state, read without blocking (implemented by :class:`drivers.ur.URStateReader`, whose
+    ``joints_and_flange_pose()``, both of one state, the monitor prefers when a source has it)."""
 
     def joint_positions(self) -> np.ndarray:
         """Return the 6 latest joint angles, rad."""

@@ -156,13 +156,18 @@ class URStateReader:
 
     def flange_pose(self) -> np.ndarray:
         """Flange pose [x, y, z (m), rx, ry, rz (rad)] in the base frame from the nominal FK of ``actual_q``."""
+        return self.joints_and_flange_pose()[1]
+
+    def joints_and_flange_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`joint_positions`, :meth:`flange_pose`) of one state: ``actual_q`` read once (the monitor asks at
+        every read)."""
         if self.model is None:
             raise RobotError(f"robot controller {self.host}: unknown robot model; pass model= (e.g. 'UR5e')")
         q = self.joint_positions()
         key = q.tobytes()
-        if self._pose_of[0] != key:  # the forward kinematics once per state (the monitor asks at every read)
+        if self._pose_of[0] != key:  # the forward kinematics once per state
             self._pose_of = (key, self._flange_pose(q))
-        return self._pose_of[1].copy()
+        return q, self._pose_of[1].copy()
 
     def _flange_pose(self, q: np.ndarray) -> np.ndarray:
         """:func:`ftacq.kinematics.flange_pose` of ``q`` through Pinocchio's model of the same DH chain

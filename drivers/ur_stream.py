@@ -84,7 +84,8 @@ class StateWindow:
         timestamp = rows[:, 1]
         time_s = timestamp + rows[:, OFFSET_COLUMN]
         since = clock.valid_from_s if clock is not None else None
-        if since is not None and clock is not None and timestamp.size and not (timestamp[1:] < timestamp[:-1]).any():
+        if since is not None and clock is not None and timestamp.size and not np.count_nonzero(
+                timestamp[1:] < timestamp[:-1]):  # (in order; not .any(): its reduction costs 4x)
             first = int(timestamp.searchsorted(since, side="left"))
             if first < timestamp.size:
                 time_s[first:] = clock.map_times(timestamp[first:])

@@ -210,14 +210,14 @@ class DeviceClock:
             if device.size == 0:
                 return
         back = device[1:] < device[:-1]
-        if back.any():  # a step back inside the batch: each run in order (_push applies the restart rule)
+        if np.count_nonzero(back):  # a step back inside the batch: each run in order (_push applies the restart rule)
             runs = np.split(np.arange(device.size), np.flatnonzero(back) + 1)
             for run in runs:
                 self.observe(device[run], arrival[run])
             return
         below = arrival - device
         if device[-1] - device[0] < CLOCK_BIN_S:  # the usual batch: one point, the lowest on the current line
-            best = int(np.argmin(below - self.rate_error * device)) if self.rate_error else int(np.argmin(below))
+            best = int((below - self.rate_error * device).argmin()) if self.rate_error else int(below.argmin())
             self._push(float(device[best]), float(below[best]))
         else:
             tilted = below - self.rate_error * device
@@ -355,6 +355,9 @@ class DeviceClock:
         return device_time_s + y0 + rate * (device_time_s - x0)
 
 
+_NO_STARTS = np.empty(0, dtype=np.intp)
+
+
 class SampleClock:
     """Host times of a sensor's samples: through :class:`DeviceClock` from the device's own sample times
     (``WrenchBatch.device_time_s``), or the arrival stamps where the device has no clock (NaN device times: a
@@ -378,7 +381,7 @@ class SampleClock:
         # (a batch that ends after it starts, within a window, holds no restart worth looking for: the usual case,
         # no per-sample check; a restart needs a step back longer than a block)
         usual = device[0] <= device[-1] <= device[0] + self.clock.window_s
-        starts = np.empty(0, dtype=np.intp) if usual else session_starts(device, self.clock.block_s, self.clock.window_s)
+        starts = _NO_STARTS if usual else session_starts(device, self.clock.block_s, self.clock.window_s)
         if starts.size == 0:
             self.clock.observe(device, arrival)
             out = self.clock.map_times(device)

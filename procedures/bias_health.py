@@ -157,7 +157,7 @@ class DriftCompensator:
                 flange_R_base = at_samples[-1].copy()  # (kept until the tracker learns)
         else:
             residual = self._base.compensate(batch.wrench, flange_R_base)
-        if self.bias_offset.any():
+        if np.count_nonzero(self.bias_offset):  # (.any(): numpy's reduction machinery, ~4x the cost)
             residual -= self.bias_offset
         time_s = np.asarray(batch.time_s, dtype=float)
         still_over = getattr(self.moving, "still_over", None)
@@ -166,10 +166,14 @@ class DriftCompensator:
         else:  # the newest joint angles read with the batches (an arm known to be still; tests)
             still = self.still.update(float(time_s[-1]), getattr(robot, "joint_positions_rad", None))
         self.still_now = bool(still)
-        good = ~np.asarray(batch.saturated, dtype=bool)
-        if still and not good.all():  # a saturated sample breaks the rest window
+        saturated = np.asarray(batch.saturated, dtype=bool)
+        if not np.count_nonzero(saturated):  # (copies: the caller owns residual; the correction comes off it in place)
+            if time_s.size:
+                self._pending.append((time_s.copy(), residual.copy(), bool(still), flange_R_base))
+        elif still:  # a saturated sample breaks the rest window
             self._pending.append((time_s[:1].copy(), residual[:1].copy(), False, None))
-        elif good.any():  # (copies: the caller owns residual and the correction is taken off it in place)
+        elif np.count_nonzero(saturated) < saturated.size:
+            good = ~saturated
             self._pending.append((time_s[good], residual[good], bool(still), flange_R_base))
         if self.health.auto_tare:  # the tracked offset while trusted, nothing once it is not (BiasHealth.correction)
             residual -= self.health.correction(float(time_s[-1]), flange_R_base)

@@ -174,18 +174,20 @@ class DynamicCompensator:
         count = stream_count(self.stream)  # read before the window: a state stored meanwhile is read again
         if count is not None and count == self._updated_at_count:
             return  # no state since the last update (the monitor reads on data faster than 500 Hz)
-        window = self.stream.window(last=TAIL_ROWS)
+        window = self.orientations.newest(TAIL_ROWS)  # (the stillness check's read of this state: one for both)
         self._updated_at_count = count
-        new = window.controller_time_s > self._last_controller_time
+        base = max(len(window) - TAIL_ROWS, 0)  # the newest TAIL_ROWS are window[base:]
+        new = window.controller_time_s[base:] > self._last_controller_time
         fresh = int(np.count_nonzero(new))
         if fresh == 0:
             return
-        size = len(window)
+        size = len(window) - base
         first = size - fresh
         history = self._history
-        if new[first] and (first >= history or size < TAIL_ROWS) and (fresh == 1 or new[first:].all()):
-            rows: list[int] = list(range(first, size))  # the usual case: the newest few states are the new ones
-            low = max(first - history, 0)
+        if (new[first] and (first >= history or size < TAIL_ROWS)
+                and (fresh == 1 or np.count_nonzero(new[first:]) == fresh)):
+            rows: list[int] = list(range(base + first, base + size))  # the usual case: the newest few are new
+            low = base + max(first - history, 0)
         else:  # many new states (the first batch, a stall): the whole window, as before
             window = self.stream.window(last=self.window_rows)
             new = window.controller_time_s > self._last_controller_time
@@ -197,7 +199,9 @@ class DynamicCompensator:
         # as over the window
         qdd, tracking = joint_acceleration(window.time_s[low:], window.qd[low:], window.target_qd[low:],
                                            window.qdd[low:], servo_lag_s=self.servo_lag_s)
-        self.derivative_states += len(rows) - int(np.count_nonzero(tracking[[row - low for row in rows]]))
+        tracked = tracking[rows[0] - low:] if rows[-1] - rows[0] == len(rows) - 1 and rows[-1] == len(window) - 1 \
+            else tracking[[row - low for row in rows]]  # (the new rows: usually the newest, a slice)
+        self.derivative_states += len(rows) - int(np.count_nonzero(tracked))
         q, qd, time_s = window.q, window.qd, window.time_s
         ring_times, ring_predicted, predict = self._ring_times, self._ring_predicted, self.predictor.predict_one
         kept = self.window_rows
@@ -225,7 +229,7 @@ class DynamicCompensator:
         if state_times.size >= 2 and times[0] >= state_times[0] and times[-1] <= state_times[-1] + MAX_STATE_GAP_S:
             self.dynamic_batches += 1
             if times[-1] > state_times[-1]:  # the batch's newest samples are ahead of the RTDE stream
-                self.held_samples += int(times.size - np.searchsorted(times, state_times[-1], side="right"))
+                self.held_samples += int(times.size - times.searchsorted(state_times[-1], side="right"))
                 self.held_max_s = max(self.held_max_s, float(times[-1] - state_times[-1]))
             contact = interpolate_rows(times, state_times, predicted)
             return np.subtract(batch.wrench, contact, out=contact)

@@ -496,9 +496,10 @@ class LiveMonitor:
     def _robot_state(self, time_s: float) -> events.RobotState | None:
         if self.robot is None:
             return None
-        return events.RobotState(time_s=time_s,
-                                 joint_positions_rad=np.asarray(self.robot.joint_positions(), dtype=float),
-                                 flange_pose=np.asarray(self.robot.flange_pose(), dtype=float))
+        state = getattr(self.robot, "joints_and_flange_pose", None)  # one state's both (URStateReader)
+        q, pose = state() if state is not None else (self.robot.joint_positions(), self.robot.flange_pose())
+        return events.RobotState(time_s=time_s, joint_positions_rad=np.asarray(q, dtype=float),
+                                 flange_pose=np.asarray(pose, dtype=float))
 
     def _process(self, batch: WrenchBatch, sample_time_s: np.ndarray) -> events.WrenchSamples:
         robot = self._robot_state(float(batch.time_s[-1]))

@@ -102,7 +102,7 @@ class WindowMean:
             # usually none is late: the first is past the window sent last, and no sample follows one that completed
             # its own window (two within a sample period of a window's end: the mapping moved). Only the last
             # sample's window can then be one sent early (windows ascend)
-            if window[0] > self._closed and not (done[:-1] & (window[1:] == window[:-1])).any():
+            if window[0] > self._closed and not np.count_nonzero(done[:-1] & (window[1:] == window[:-1])):
                 if last_done:
                     self._closed = int(window[-1])
             else:
@@ -113,15 +113,15 @@ class WindowMean:
             window = np.concatenate((self._window, window))
             values = np.concatenate((self._values, values))
         # the newest window may still grow (windows ascend), unless its last sample came
-        open_from = len(window) if last_done else int(np.searchsorted(window, window[-1]))
+        open_from = len(window) if last_done else int(window.searchsorted(window[-1]))
         self._time_s, self._window, self._values = time_s[open_from:], window[open_from:], values[open_from:]
         if open_from == 0:
             return _NO_TIMES, self._values[:0]
-        window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
-        bounds = np.empty(open_from + 1, dtype=np.int64)  # each window's first sample, then open_from (no np.diff:
-        changes = np.flatnonzero(window[1:] != window[:-1]) + 1  # its prepend/append cost more than the rest)
-        bounds[0], bounds[1:changes.size + 1], bounds[changes.size + 1] = 0, changes, open_from
-        bounds = bounds[:changes.size + 2]
+        if open_from < len(window):
+            window, time_s, values = window[:open_from], time_s[:open_from], values[:open_from]
+        # each window's first sample, then open_from: where the window changes, between two ends (no np.diff: its
+        # prepend/append cost more than the rest)
+        bounds = np.concatenate((_TRUE, window[1:] != window[:-1], _TRUE)).nonzero()[0]
         starts, counts = bounds[:-1], bounds[1:] - bounds[:-1]
         return (np.add.reduceat(time_s, starts) / counts,
                 np.add.reduceat(values, starts, axis=0) / counts[:, None])
@@ -167,6 +167,7 @@ EARLY_CLOSE_TOLERANCE = 0.01
 window's end: the mapped sample period differs from the sensor's nominal one by the crystals' rate error (< 0.05 %);
 a sample that still lands in a window already sent counts in the next one."""
 _NO_TIMES = np.empty(0)
+_TRUE = np.ones(1, dtype=bool)
 _NO_WINDOW = np.iinfo(np.int64).min // 2
 
 
@@ -199,12 +200,14 @@ class _WrenchStreams:
             self._sample_period_s = None
         time_s = _sample_times(samples)
         if self.both is not None and samples.compensated is not None:
-            mean_time_s, mean = self.both.feed(time_s, np.hstack((samples.batch.wrench, samples.compensated)))
+            both = np.concatenate((samples.batch.wrench, samples.compensated), axis=1)
+            mean_time_s, mean = self.both.feed(time_s, both)
             if not len(mean):
                 return []
             stamp_ns = self.clock.stamp_ns(mean_time_s)
-            return [("wrench_raw", WRENCH_TYPE, self.encoder.encode(stamp_ns, mean[:, :6]), stamp_ns),
-                    ("wrench_compensated", WRENCH_TYPE, self.encoder.encode(stamp_ns, mean[:, 6:]), stamp_ns)]
+            raw, compensated = self.encoder.encode_pairs(stamp_ns, mean)
+            return [("wrench_raw", WRENCH_TYPE, raw, stamp_ns),
+                    ("wrench_compensated", WRENCH_TYPE, compensated, stamp_ns)]
         if self.both is not None:
             self.raw, self.compensated = self.both.split(6)
             self.both = None

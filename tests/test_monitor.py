@@ -467,3 +467,31 @@ def test_the_switch_interval_is_short_while_streaming_and_given_back_after():
         sys.setswitchinterval(before)
     assert seen and max(seen) <= 0.0011
     assert after == pytest.approx(0.005)
+
+
+def test_the_robot_state_of_a_read_is_one_state_of_the_source():
+    """A source that gives the joints and the flange pose of one state together (URStateReader) is asked once per
+    read: the published joints and pose belong to the same state, never to two consecutive ones."""
+
+    class TwoStates:
+        """Its joints move between any two calls; joints_and_flange_pose answers from one."""
+
+        def __init__(self) -> None:
+            self.calls = 0
+
+        def joint_positions(self) -> np.ndarray:
+            self.calls += 1
+            return np.full(6, float(self.calls))
+
+        def flange_pose(self) -> np.ndarray:
+            self.calls += 1
+            return np.full(6, 10.0 * self.calls)
+
+        def joints_and_flange_pose(self) -> tuple[np.ndarray, np.ndarray]:
+            self.calls += 1
+            return np.full(6, float(self.calls)), np.full(6, 10.0 * self.calls)
+
+    robot = TwoStates()
+    state = LiveMonitor(sensor=None, robot=robot)._robot_state(1.0)  # type: ignore[arg-type]
+    assert state is not None and robot.calls == 1
+    np.testing.assert_array_equal(state.flange_pose, 10.0 * state.joint_positions_rad)

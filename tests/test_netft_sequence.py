@@ -236,6 +236,9 @@ class StalledReceiver:
         self.drained_at_s = 0.0
         self.index = 0
 
+    def has_new(self) -> bool:
+        return bool(self.batches)
+
     def take(self) -> tuple[np.ndarray, np.ndarray, int]:
         if not self.batches:
             return records([]), np.empty(0), self.index

@@ -59,6 +59,23 @@ def test_wrench_batches_decode_with_rosbags(frame_id, store):
         assert reference.serialize() == message
 
 
+def test_batches_of_any_size_and_pairs_encode_as_the_reference_serializer():
+    """The encoder's prefilled records (grown for a larger batch) and its pairs (two topics' messages of the same
+    stamps in one batch) give each message's bytes as ROS 2's serializer writes them."""
+    encoder = WrenchStampedEncoder("ft_sensor")
+    rng = np.random.default_rng(7)
+    for n in (3, 40, 2, 100, 1):
+        stamp_ns = 1_796_000_000_000_000_000 + rng.integers(0, 10**12, n)
+        wrenches = rng.normal(scale=50.0, size=(n, 12))
+        raw, compensated = encoder.encode_pairs(stamp_ns, wrenches)
+        assert encoder.encode(stamp_ns, wrenches[:, :6]) == raw and len(raw) == n
+        for data, values in ((raw, wrenches[:, :6]), (compensated, wrenches[:, 6:])):
+            for message, ns, row in zip(data, stamp_ns, values):
+                reference = WrenchStamped(Header(Time(int(ns // 10**9), int(ns % 10**9)), "ft_sensor"),
+                                          Wrench(Vector3(*row[:3]), Vector3(*row[3:])))
+                assert reference.serialize() == message
+
+
 @pytest.mark.parametrize("ros_type", sorted(DEFINITIONS))
 def test_message_definitions_are_ros2s(ros_type):
     """The MCAP schemas' definitions parse, with rosbags, to the same fields as rosbags' own ROS 2 types."""

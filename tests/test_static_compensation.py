@@ -271,3 +271,32 @@ def test_a_stillness_query_before_the_next_robot_state_reads_nothing_and_one_aft
     reads = states.reads
     assert not orientations.still_between(newest_s - 0.25, newest_s, 2e-4)
     assert states.reads > reads
+
+
+def test_the_newest_rows_and_the_stillness_query_of_one_state_share_one_read_of_the_stream():
+    """The dynamic compensator's newest rows (FlangeOrientations.newest) are read as wide as the stillness check's
+    next query, which then reads nothing; a new state (the stream's count) is read again, and seen by both."""
+    states = _CountedStates(capacity=1024)
+
+    def append_still(t: float, q_offset_rad: float = 0.0) -> None:
+        cycle = controller_cycle(0.0)
+        states.append(replace(cycle, timestamp_s=t, received_s=HOST_OFFSET_S + t + 2e-4,
+                              q=cycle.q + np.array([q_offset_rad, 0, 0, 0, 0, 0])))
+
+    for k in range(300):
+        append_still(k * 0.002)
+    orientations = FlangeOrientations(MODEL, states)
+    newest_s = float(states.window(last=1).time_s[-1])
+    assert orientations.still_between(newest_s - 0.25, newest_s, 2e-4)  # sizes the next queries
+    for t, moved in ((0.6, False), (0.602, True)):  # a new state each time
+        append_still(t, q_offset_rad=1e-3 if moved else 0.0)
+        newest_s = float(states.window(last=1).time_s[-1])
+        reads = states.reads
+        tail = orientations.newest(16)
+        assert states.reads == reads + 1 and len(tail) > 16  # one read, as wide as the stillness query's
+        assert tail.controller_time_s[-1] == t  # the new state
+        assert orientations.still_between(newest_s - 0.25, newest_s, 2e-4) is not moved
+        assert states.reads == reads + 1  # the stillness query read nothing more
+        expected = states.window(last=16)
+        for name in ("time_s", "controller_time_s", "q", "qd", "qdd", "target_qd"):
+            np.testing.assert_array_equal(getattr(tail, name)[-16:], getattr(expected, name))

@@ -326,6 +326,10 @@ class RdtReceiver:
 
     # ------------------------------------------------------------------ reader side
 
+    def has_new(self) -> bool:
+        """Whether records were written since the last :meth:`take`."""
+        return self.written != self.consumed
+
     def take(self) -> tuple[np.ndarray, np.ndarray, int]:
         """Copy every record written since the last call; return (records, receive times, index of the first).
 

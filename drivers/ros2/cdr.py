@@ -29,8 +29,7 @@ NS_PER_S = 1_000_000_000
 
 def stamp_parts(stamp_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split UNIX times in integer nanoseconds (N,) into builtin_interfaces/Time's (sec, nanosec)."""
-    stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
-    return stamp_ns // NS_PER_S, stamp_ns % NS_PER_S
+    return np.divmod(np.asarray(stamp_ns, dtype=np.int64), NS_PER_S)
 
 
 class WrenchStampedEncoder:
@@ -48,15 +47,24 @@ class WrenchStampedEncoder:
         self._strlen = strlen
         self.size = self.dtype.itemsize
         """Bytes of one message (encapsulation header included)."""
+        self._blank = self._blank_records(16)
+        """Records with the fields every message shares (encapsulation, frame_id) set: copied, then stamped and
+        filled (grown when a batch needs more)."""
+
+    def _blank_records(self, count: int) -> np.ndarray:
+        out = np.zeros(count, dtype=self.dtype)
+        out["encapsulation"] = np.void(CDR_LE_HEADER)
+        out["strlen"] = self._strlen
+        out["frame_id"] = self._frame
+        return out
 
     def records(self, stamp_ns: np.ndarray, wrench: np.ndarray) -> np.ndarray:
         """The messages as a structured array (N,) of :attr:`dtype`: UNIX stamps (N,) ns and wrenches (N, 6) [N, N·m]."""
         wrench = np.asarray(wrench, dtype=float).reshape(-1, 6)
-        out = np.empty(len(wrench), dtype=self.dtype)
-        out["encapsulation"] = np.void(CDR_LE_HEADER)
+        if len(wrench) > len(self._blank):
+            self._blank = self._blank_records(2 * len(wrench))
+        out = self._blank[:len(wrench)].copy()
         out["sec"], out["nanosec"] = stamp_parts(stamp_ns)
-        out["strlen"] = self._strlen
-        out["frame_id"] = self._frame
         out["wrench"] = wrench
         return out
 
@@ -65,6 +73,13 @@ class WrenchStampedEncoder:
         data = self.records(stamp_ns, wrench).tobytes()
         size = self.size
         return [data[i:i + size] for i in range(0, len(data), size)]
+
+    def encode_pairs(self, stamp_ns: np.ndarray, wrenches: np.ndarray) -> tuple[list[bytes], list[bytes]]:
+        """:meth:`encode` of ``wrenches[:, :6]`` and of ``wrenches[:, 6:]`` ((M, 12): two topics' messages of the
+        same stamps, e.g. raw and compensated), in one batch of 2M records (half the numpy calls)."""
+        stamp_ns = np.asarray(stamp_ns, dtype=np.int64)
+        both = self.encode(stamp_ns.repeat(2), np.ascontiguousarray(wrenches, dtype=float).reshape(-1, 6))
+        return both[0::2], both[1::2]
 
 
 __all__ = ["WrenchStampedEncoder", "stamp_parts", "CDR_LE_HEADER", "NS_PER_S"]
