@@ -23,6 +23,8 @@ import pytest
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the ftacq command (ftacq/app/cli.py), for the workers and
 # every process the tests start: xdist starts its workers after this file is read, before they import numpy
+os.environ.setdefault("FTACQ_SIM_REALTIME_PRIORITY", "5")  # simulated controllers keep their cycle on a loaded machine
+# (tests/fakes/ur_process.py REALTIME_PRIORITY_VARIABLE; normal scheduling where SCHED_FIFO is not allowed)
 
 CHECKOUT = Path(__file__).resolve().parents[1]
 NOT_OUTPUT = {".git", ".venv", "__pycache__", ".pytest_cache", ".hypothesis", ".mypy_cache", ".ruff_cache"}

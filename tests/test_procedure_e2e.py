@@ -133,8 +133,8 @@ def test_calibration_file_and_report_from_the_command(tmp_path, capsys):
     status = main(["calibrate", "--sim", "--sensor", "can", "--time-scale", "0", "--yes",
                    "--config", str(_fast_toml(tmp_path)), "--out", str(tmp_path / "runs"),
                    "--save", str(tmp_path / "view.rrd")])
-    out = capsys.readouterr().out
-    assert status == 0
+    out, err = capsys.readouterr()
+    assert status == 0, out[-2000:] + err[-2000:]
     from ftacq.app.dashboard import layout
     from tests.rrd_reader import entity_paths, read_scalars
 

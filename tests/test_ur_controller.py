@@ -332,3 +332,16 @@ def test_a_client_that_does_not_read_loses_whole_packages_and_never_holds_up_the
     finally:
         connection.close()
         client.close()
+
+
+def test_a_simulated_controller_takes_the_suites_realtime_priority(monkeypatch):
+    """The suite's simulated controllers ask for SCHED_FIFO (tests/conftest.py), unless told otherwise; a value
+    that is not a priority is ignored (normal scheduling)."""
+    from tests.fakes.ur_process import REALTIME_PRIORITY_VARIABLE, default_realtime_priority
+
+    for text, priority in (("5", 5), ("", 0), ("0", 0), ("100", 0), ("high", 0), (" 7 ", 7)):
+        monkeypatch.setenv(REALTIME_PRIORITY_VARIABLE, text)
+        assert default_realtime_priority() == priority, text
+    monkeypatch.setenv(REALTIME_PRIORITY_VARIABLE, "5")
+    assert "--realtime-priority" in URControllerProcess()._command("127.0.0.9")
+    assert "--realtime-priority" not in URControllerProcess(realtime_priority=0)._command("127.0.0.9")

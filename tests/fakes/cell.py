@@ -104,8 +104,9 @@ class SimulatedCell:
         servo_lag_s: how far the physical arm (actual_q, actual_qd, the tool's physics) follows the controller's
             target, s; default :data:`tests.fakes.ur_simulator.SERVO_LAG_S` (as a real arm), 0 = none.
         realtime_priority: SCHED_FIFO priority of the controller process's threads and of the Net F/T's sending
-            thread (0: normal scheduling). Real devices keep their cycle whatever the computer does; on a loaded
-            computer the simulated ones, at normal priority, stall for 100 ms and more (ftacq bridge --sim).
+            thread (0: normal scheduling; the controller then takes the environment's,
+            :func:`tests.fakes.ur_process.default_realtime_priority`). Real devices keep their cycle whatever the
+            computer does; on a loaded computer the simulated ones, at normal priority, stall for 100 ms and more.
         clocks: the devices' clocks and delivery (:class:`SimClocks`; default modest errors and bursts).
         sensor_process: run the simulated Net F/T in its own process (tests/fakes/netft_process.py), so that it
             keeps its pace whatever this process does; then :meth:`set_contact`, :meth:`swap_tool` and
@@ -165,7 +166,7 @@ class SimulatedCell:
             self.controller = URControllerProcess(model=self.model_name, time_scale=self.time_scale,
                                                   pose_shm=self.shared_pose.name, initial_q=self.initial_q,
                                                   mount=self.mount, extra_args=self._controller_args(),
-                                                  realtime_priority=self.realtime_priority)
+                                                  realtime_priority=self.realtime_priority or None)
             self.controller.start()
             self._stack.callback(self.controller.stop)
             if self.sensor_process:

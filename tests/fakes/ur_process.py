@@ -36,6 +36,17 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 READY_TIMEOUT_S = 20.0
 CONTROL_TIMEOUT_S = 5.0
 MAX_BIND_ATTEMPTS = 12
+REALTIME_PRIORITY_VARIABLE = "FTACQ_SIM_REALTIME_PRIORITY"
+"""Environment variable: the SCHED_FIFO priority a simulated controller asks for when not told (unset: 0, normal
+scheduling). A real controller has its own computer; on a loaded test machine a simulated one at normal priority
+misses its 2 ms cycle for whole seconds (a state stream silent past the driver's watchdog), so the test suite sets it
+(tests/conftest.py). Refused without the right to (CAP_SYS_NICE, the rtprio limit): then normal scheduling."""
+
+
+def default_realtime_priority() -> int:
+    """The priority :data:`REALTIME_PRIORITY_VARIABLE` asks for (0 when unset or not a whole number 1-99)."""
+    text = os.environ.get(REALTIME_PRIORITY_VARIABLE, "").strip()
+    return int(text) if text.isdigit() and 1 <= int(text) <= 99 else 0
 
 
 def random_loopback_address(rng: random.Random | None = None) -> str:
@@ -50,14 +61,15 @@ class URControllerProcess:
 
     Args mirror ``python -m tests.fakes.ur_controller``: model, time_scale (0 = instant moves), pose_shm
     (SharedPose name to publish the flange pose into), initial_q (rad), mount, version ("5.11.1.108318").
-    ``host`` forces one address (no retry).
+    ``host`` forces one address (no retry). ``realtime_priority``: SCHED_FIFO for its threads (None:
+    :func:`default_realtime_priority`).
     """
 
     def __init__(self, model: str = "UR5e", time_scale: float = 0.0, pose_shm: str | None = None,
                  initial_q=None, mount: str = "floor", version: str | None = None, host: str | None = None,
-                 extra_args: list[str] | None = None, realtime_priority: int = 0) -> None:
+                 extra_args: list[str] | None = None, realtime_priority: int | None = None) -> None:
         self.model, self.time_scale, self.pose_shm = model, time_scale, pose_shm
-        self.realtime_priority = realtime_priority
+        self.realtime_priority = default_realtime_priority() if realtime_priority is None else realtime_priority
         self.initial_q, self.mount, self.version = initial_q, mount, version
         self._fixed_host = host
         self._extra = list(extra_args or [])
