@@ -32,7 +32,7 @@ cmd="${1:-}"; shift || true
 case "$cmd" in
   demo) setup; exec .venv/bin/ftacq calibrate --sim --yes "$@" ;;
   # the suite starts Python processes by the hundred (commands, simulated controllers): they share compiled bytecode
-  test) setup; exec env -u PYTHONDONTWRITEBYTECODE .venv/bin/python -m pytest -n 3 --dist loadgroup "$@" ;;
+  test) setup; exec env -u PYTHONDONTWRITEBYTECODE .venv/bin/python -m pytest -n 4 --dist loadgroup "$@" ;;
   check) setup; .venv/bin/ruff check ftacq drivers procedures tests benchmarks
          if grep -q '^\[tool.mypy\]' pyproject.toml; then .venv/bin/mypy; fi ;;
   setup) setup ;;
