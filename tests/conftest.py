@@ -79,12 +79,12 @@ _BEFORE = pytest.StashKey[set]()
 
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Order and group the suite for ``./run.sh test`` (``-n 2 --dist loadgroup``): the tests marked ``slow`` first,
+    """Order and group the suite for ``./run.sh test`` (``-n 4 --dist loadgroup``): the tests marked ``slow`` first,
     longest first (``@pytest.mark.slow(seconds=…)``: the test's usual length on the 2-core machine, default
     :data:`SLOW_TEST_S`), each dealt out alone; every other test in one group per module (``xdist_group``), so a
     module's shared fixtures (a simulated cell, an identified run) are built once. The real-time quick calibrations
     (a minute and a half each) then start at once on different workers and the modules fill in around them,
-    instead of one long test ending the suite while the other worker idles. Every process orders alike."""
+    instead of one long test ending the suite while the other workers idle. Every process orders alike."""
     def expected_s(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return 0.0 if marker is None else float(marker.kwargs.get("seconds", SLOW_TEST_S))
