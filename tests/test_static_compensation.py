@@ -248,14 +248,19 @@ class _CountedStates(CycleStates):
         return super().window(last)
 
 
-def test_a_stillness_query_before_the_next_robot_state_reads_nothing_and_one_after_it_sees_it():
-    states = _CountedStates(capacity=1024)
-
+def _still_appender(states: "_CountedStates"):
+    """append_still(t, q_offset_rad): one controller state at controller time t (s), joint 1 offset (rad)."""
     def append_still(t: float, q_offset_rad: float = 0.0) -> None:
         cycle = controller_cycle(0.0)
         states.append(replace(cycle, timestamp_s=t, received_s=HOST_OFFSET_S + t + 2e-4,
                               q=cycle.q + np.array([q_offset_rad, 0, 0, 0, 0, 0])))
 
+    return append_still
+
+
+def test_a_stillness_query_before_the_next_robot_state_reads_nothing_and_one_after_it_sees_it():
+    states = _CountedStates(capacity=1024)
+    append_still = _still_appender(states)
     for k in range(300):
         append_still(k * 0.002)
     orientations = FlangeOrientations(MODEL, states)
@@ -277,12 +282,7 @@ def test_the_newest_rows_and_the_stillness_query_of_one_state_share_one_read_of_
     """The dynamic compensator's newest rows (FlangeOrientations.newest) are read as wide as the stillness check's
     next query, which then reads nothing; a new state (the stream's count) is read again, and seen by both."""
     states = _CountedStates(capacity=1024)
-
-    def append_still(t: float, q_offset_rad: float = 0.0) -> None:
-        cycle = controller_cycle(0.0)
-        states.append(replace(cycle, timestamp_s=t, received_s=HOST_OFFSET_S + t + 2e-4,
-                              q=cycle.q + np.array([q_offset_rad, 0, 0, 0, 0, 0])))
-
+    append_still = _still_appender(states)
     for k in range(300):
         append_still(k * 0.002)
     orientations = FlangeOrientations(MODEL, states)
