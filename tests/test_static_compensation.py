@@ -248,22 +248,23 @@ class _CountedStates(CycleStates):
         return super().window(last)
 
 
-def _still_appender(states: "_CountedStates"):
-    """append_still(t, q_offset_rad): one controller state at controller time t (s), joint 1 offset (rad)."""
+def _still_stream():
+    """(states, append_still, orientations): 300 still states every 2 ms; append_still(t, q_offset_rad) adds one
+    at controller time t (s), joint 1 offset by q_offset_rad (rad)."""
+    states = _CountedStates(capacity=1024)
+
     def append_still(t: float, q_offset_rad: float = 0.0) -> None:
         cycle = controller_cycle(0.0)
         states.append(replace(cycle, timestamp_s=t, received_s=HOST_OFFSET_S + t + 2e-4,
                               q=cycle.q + np.array([q_offset_rad, 0, 0, 0, 0, 0])))
 
-    return append_still
+    for k in range(300):
+        append_still(k * 0.002)
+    return states, append_still, FlangeOrientations(MODEL, states)
 
 
 def test_a_stillness_query_before_the_next_robot_state_reads_nothing_and_one_after_it_sees_it():
-    states = _CountedStates(capacity=1024)
-    append_still = _still_appender(states)
-    for k in range(300):
-        append_still(k * 0.002)
-    orientations = FlangeOrientations(MODEL, states)
+    states, append_still, orientations = _still_stream()
     newest_s = float(states.window(last=1).time_s[-1])
     for _ in range(2):  # the first query sizes the reads of the next ones
         assert orientations.still_between(newest_s - 0.25, newest_s, 2e-4)
@@ -281,11 +282,7 @@ def test_a_stillness_query_before_the_next_robot_state_reads_nothing_and_one_aft
 def test_the_newest_rows_and_the_stillness_query_of_one_state_share_one_read_of_the_stream():
     """The dynamic compensator's newest rows (FlangeOrientations.newest) are read as wide as the stillness check's
     next query, which then reads nothing; a new state (the stream's count) is read again, and seen by both."""
-    states = _CountedStates(capacity=1024)
-    append_still = _still_appender(states)
-    for k in range(300):
-        append_still(k * 0.002)
-    orientations = FlangeOrientations(MODEL, states)
+    states, append_still, orientations = _still_stream()
     newest_s = float(states.window(last=1).time_s[-1])
     assert orientations.still_between(newest_s - 0.25, newest_s, 2e-4)  # sizes the next queries
     for t, moved in ((0.6, False), (0.602, True)):  # a new state each time
