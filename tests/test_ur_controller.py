@@ -345,3 +345,15 @@ def test_a_simulated_controller_takes_the_suites_realtime_priority(monkeypatch):
     monkeypatch.setenv(REALTIME_PRIORITY_VARIABLE, "5")
     assert "--realtime-priority" in URControllerProcess()._command("127.0.0.9")
     assert "--realtime-priority" not in URControllerProcess(realtime_priority=0)._command("127.0.0.9")
+
+
+def test_a_simulated_cb3_arm_runs_polyscope_3_so_that_ftacq_names_it_right():
+    """The Dashboard Server says "UR5" for a UR5 and a UR5e; the software version tells them apart. A simulated UR5
+    reports PolyScope 3, and ftacq reads it as the CB3 arm it is (a 5.x version made it a UR5e)."""
+    from drivers.ur_dashboard_server import read_controller_info
+    from tests.fakes.ur_controller import default_version
+
+    assert default_version("UR5")[0] == 3 and default_version("ur10")[0] == 3 and default_version("UR5e")[0] == 5
+    with URControllerProcess(model="UR5", host=random_loopback_address()) as controller:
+        info = read_controller_info(controller.host)
+    assert info.model is not None and info.model.name == "UR5" and info.software_version.startswith("3.15")

@@ -734,6 +734,16 @@ def parse_version(text: str) -> tuple[int, int, int, int]:
     return tuple(parts + [0] * (4 - len(parts)))  # type: ignore[return-value]
 
 
+CB3_MODELS = frozenset({"UR3", "UR5", "UR10"})
+"""Arms of the CB3 generation: they run PolyScope 3 (the others 5 or X; docs/protocols-ur.md)."""
+
+
+def default_version(model: str) -> tuple[int, int, int, int]:
+    """The software a real controller of ``model`` runs: PolyScope 3.15 on a CB3 arm, 5.11 on the others (the
+    Dashboard Server names UR5 and UR5e alike; the version tells them apart)."""
+    return (3, 15, 7, 106331) if ur_model(model).name in CB3_MODELS else (5, 11, 1, 108318)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m tests.fakes.ur_controller", description=__doc__.split("\n\n")[0])
     parser.add_argument("--host", required=True, help="loopback address to bind, e.g. 127.0.0.2")
@@ -742,7 +752,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--pose-shm", default=None, help="SharedPose block to publish the flange pose into")
     parser.add_argument("--initial-q", type=float, nargs=6, default=None, metavar="Q", help="initial joint angles, rad")
     parser.add_argument("--mount", default="floor", help="floor, wall, ceiling, tilted:ALPHA,BETA or gravity:X,Y,Z")
-    parser.add_argument("--version", type=parse_version, default=(5, 11, 1, 108318), help="controller version")
+    parser.add_argument("--version", type=parse_version, default=None,
+                        help="controller version (default: PolyScope 3.15 for a CB3 model, 5.11 for the others)")
     parser.add_argument("--serial-number", default="20235500123")
     parser.add_argument("--encoder-noise-rad", type=float, default=0.0,
                         help=f"1σ jitter of the reported joint angles, rad (default 0: exact; a real UR5e "
@@ -764,7 +775,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version,
+    sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version or default_version(args.model),
                       initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
                       serial_number=args.serial_number, encoder_noise_rad=args.encoder_noise_rad, seed=args.seed,
                       clock_rate_error=args.clock_rate_error, servo_lag_s=args.servo_lag_s)
