@@ -7,8 +7,8 @@ each datagram with ``time.monotonic()`` when it drains it (after a wake-up that 
 ``COALESCE_S`` = 1 ms, so a stamp may be up to that much after the datagram's arrival). It also publishes
 ``drained_at_s``: a host time by which every datagram that had arrived is in the ring (the socket was found empty
 after it). The reorder window is measured on that clock, not the reader's, so that a stalled receive thread (a
-loaded machine) never makes a swapped record, still waiting in the socket, look later than its window. It accepts datagrams only
-from the box's address and RDT port (others: ``foreign``); a datagram whose length is not a positive multiple of
+loaded machine) never makes a swapped record, still waiting in the socket, look later than its window.
+It accepts datagrams only from the box's address and RDT port (others: ``foreign``); a datagram whose length is not a positive multiple of
 36 is ``malformed``. Silence longer than the stream timeout is a ``timeout``, and the start command is re-sent
 (``reconnects``) on the schedule of :func:`next_retry_interval_s`. The reader side (:meth:`RdtReceiver.take`)
 copies whole runs of records out of the ring; records the reader did not take before the ring filled are dropped
@@ -61,6 +61,7 @@ RECENT_DATA_POLL_S = 0.002
 """For RECENT_DATA_S after the latest datagram the receive thread polls at least this often, so that
 ``drained_at_s`` keeps up when a stream stops with records held for reordering, seconds."""
 RECENT_DATA_S = 0.1
+"""How long after the latest datagram the receive thread keeps polling every RECENT_DATA_POLL_S, seconds."""
 BACKOFF_INITIAL_S = 0.25
 """First interval between re-sent start commands while the box is silent, seconds."""
 BACKOFF_RESTARTING_MAX_S = 0.5
