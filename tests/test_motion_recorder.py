@@ -21,8 +21,8 @@ class EveryCallSensor:
     def read(self, timeout_s: float | None = 1.0) -> WrenchBatch:
         self.produced += 1
         k = self.produced
-        return WrenchBatch(time_s=np.array([float(k)]), wrench=np.zeros((1, 6)), counts=np.zeros((1, 6), dtype=np.int64),
-                           status=np.zeros(1, dtype=np.uint32), sequence=np.array([k]), saturated=np.zeros(1, bool))
+        return WrenchBatch(time_s=np.array([float(k)]), wrench=np.zeros((1, 6)),
+                           counts=np.zeros((1, 6), dtype=np.int64), status=np.zeros(1, dtype=np.uint32), sequence=np.array([k]), saturated=np.zeros(1, bool))
 
 
 class NoStates:

@@ -775,7 +775,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=args.version or default_version(args.model),
+    version = args.version or default_version(args.model)
+    sim = URSimulator(ur_model(args.model), time_scale=args.time_scale, version=version,
                       initial_q=np.array(args.initial_q) if args.initial_q else None, mount=args.mount,
                       serial_number=args.serial_number, encoder_noise_rad=args.encoder_noise_rad, seed=args.seed,
                       clock_rate_error=args.clock_rate_error, servo_lag_s=args.servo_lag_s)
