@@ -64,7 +64,6 @@ from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
 import numpy as np
-from scipy import signal
 
 from drivers.sensor import ForceTorqueSensor, WrenchBatch
 from drivers.ur_connection import CB3_RATE_HZ
@@ -226,6 +225,8 @@ class WrenchFilter:
         if not 0 < cutoff_hz < 0.5 * sample_rate_hz:
             raise FtacqError(f"low-pass cut-off {cutoff_hz:g} Hz: must be between 0 and half the sensor rate "
                              f"({0.5 * sample_rate_hz:g} Hz)")
+        from scipy import signal  # here, not at the top: scipy.signal (with scipy.stats) takes ~1 s to import
+
         self.sos = signal.butter(order, cutoff_hz, fs=sample_rate_hz, output="sos")
         self._sections = [(section[:3].copy(), section[3:].copy()) for section in self.sos]
         self._zi_unit = signal.sosfilt_zi(self.sos)[:, :, None]  # (sections, 2, 1): steady state for a unit step
@@ -233,13 +234,14 @@ class WrenchFilter:
         _, delay = signal.group_delay((*signal.sos2tf(self.sos),), w=[1.0], fs=sample_rate_hz)
         self.delay_s = float(delay[0]) / sample_rate_hz
         """Group delay at 1 Hz, s (the delay of slow changes)."""
+        self._lfilter = signal.lfilter
 
     def __call__(self, wrench: np.ndarray) -> np.ndarray:
         if self.zi is None:
             self.zi = self._zi_unit * wrench[0][None, None, :]
         out = wrench
         for k, (b, a) in enumerate(self._sections):
-            out, self.zi[k] = signal.lfilter(b, a, out, axis=0, zi=self.zi[k])
+            out, self.zi[k] = self._lfilter(b, a, out, axis=0, zi=self.zi[k])
         return out
 
 
