@@ -1,6 +1,6 @@
 """Benchmark: compensation while the arm moves (issue 12), one run on the simulated cell, figures side by side.
 
-    .venv/bin/python benchmarks/dynamics.py [--jog-s 15] [--monitor-s 15] [--model UR5e]
+    .venv/bin/python benchmarks/dynamics.py [--jog-s 15] [--monitor-s 15] [--model UR5e] [--version 3.15.7.106331]
     .venv/bin/python benchmarks/dynamics.py --live-minutes 5 [--burners 2] [--every-s 20] [--sensor-rate-error 150e-6]
         [--sim-priority N]
 
@@ -95,6 +95,8 @@ def main() -> int:
                         help="with --live-minutes: the simulated sensor skips what it could not send within this, s")
     parser.add_argument("--seed", type=int, default=7, help="with --live-minutes: the jog's seed")
     parser.add_argument("--model", default="UR5e", help="the simulated arm (default UR5e; UR5: a CB3 at 125 Hz)")
+    parser.add_argument("--version", help="the simulated controller's software (default the model's: 3.15 for a CB3, "
+                                          "5.11 else); e.g. a UR5 at 5.11.1.108318 streams 500 Hz: the rate alone")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="with --live-minutes: keep the monitor's record, "
                         "its stderr and the jog's moves there")
     parser.add_argument("--sim-priority", type=int, default=0, metavar="N",
@@ -105,12 +107,14 @@ def main() -> int:
         import dynamics_live
 
         return dynamics_live.main(args.live_minutes, args.every_s, args.burners, args.sensor_rate_error,
-                                  args.sensor_backlog_s, args.seed, args.keep, args.sim_priority, args.model)
+                                  args.sensor_backlog_s, args.seed, args.keep, args.sim_priority, args.model,
+                                  args.version)
     truth = CellTruth(motion_noise_gain=0.0)
     model = ur_model(args.model)
     settings = PlanSettings(joint_speed_rad_s=SPEED, joint_acceleration_rad_s2=ACCELERATION)
     lines = []
-    with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=SENSOR_RATE_HZ, model=args.model) as cell:
+    with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=SENSOR_RATE_HZ, model=args.model,
+                       version=args.version) as cell:
         config = fast_config(cell, random_count=12, validation_count=4, average_time_s=0.3)
         _, result = run_calibration(cell, config)
         static = replace(result.identification.calibration, sensor_offset=np.array(truth.sensor_offset_m))

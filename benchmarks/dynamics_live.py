@@ -216,7 +216,8 @@ def per_minute(run: dict, static) -> list[str]:
 
 
 def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: float, backlog_s: float,
-         seed: int, keep: Path | None = None, sim_priority: int = 0, model: str = "UR5e") -> int:
+         seed: int, keep: Path | None = None, sim_priority: int = 0, model: str = "UR5e",
+         version: str | None = None) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
@@ -236,7 +237,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
     clocks = replace(SimClocks(), sensor_rate_error=sensor_rate_error, sensor_max_backlog_s=backlog_s)
     settings = PlanSettings(joint_speed_rad_s=1.0, joint_acceleration_rad_s2=2.0)
     started = time.monotonic()
-    lines = [f"live run: {model}, {minutes:g} min, jog every {every_s:g} s (1 rad/s, 2 rad/s², wrist included, separate "
+    lines = [f"live run: {model}{f' at {version}' if version else ''}, {minutes:g} min, jog every {every_s:g} s (1 rad/s, 2 rad/s², wrist included, separate "
              f"ur-rtde process), {burner_count} CPU burners, {TOOL_MASS_KG} kg tool, sensor clock "
              f"{sensor_rate_error * 1e6:+.0f} ppm, bursts {clocks.sensor_burst_interval_s * 1e3:g} ms "
              f"(jitter {clocks.sensor_burst_jitter_s * 1e3:g} ms), sensor backlog {backlog_s * 1e3:g} ms, controller "
@@ -244,7 +245,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
              f"simulated devices at {f'SCHED_FIFO {sim_priority}' if sim_priority else 'normal priority'}; "
              f"load average at start {os.getloadavg()[0]:.1f}"]
     with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=7000.0, clocks=clocks, sensor_process=True,
-                       realtime_priority=sim_priority, model=model) as cell, \
+                       realtime_priority=sim_priority, model=model, version=version) as cell, \
             tempfile.TemporaryDirectory() as folder_name:
         folder = Path(folder_name)
         config = fast_config(cell, random_count=12, validation_count=4, average_time_s=0.3)

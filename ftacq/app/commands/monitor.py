@@ -52,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seconds", type=float, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--sim-still", action="store_true", help="with --sim: leave the simulated arm still")
-    parser.add_argument("--model", type=_sim_model,
+    parser.add_argument("--model",
                         help="with --sim: the simulated UR model (default UR5e; a CB3 one streams at 125 Hz)")
     parser.add_argument("--sim-drift", type=float, default=0.0, metavar="N_PER_H",
                         help="with --sim: the simulated sensor's force biases drift by this much per hour (N/h; "
@@ -84,16 +84,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def _sim_model(text: str) -> str:
-    """``--model``: a known UR model's name (argparse's one-line error, exit 2, otherwise)."""
-    from ftacq.kinematics import ur_model
-
-    try:
-        return ur_model(text).name
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the monitor; return 0 when it stopped as asked (--seconds or Ctrl-C). A client of the Python API's
     session (:func:`ftacq.app.session.open_cell`) with the dashboard and the live readout as listeners."""
@@ -102,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.app.readout import LiveReadout, format_summary
     from ftacq.app.ros2_outputs import check_ros2_args, is_bag, prefer_low_latency, ros2_listeners
     from ftacq.app.session import SimOptions, open_cell
+    from ftacq.errors import InputError
     from ftacq.validation import check_number, check_output_file
 
     if args.seconds is not None:
@@ -112,6 +103,15 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "save", None) is not None:
         check_output_file(args.save, "--save")
     check_ros2_args(args)
+    if args.model is not None:
+        if not args.sim:
+            raise InputError(f"--model {args.model}: only with --sim (CELL.toml's robot.model names a real cell's arm)")
+        from ftacq.kinematics import ur_model
+
+        try:
+            args.model = ur_model(args.model).name
+        except ValueError as error:
+            raise InputError(f"--model: {error}") from None
     sim = SimOptions(jog=not args.sim_still, drift_n_per_h=args.sim_drift, warmup_n_per_h=args.sim_warmup,
                      swap_tool_after_s=args.sim_swap_tool, model=args.model) if args.sim else False
     with contextlib.ExitStack() as stack:
