@@ -1,6 +1,6 @@
 """Benchmark: compensation while the arm moves (issue 12), one run on the simulated cell, figures side by side.
 
-    .venv/bin/python benchmarks/dynamics.py [--jog-s 15] [--monitor-s 15]
+    .venv/bin/python benchmarks/dynamics.py [--jog-s 15] [--monitor-s 15] [--model UR5e] [--version 3.15.7.106331]
     .venv/bin/python benchmarks/dynamics.py --live-minutes 5 [--burners 2] [--every-s 20] [--sensor-rate-error 150e-6]
         [--sim-priority N]
 
@@ -94,6 +94,9 @@ def main() -> int:
     parser.add_argument("--sensor-backlog-s", type=float, default=0.02,
                         help="with --live-minutes: the simulated sensor skips what it could not send within this, s")
     parser.add_argument("--seed", type=int, default=7, help="with --live-minutes: the jog's seed")
+    parser.add_argument("--model", default="UR5e", help="the simulated arm (default UR5e; UR5: a CB3 at 125 Hz)")
+    parser.add_argument("--version", help="the simulated controller's software (default the model's: 3.15 for a CB3, "
+                                          "5.11 else); e.g. a UR5 at 5.11.1.108318 streams 500 Hz: the rate alone")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="with --live-minutes: keep the monitor's record, "
                         "its stderr and the jog's moves there")
     parser.add_argument("--sim-priority", type=int, default=0, metavar="N",
@@ -104,17 +107,19 @@ def main() -> int:
         import dynamics_live
 
         return dynamics_live.main(args.live_minutes, args.every_s, args.burners, args.sensor_rate_error,
-                                  args.sensor_backlog_s, args.seed, args.keep, args.sim_priority)
+                                  args.sensor_backlog_s, args.seed, args.keep, args.sim_priority, args.model,
+                                  args.version)
     truth = CellTruth(motion_noise_gain=0.0)
-    model = ur_model("UR5e")
+    model = ur_model(args.model)
     settings = PlanSettings(joint_speed_rad_s=SPEED, joint_acceleration_rad_s2=ACCELERATION)
     lines = []
-    with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=SENSOR_RATE_HZ) as cell:
+    with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=SENSOR_RATE_HZ, model=args.model,
+                       version=args.version) as cell:
         config = fast_config(cell, random_count=12, validation_count=4, average_time_s=0.3)
         _, result = run_calibration(cell, config)
         static = replace(result.identification.calibration, sensor_offset=np.array(truth.sensor_offset_m))
         cell.controller.set_time_scale(1.0)
-        with URRobot(cell.robot_host, MotionLimits(SPEED, ACCELERATION), model="UR5e") as robot, \
+        with URRobot(cell.robot_host, MotionLimits(SPEED, ACCELERATION), model=args.model) as robot, \
                 URStateStream(cell.robot_host) as stream:
             sensor = open_sensor(cell.sensor_url)
             sensor.start()
@@ -143,8 +148,8 @@ def main() -> int:
             from ftacq.dynamics.motionfile import write_motion_csv
 
             args.save_motion.mkdir(parents=True, exist_ok=True)
-            write_motion_csv(args.save_motion / "excitation.csv", record, "UR5e")
-            write_motion_csv(args.save_motion / "jog.csv", jog_record, "UR5e")
+            write_motion_csv(args.save_motion / "excitation.csv", record, args.model)
+            write_motion_csv(args.save_motion / "jog.csv", jog_record, args.model)
         # errors during the jog (only while moving: |q̇| > 0 around the sample)
         t_sensor = jog_record.sensor_time_s - identified.lag_s
         moving_robot = np.abs(jog_record.qd).max(axis=1) > 1e-6
@@ -160,7 +165,7 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as folder:
             cal_path, cell_toml = Path(folder) / "calibration.json", Path(folder) / "CELL.toml"
             save_calibration(cal_path, dynamic)
-            cell_toml.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "UR5e"\n[sensor]\nurl = "{cell.sensor_url}"\n',
+            cell_toml.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "{args.model}"\n[sensor]\nurl = "{cell.sensor_url}"\n',
                                  encoding="utf-8")
             env = dict(os.environ, PYTHONPATH=str(ROOT))
             monitor = subprocess.Popen([sys.executable, "-m", "ftacq.app.cli", "monitor", "--config", str(cell_toml),
@@ -169,7 +174,7 @@ def main() -> int:
             import psutil
 
             process = psutil.Process(monitor.pid)
-            with URRobot(cell.robot_host, MotionLimits(SPEED, ACCELERATION), model="UR5e") as robot:
+            with URRobot(cell.robot_host, MotionLimits(SPEED, ACCELERATION), model=args.model) as robot:
                 live_jog = jog_plan(settings, robot.joint_positions(), args.monitor_s + 5, seed=23)
                 launched, first, last = time.monotonic(), None, None
                 for target in live_jog.targets_rad:

@@ -1,6 +1,6 @@
 """Benchmark: ``calibrate --dynamic``'s inertia and the live compensation with the arm behind its target (issue 37).
 
-    .venv/bin/python benchmarks/dynamics_lag.py [--seeds 3] [--lags-ms 0,4,8] [--moves 10]
+    .venv/bin/python benchmarks/dynamics_lag.py [--seeds 3] [--lags-ms 0,4,8] [--moves 10] [--robot-rate-hz 125]
 
 Each run synthesises the excitation ``--dynamic`` plans (procedures/excitation.py at CELL.toml's defaults,
 0.5 rad/s and 1 rad/s², 10 moveJs) as the simulated cell records it (tests/fakes/lagging_motion.py: the physical
@@ -70,14 +70,15 @@ def efficient_inertia(truth: CellTruth, recording) -> np.ndarray:
     return _vech_to_matrix(solution) - _steiner(truth.mass_kg, np.array(truth.center_of_mass_m))
 
 
-def run(seed: int, lag_s: float, moves: int) -> dict:
+def run(seed: int, lag_s: float, moves: int, robot_rate_hz: float = 500.0) -> dict:
     truth = heavy_truth()
     settings = PlanSettings(joint_speed_rad_s=0.5, joint_acceleration_rad_s2=1.0)
     start = home_configuration_rad("floor")
     plan = plan_excitation(settings, start, moves=moves, seed=seed)
     chain = chain_of_moves(MODEL, start, plan.targets_rad, settings.joint_speed_rad_s,
                            settings.joint_acceleration_rad_s2)
-    recording = record_excitation_offline(truth, MODEL, chain, servo_lag_s=lag_s, seed=seed)
+    recording = record_excitation_offline(truth, MODEL, chain, servo_lag_s=lag_s, seed=seed,
+                                          robot_rate_hz=robot_rate_hz)
     rng = np.random.default_rng(1000 + seed)
     static = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m))
     mass = truth.mass_kg + rng.normal(0.0, MASS_SIGMA_KG)
@@ -108,14 +109,16 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--lags-ms", default="0,4,8")
     parser.add_argument("--moves", type=int, default=10)
+    parser.add_argument("--robot-rate-hz", type=float, default=500.0, help="robot states per s (125: a CB3)")
     args = parser.parse_args()
-    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; robot states at {args.robot_rate_hz:g} Hz",
+          flush=True)
     print("lag ms | seed | servo ms | sensor ms | inertia err % | efficient % | |err|/σ max | live F/noise | "
           "live T/noise | identify s", flush=True)
     rows = []
     for lag_ms in (float(v) for v in args.lags_ms.split(",")):
         for seed in range(args.seeds):
-            r = run(seed, lag_ms / 1e3, args.moves)
+            r = run(seed, lag_ms / 1e3, args.moves, args.robot_rate_hz)
             rows.append(r)
             print(f"{r['lag_ms']:6.1f} | {seed:4d} | {r['servo_ms']:8.3f} | {r['sensor_ms']:9.3f} | "
                   f"{r['error_pct']:13.3f} | {r['efficient_pct']:11.3f} | {r['z_max']:11.2f} | {r['live_f']:12.2f} | "

@@ -1,10 +1,11 @@
 """The live part of ``benchmarks/dynamics.py --live-minutes M`` (issue 27): minutes of ``ftacq monitor`` with dynamic
 compensation on a simulated cell whose devices keep their own clocks, while a separate process jogs the arm.
 
-The cell: UR5e in real time, the Net F/T at 7 kHz in its own process, its sample clock ``--sensor-rate-error`` off
-the host's (150 ppm by default), sending in bursts with jitter and skipping what its sender cannot send within
-``--sensor-backlog-s`` (the simulated box's process descheduled: ``ft_sequence`` jumps); the controller stamps on
-its own clock with send jitter (tests/fakes/cell.py ``SimClocks``). A 4.2 kg tool (the default inertia scaled by
+The cell: UR5e (``--model``; a CB3 such as UR5 streams its states at 125 Hz) in real time, the Net F/T at 7 kHz in
+its own process, its sample clock ``--sensor-rate-error`` off the host's (150 ppm by default), sending in bursts with
+jitter and skipping what its sender cannot send within ``--sensor-backlog-s`` (the simulated box's process
+descheduled: ``ft_sequence`` jumps); the controller stamps on its own clock with send jitter (tests/fakes/cell.py
+``SimClocks``). A 4.2 kg tool (the default inertia scaled by
 its mass), no contact, ``motion_noise_gain`` 0.
 
 Steps: the static calibration (controller at time scale 0), the excitation stage in real time and the inertia
@@ -110,12 +111,12 @@ def rms(values: np.ndarray) -> float:
 
 
 def live_run(cell, calibration_path: Path, minutes: float, every_s: float, folder: Path, seed: int,
-             keep: Path | None = None) -> dict:
+             keep: Path | None = None, model: str = "UR5e") -> dict:
     """Run the monitor and the jog for ``minutes``; return the record, the moves and the monitor's figures."""
     import psutil
 
     cell_toml = folder / "CELL.toml"
-    cell_toml.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "UR5e"\n[sensor]\nurl = "{cell.sensor_url}"\n',
+    cell_toml.write_text(f'[robot]\nhost = "{cell.robot_host}"\nmodel = "{model}"\n[sensor]\nurl = "{cell.sensor_url}"\n',
                          encoding="utf-8")
     record_path, err_path = folder / "record.csv", folder / "monitor.err"
     env = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -215,7 +216,8 @@ def per_minute(run: dict, static) -> list[str]:
 
 
 def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: float, backlog_s: float,
-         seed: int, keep: Path | None = None, sim_priority: int = 0) -> int:
+         seed: int, keep: Path | None = None, sim_priority: int = 0, model: str = "UR5e",
+         version: str | None = None) -> int:
     from drivers.robot import MotionLimits
     from drivers.sensor import open_sensor
     from drivers.ur import URRobot
@@ -235,7 +237,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
     clocks = replace(SimClocks(), sensor_rate_error=sensor_rate_error, sensor_max_backlog_s=backlog_s)
     settings = PlanSettings(joint_speed_rad_s=1.0, joint_acceleration_rad_s2=2.0)
     started = time.monotonic()
-    lines = [f"live run: {minutes:g} min, jog every {every_s:g} s (1 rad/s, 2 rad/s², wrist included, separate "
+    lines = [f"live run: {model}{f' at {version}' if version else ''}, {minutes:g} min, jog every {every_s:g} s (1 rad/s, 2 rad/s², wrist included, separate "
              f"ur-rtde process), {burner_count} CPU burners, {TOOL_MASS_KG} kg tool, sensor clock "
              f"{sensor_rate_error * 1e6:+.0f} ppm, bursts {clocks.sensor_burst_interval_s * 1e3:g} ms "
              f"(jitter {clocks.sensor_burst_jitter_s * 1e3:g} ms), sensor backlog {backlog_s * 1e3:g} ms, controller "
@@ -243,7 +245,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
              f"simulated devices at {f'SCHED_FIFO {sim_priority}' if sim_priority else 'normal priority'}; "
              f"load average at start {os.getloadavg()[0]:.1f}"]
     with SimulatedCell(truth=truth, time_scale=0.0, rate_hz=7000.0, clocks=clocks, sensor_process=True,
-                       realtime_priority=sim_priority) as cell, \
+                       realtime_priority=sim_priority, model=model, version=version) as cell, \
             tempfile.TemporaryDirectory() as folder_name:
         folder = Path(folder_name)
         config = fast_config(cell, random_count=12, validation_count=4, average_time_s=0.3)
@@ -251,7 +253,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
         static = replace(result.identification.calibration, sensor_offset=np.array(truth.sensor_offset_m))
         cell.controller.set_time_scale(1.0)
         with burners(burner_count):
-            with URRobot(cell.robot_host, MotionLimits(1.0, 2.0), model="UR5e") as robot, \
+            with URRobot(cell.robot_host, MotionLimits(1.0, 2.0), model=model) as robot, \
                     URStateStream(cell.robot_host) as stream:
                 sensor = open_sensor(cell.sensor_url)
                 sensor.start()
@@ -262,7 +264,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
                     skipped_excitation = cell.netft.stats()["skipped_backlog"] - skipped_before
                 finally:
                     sensor.close()
-            identified = identify_dynamics(static, record, ur_model("UR5e"))
+            identified = identify_dynamics(static, record, ur_model(model))
             dynamic = identified.calibration
             error = np.linalg.norm(dynamic.inertia - truth.inertia) / np.linalg.norm(truth.inertia)
             lines.append(f"identified (excitation under the same load, {len(record.sensor_time_s)} sensor samples, "
@@ -270,7 +272,7 @@ def main(minutes: float, every_s: float, burner_count: int, sensor_rate_error: f
                          f"about the COM; goal ≤ 2 %), mass {1e3 * (dynamic.mass_kg - truth.mass_kg):+.2f} g, lag "
                          f"{1e3 * identified.lag_s:.2f} ms")
             save_calibration(folder / "calibration.json", dynamic)
-            run = live_run(cell, folder / "calibration.json", minutes, every_s, folder, seed, keep)
+            run = live_run(cell, folder / "calibration.json", minutes, every_s, folder, seed, keep, model)
         lines += per_minute(run, static)
         lines.append(f"monitor (own process, dynamic, --record at 7 kHz): CPU {100 * run['cpu_fraction']:.1f} % of one "
                      f"core (goal < 50 %); the simulated sensor's sender skipped {run['skipped_live']} samples meanwhile "

@@ -1,7 +1,9 @@
 """Offline: what linear interpolation of the 2 ms robot states' predictions costs across a moveJ's acceleration
 steps, and what a timing error costs (issue 27). No sockets, no clocks: exact timing, no noise.
 
-    .venv/bin/python benchmarks/dynamics_steps.py [--moves 5] [--seed 0]
+    .venv/bin/python benchmarks/dynamics_steps.py [--moves 5] [--seed 0] [--state-period-s 0.008]
+
+(``--state-period-s 0.008``: a CB3's 125 Hz states instead of the e-Series' 2 ms.)
 
 The simulated arm's q̈ is the moveJ trapezoid's (tests/fakes/ur_motion.py), with steps at any instant, and the
 simulated sensor follows it exactly; the live compensator (procedures/dynamic_compensation.py) evaluates the model
@@ -32,7 +34,7 @@ def rms_per_component(error: np.ndarray) -> tuple[float, float]:
     return float(np.sqrt(np.mean(error[:, :3] ** 2))), float(np.sqrt(np.mean(error[:, 3:] ** 2)))
 
 
-def main(moves: int, seed: int) -> int:
+def main(moves: int, seed: int, state_period_s: float = STATE_PERIOD_S) -> int:
     from benchmarks.dynamics_live import heavy_truth
     from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
     from ftacq.dynamics.timing import interpolate_rows
@@ -58,8 +60,8 @@ def main(moves: int, seed: int) -> int:
 
         samples_s = np.arange(0.0, move.duration_s, 1.0 / SAMPLE_RATE_HZ)
         true = predict(*states(samples_s))
-        states_s = np.arange(-2 * STATE_PERIOD_S + rng.uniform(0, STATE_PERIOD_S), move.duration_s + 2 * STATE_PERIOD_S,
-                             STATE_PERIOD_S)
+        states_s = np.arange(-2 * state_period_s + rng.uniform(0, state_period_s), move.duration_s + 2 * state_period_s,
+                             state_period_s)
         q, qd, qdd = states(states_s)
         predicted = predict(q, qd, qdd)
         linear = interpolate_rows(samples_s, states_s, predicted)
@@ -85,5 +87,6 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--moves", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--state-period-s", type=float, default=STATE_PERIOD_S)
     args = parser.parse_args()
-    sys.exit(main(args.moves, args.seed))
+    sys.exit(main(args.moves, args.seed, args.state_period_s))

@@ -18,7 +18,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from drivers.hosts import check_host
 from ftacq.errors import DeviceConnectionError, DeviceTimeoutError, InputError
@@ -27,8 +27,8 @@ RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
 """The controller's fixed TCP ports: RTDE, UR Dashboard Server, the script ("realtime") port ur-rtde uploads to."""
 E_SERIES_RATE_HZ, CB3_RATE_HZ = 500.0, 125.0
 """The controller's state rate (its RTDE cycle), Hz: 500 on e-Series and later (software 5+), 125 on a CB3 (every
-generation offers 125). Declared here only: the state stream, the external-F/T input, the bridge and the
-orientation lookup read it from here."""
+generation offers 125). Declared here only; the RTDE clients ask :func:`state_rate_hz` of the controller's version,
+and the rest of ftacq reads the rate their stream reports."""
 PROBE_TIMEOUT_S = 2.0
 """Default deadline of one probe (TCP connect plus, for RTDE, the whole handshake up to the first data package)."""
 WATCHDOG_INTERVAL_S = 0.05
@@ -41,6 +41,12 @@ RTDE_HEADER = struct.Struct(">HB")
 PROBE_FREQUENCY_HZ = CB3_RATE_HZ
 """Output rate asked for by the probe (every controller generation supports 125 Hz)."""
 PROBE_VARIABLES = b"timestamp"
+
+
+def state_rate_hz(version: Sequence[int]) -> float:
+    """The fastest RTDE output rate of a controller running software ``version`` (major, minor, …), Hz: 500 from
+    software 5 (e-Series, PolyScope X), 125 before (a CB3, software 3); ur-rtde chooses its default alike."""
+    return E_SERIES_RATE_HZ if int(version[0]) >= 5 else CB3_RATE_HZ
 
 
 @dataclass(frozen=True)
@@ -207,5 +213,5 @@ def call_with_deadline(fn: Callable[..., Any], *args: Any, timeout_s: float, wha
     return box.get("result")
 
 
-__all__ = ["RTDE_PORT", "DASHBOARD_SERVER_PORT", "SCRIPT_PORT", "PROBE_TIMEOUT_S", "RTDEProbe", "connect",
-           "probe_port", "probe_rtde", "call_with_deadline"]
+__all__ = ["RTDE_PORT", "DASHBOARD_SERVER_PORT", "SCRIPT_PORT", "PROBE_TIMEOUT_S", "RTDEProbe", "state_rate_hz",
+           "connect", "probe_port", "probe_rtde", "call_with_deadline"]

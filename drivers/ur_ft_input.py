@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.ur_connection import CB3_RATE_HZ, E_SERIES_RATE_HZ
+from drivers.ur_connection import state_rate_hz
 from ftacq.errors import DeviceConnectionError, DeviceError, DeviceTimeoutError
 
 RTDE_PORT = 30004
@@ -137,8 +137,7 @@ class URForceTorqueInput:
         if len(reply) < 16:
             raise DeviceError(f"robot controller {self.host}: malformed version reply ({len(reply)} bytes)")
         self.version = struct.unpack(">IIII", reply[:16])
-        default = E_SERIES_RATE_HZ if self.version[0] >= 5 else CB3_RATE_HZ
-        self.frequency_hz = float(self.requested_frequency_hz or default)
+        self.frequency_hz = float(self.requested_frequency_hz or state_rate_hz(self.version))
         reply = self._request(_O, struct.pack(">d", self.frequency_hz) + ",".join(OUTPUTS).encode("ascii"))
         types = reply[1:].decode("ascii", "replace").split(",")
         if len(types) != len(OUTPUTS) or any(t not in _TYPES for t in types):

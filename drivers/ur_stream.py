@@ -1,10 +1,11 @@
 """Every RTDE state sample of a UR controller, kept: :class:`URStateStream` (receive only, never moves anything).
 
-ur-rtde's receive interface keeps only the newest state, which a Python thread polling it at 500 Hz would miss
-under load. The dynamic model needs all of them (a recorded motion for identification; q, q̇, q̈ around every
-sensor sample for live compensation), so this client speaks RTDE itself (docs/protocols-ur.md, "RTDE framing":
-protocol version 2, one output recipe, data packages) on its own connection and appends every package, stamped
-on arrival with the host's ``time.monotonic()``, to a fixed-size ring of numpy rows.
+ur-rtde's receive interface keeps only the newest state, which a Python thread polling it at the controller's rate
+(500 Hz e-Series, 125 Hz CB3) would miss under load. The dynamic model needs all of them (a recorded motion for
+identification; q, q̇, q̈ around every sensor sample for live compensation), so this client speaks RTDE itself
+(docs/protocols-ur.md, "RTDE framing": protocol version 2, the controller's version and so its rate, one output
+recipe, data packages) on its own connection and appends every package, stamped on arrival with the host's
+``time.monotonic()``, to a fixed-size ring of numpy rows.
 
 Outputs: ``timestamp`` (the controller's clock, s), ``actual_q``, ``actual_qd``, ``target_qd``, ``target_qdd``
 (rad, rad/s, rad/s²).
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.ur_connection import E_SERIES_RATE_HZ
+from drivers.ur_connection import state_rate_hz
 from ftacq.timebase import CLOCK_WINDOW_S, DeviceClock
 from ftacq.errors import DeviceConnectionError, DeviceError
 
@@ -37,13 +38,13 @@ log = logging.getLogger(__name__)
 RTDE_PORT = 30004
 OUTPUTS = ("timestamp", "actual_q", "actual_qd", "target_qd", "target_qdd")
 _HEADER = struct.Struct(">HB")
-_V, _O, _S, _P, _U, _M = (ord(c) for c in "VOSPUM")
+_V, _VERSION, _O, _S, _P, _U, _M = (ord(c) for c in "VvOSPUM")
 CONNECT_TIMEOUT_S = 3.0
 RECEIVE_TIMEOUT_S = 1.0
 """No package for this long: :attr:`URStateStream.stale` (the reader keeps waiting until closed)."""
 JOIN_TIMEOUT_S = 2.0
 DEFAULT_CAPACITY = 1 << 18
-"""Rows kept (8.7 minutes at 500 Hz); older rows are overwritten."""
+"""Rows kept (8.7 minutes at 500 Hz, 35 at 125 Hz); older rows are overwritten."""
 ROW_COLUMNS = 27
 """Columns of one kept state row: arrival (host s), timestamp (controller s), q (6), q̇ (6), target q̇ (6), target q̈ (6),
 offset (host − controller s, as :class:`ftacq.timebase.DeviceClock` knew it when the row arrived)."""
@@ -95,13 +96,18 @@ class StateWindow:
 class URStateStream:
     """A receive-only RTDE client keeping every state sample (context manager; :meth:`close` is safe twice).
 
-    Args: host (the controller), frequency_hz (500 on e-Series, 125 on CB3), capacity (rows kept),
-    connect_timeout_s (the handshake's deadline).
+    Args: host (the controller), frequency_hz (the rate asked; by default the controller's,
+    :func:`drivers.ur_connection.state_rate_hz` of its version), capacity (rows kept), connect_timeout_s (the
+    handshake's deadline). After :meth:`start`, ``frequency_hz`` is the rate asked and ``version`` the controller's.
     """
 
-    def __init__(self, host: str, frequency_hz: float = E_SERIES_RATE_HZ, capacity: int = DEFAULT_CAPACITY,
+    def __init__(self, host: str, frequency_hz: float | None = None, capacity: int = DEFAULT_CAPACITY,
                  connect_timeout_s: float = CONNECT_TIMEOUT_S, port: int = RTDE_PORT) -> None:
-        self.host, self.port, self.frequency_hz = host, port, float(frequency_hz)
+        self.host, self.port = host, port
+        self.requested_frequency_hz = frequency_hz
+        self.frequency_hz = float(frequency_hz or 0.0)
+        """The stream's rate, Hz (0 until :meth:`start` asked the controller's, when none was given)."""
+        self.version: tuple[int, int, int, int] | None = None
         self.connect_timeout_s = connect_timeout_s
         self._rows = np.empty((capacity, ROW_COLUMNS))
         self._count = 0
@@ -162,6 +168,12 @@ class URStateStream:
             self._send(_V, struct.pack(">H", 2))
             if not self._reply(_V, deadline)[:1] == b"\x01":
                 raise DeviceConnectionError(f"{where}: the controller refused RTDE protocol version 2")
+            self._send(_VERSION)
+            reply = self._reply(_VERSION, deadline)
+            if len(reply) < 16:
+                raise DeviceConnectionError(f"{where}: a controller-version reply of {len(reply)} bytes (16 expected)")
+            self.version = struct.unpack(">IIII", reply[:16])
+            self.frequency_hz = float(self.requested_frequency_hz or state_rate_hz(self.version))
             self._send(_O, struct.pack(">d", self.frequency_hz) + ",".join(OUTPUTS).encode())
             reply = self._reply(_O, deadline)
             types = reply[1:].decode(errors="replace").split(",")

@@ -258,9 +258,10 @@ class CycleStates:
     for :class:`procedures.dynamic_compensation.DynamicCompensator`: the newest :data:`STATE_CYCLES`, on the host
     clock as the RTDE state stream puts them (:class:`ftacq.timebase.DeviceClock`: the minimum-delay line of
     arrival − timestamp, following the clocks' rate error, one package at a time). Written and read by the feed
-    thread."""
+    thread. ``frequency_hz``: the controller's rate (0: not known), as the state stream reports it."""
 
-    def __init__(self, capacity: int = STATE_CYCLES) -> None:
+    def __init__(self, capacity: int = STATE_CYCLES, frequency_hz: float = 0.0) -> None:
+        self.frequency_hz = float(frequency_hz)
         self._rows = np.zeros((capacity, ROW_COLUMNS))  # laid out as drivers.ur_stream's kept rows
         self._count = 0
         self.clock = DeviceClock()
@@ -378,7 +379,7 @@ class Bridge:
         self._clock_s = clock_s
         self._sample_clock = SampleClock()
         """The samples' sample times (the sensor's own clock on the host's): what their age runs from."""
-        self.states = CycleStates()
+        self.states = CycleStates(frequency_hz=self.controller_rate_hz)
         """Every controller cycle's joint state, on the host clock (the dynamic model's robot stream)."""
         self.dynamic: DynamicCompensator | None = None
         if plan.feed == "raw":

@@ -2,10 +2,12 @@
 (and the controller bridge's, procedures/bridge.py).
 
 Per sensor batch (≈ 10 ms, 70 samples at 7 kHz in the monitor; 2 ms, 14 samples in the bridge): the samples are put
-on the host clock through the device's own sample times (:class:`ftacq.timebase.SampleClock`: the
-minimum-delay line, docs/dynamics.md "How the clocks are aligned"), shifted by the lag the identification measured, and compensated as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model
-(:class:`ftacq.dynamics.model.WrenchPredictor`, Pinocchio's RNEA) is evaluated once per new 500 Hz robot state from
-:class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring of :data:`PREDICTION_WINDOW_S`, not recomputed for the next batch) and
+on the host clock through the device's own sample times (:class:`ftacq.timebase.SampleClock`: the minimum-delay
+line, docs/dynamics.md "How the clocks are aligned"), shifted by the lag the identification measured, and compensated
+as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model (:class:`ftacq.dynamics.model.WrenchPredictor`,
+Pinocchio's RNEA) is evaluated once per new robot state (500 Hz; 125 Hz on a CB3) from
+:class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring of :data:`PREDICTION_WINDOW_S`, not
+recomputed for the next batch) and
 interpolated onto the samples. The state is the physical arm's: ``actual_q``, ``actual_qd`` and, while the arm tracks
 the controller's trajectory, ``target_qdd`` of the servo lag earlier (the lag the identification measured,
 ``dynamics.servo_lag_ms``), else a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new
@@ -118,11 +120,11 @@ class DynamicCompensator:
         self.lag_s = float(lag_s if lag_s is not None else (measured or 0.0) / 1e3)
         self.servo_lag_s = float(servo_lag_s if servo_lag_s is not None else (servo or 0.0) / 1e3)
         """How far the arm follows its target, s: q̈ is target_qdd of this long before each state."""
-        self._history = history_rows(self.servo_lag_s)
+        rate_hz = float(getattr(stream, "frequency_hz", None) or DEFAULT_STATE_RATE_HZ)
+        self._history = history_rows(self.servo_lag_s, 1.0 / rate_hz)
         self.clock = clock if clock is not None else SampleClock()
         self.orientations = FlangeOrientations(robot, stream)
         """The static fallback's flange orientation at the samples' time (slerp between the states around them)."""
-        rate_hz = float(getattr(stream, "frequency_hz", None) or DEFAULT_STATE_RATE_HZ)
         self.window_rows = max(int(round(window_s * rate_hz)), 2 * TAIL_ROWS)
         """Predictions kept (``window_s`` at the stream's rate: 1000 at 500 Hz), and robot states read at once
         after a stall."""

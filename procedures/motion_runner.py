@@ -173,7 +173,7 @@ def run_waypoints(robot, sensor, stream, waypoints_rad: np.ndarray, speed_rad_s:
     count = len(waypoints)
     holds_s = np.zeros(count) if hold_s is None else np.asarray(hold_s, dtype=float)
     names = tuple(labels) if labels is not None else tuple(f"W{k + 1:02d}" for k in range(count))
-    rate_hz = float(getattr(stream, "frequency_hz", E_SERIES_RATE_HZ))  # the controller's RTDE rate (CB3: 125 Hz)
+    rate_hz = float(getattr(stream, "frequency_hz", 0.0) or E_SERIES_RATE_HZ)  # the stream's RTDE rate (CB3: 125 Hz)
     holds = np.full((count, 2), -1, dtype=int)
     model = getattr(robot, "model", None)
     listeners = list(listeners)

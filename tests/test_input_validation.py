@@ -225,6 +225,16 @@ def test_calibrate_sim_with_an_unknown_model_is_a_one_line_error(capsys):
     assert "UR99" in one_line_error(capsys)
 
 
+def test_monitor_sim_with_an_unknown_model_or_a_model_without_sim_is_a_one_line_error(capsys, monkeypatch):
+    import ftacq.app.simcell
+
+    monkeypatch.setattr(ftacq.app.simcell, "simulated_cell", never("the simulated cell"))
+    assert main(["monitor", "--sim", "--model", "UR99", "--seconds", "1"]) == 2
+    assert "UR99" in one_line_error(capsys)
+    assert main(["monitor", "--config", "CELL.toml", "--model", "UR5", "--seconds", "1"]) == 2
+    assert "only with --sim" in one_line_error(capsys)
+
+
 def test_output_paths_under_a_file_are_refused_before_any_device_starts(tmp_path, capsys, monkeypatch):
     import ftacq.app.simcell
 

@@ -70,3 +70,23 @@ def test_stream_keeps_every_sample_of_a_real_time_move():
 def test_no_controller_is_a_one_line_error_within_the_deadline():
     with pytest.raises(DeviceConnectionError, match=r"port 30004 \(RTDE\)"):
         URStateStream(random_loopback_address(), connect_timeout_s=1.0).start()
+
+
+@pytest.mark.parametrize("model, rate_hz", [("UR5", 125.0), ("UR5e", 500.0)])
+def test_the_stream_asks_the_controllers_rate_and_a_cb3_steps_whole_8_ms_cycles(model, rate_hz):
+    """A CB3 (PolyScope 3) streams at most 125 Hz, an e-Series 500 Hz: the stream asks what the controller's version
+    allows (it asked 500 of every controller), and a CB3 asked for more streams its 8 ms cycle, whose timestamps
+    step whole cycles (the simulated CB3 streamed 500 Hz to whoever asked)."""
+    with URControllerProcess(model=model, time_scale=0.0, initial_q=HOME_Q) as fake:
+        with URStateStream(fake.host) as stream:
+            wait_until(lambda: stream.count > 2, what="state samples")
+        assert stream.frequency_hz == rate_hz and stream.version is not None
+        with URStateStream(fake.host, frequency_hz=500.0) as fast:
+            wait_until(lambda: fast.count > 40, what="state samples")
+            steps = np.diff(fast.window().controller_time_s)
+        setups = [(e["requested_hz"], e["streamed_hz"]) for e in fake.events() if e["event"] == "output_setup"]
+    assert setups == [(rate_hz, rate_hz), (500.0, rate_hz)]
+    if model == "UR5":  # every step whole cycles (more than one where a tick came late), most of them one
+        cycles = np.round(steps / 0.008)
+        np.testing.assert_allclose(steps, 0.008 * cycles, atol=1e-9)
+        assert cycles.min() >= 1 and np.median(cycles) == 1

@@ -59,7 +59,7 @@ class SimOptions:
     Attributes: jog (the simulated technician jogs the arm 8 s, holds it 8 s and pushes on the tool meanwhile),
     drift_n_per_h (the sensor's force biases drift, N/h; torque 1/50 of it in N·m/h), warmup_n_per_h (a warm-up
     from power-on starting at this rate, N/h), swap_tool_after_s (another tool on the sensor after this, s),
-    rate_hz (the Net F/T's sample rate).
+    rate_hz (the Net F/T's sample rate), model (the simulated arm: UR5e; a CB3 model streams at 125 Hz).
     """
 
     jog: bool = False
@@ -67,6 +67,7 @@ class SimOptions:
     warmup_n_per_h: float = 0.0
     swap_tool_after_s: float | None = None
     rate_hz: float | None = None
+    model: str | None = None
 
 
 @dataclass(frozen=True)
@@ -423,7 +424,8 @@ def _open(cell: Cell, config, calibration, sim, record, record_rate_hz, listener
                                 thermal_step_nm=(warmup_n / 30, -warmup_n / 30, warmup_n / 30),
                                 thermal_step_at_s=0.0, thermal_time_constant_s=SIM_WARMUP_TAU_S)
         sim_cell = cell.sim_cell = stack.enter_context(
-            simulated_cell(truth=truth, sensor="netft", rate_hz=options.rate_hz or SIM_SENSOR_RATE_HZ))
+            simulated_cell(truth=truth, sensor="netft", rate_hz=options.rate_hz or SIM_SENSOR_RATE_HZ,
+                           model=options.model or DEFAULT_SIM_MODEL))
         cell.robot_host, cell.sensor_url = sim_cell.robot_host, sim_cell.sensor_url
         model_name = getattr(sim_cell, "model_name", DEFAULT_SIM_MODEL)
         if calibration is None:  # the simulated tool's true one, inertia included: compensated while jogging

@@ -95,7 +95,8 @@ class SimulatedCell:
         truth: the ground truth (sensor rotation, biases, tool, base tilt, noise). With ``mount`` other than
             "floor" and a level truth, the truth's base tilt is set to the mount's (wall (0, 90°), ceiling (0, 180°)).
         sensor: "netft" (UDP RDT + TCP + HTTP on 127.0.0.1) or "can" (NETCANOEM on a virtual CAN channel).
-        model: UR model of the controller. mount: "floor", "wall", "ceiling" or a spec of ftacq.mounts (tilted:A,B, gravity:X,Y,Z).
+        model: UR model of the controller; version: its software ("3.15.7.106331"; default the model's, see
+            tests/fakes/ur_controller.py ``default_version``: a CB3 streams at 125 Hz, an e-Series at 500). mount: "floor", "wall", "ceiling" or a spec of ftacq.mounts (tilted:A,B, gravity:X,Y,Z).
         time_scale: controller speed factor (0 = moves complete at once, 1 = real time, 10 = ten times faster).
         rate_hz: the sensor's sample rate (Net F/T streaming rate, or CAN poll rate suggested in the URL).
         seed: seed of the sensor noise. initial_q: start joint angles (rad); default the plan's home.
@@ -118,7 +119,7 @@ class SimulatedCell:
                  seed: int = 0, initial_q: np.ndarray | None = None,
                  encoder_noise_rad: float = ENCODER_NOISE_RAD, realtime_priority: int = 0,
                  servo_lag_s: float = SERVO_LAG_S,
-                 clocks: SimClocks | None = None, sensor_process: bool = False) -> None:
+                 clocks: SimClocks | None = None, sensor_process: bool = False, version: str | None = None) -> None:
         if sensor not in SENSORS:
             raise ValueError(f"sensor {sensor!r}: must be one of {', '.join(SENSORS)}")
         truth = truth or CellTruth()
@@ -127,6 +128,7 @@ class SimulatedCell:
         self.truth = truth
         self.sensor_kind = sensor
         self.model_name = model
+        self.version = version
         self.mount = mount
         self.time_scale = float(time_scale)
         self.rate_hz = float(rate_hz)
@@ -166,7 +168,8 @@ class SimulatedCell:
             self.controller = URControllerProcess(model=self.model_name, time_scale=self.time_scale,
                                                   pose_shm=self.shared_pose.name, initial_q=self.initial_q,
                                                   mount=self.mount, extra_args=self._controller_args(),
-                                                  realtime_priority=self.realtime_priority or None)
+                                                  realtime_priority=self.realtime_priority or None,
+                                                  version=self.version)
             self.controller.start()
             self._stack.callback(self.controller.stop)
             if self.sensor_process:

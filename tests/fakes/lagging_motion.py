@@ -90,11 +90,12 @@ class LaggingRecording:
 def record_excitation_offline(truth: CellTruth, model: URModel, plan: list[tuple[float, JointMove]], *,
                               servo_lag_s: float = 0.004, transport_lag_s: float = 0.001, seed: int = 0,
                               sensor_rate_hz: float = 7000.0, encoder_noise_rad: float = 1e-6,
-                              rest_s: float = 0.3) -> LaggingRecording:
-    """Synthesise the recording of ``plan`` (with ``rest_s`` of rest before and after) on ``truth``'s cell."""
+                              rest_s: float = 0.3, robot_rate_hz: float = ROBOT_RATE_HZ) -> LaggingRecording:
+    """Synthesise the recording of ``plan`` (with ``rest_s`` of rest before and after) on ``truth``'s cell, the robot
+    states at ``robot_rate_hz`` (125: a CB3)."""
     rng = np.random.default_rng(seed)
     end_s = plan[-1][0] + plan[-1][1].duration_s + rest_s
-    robot_t = np.arange(-rest_s, end_s, 1.0 / ROBOT_RATE_HZ)
+    robot_t = np.arange(-rest_s, end_s, 1.0 / robot_rate_hz)
     _target_q, target_qd, target_qdd = states_along(plan, robot_t)
     q, qd, qdd = states_along(plan, robot_t - servo_lag_s)
     actual_q = q + rng.normal(0.0, encoder_noise_rad, q.shape)
@@ -124,7 +125,7 @@ def replay_live(recording: LaggingRecording, calibration, servo_lag_s: float, tr
     from procedures.dynamic_compensation import DynamicCompensator
 
     record = recording.record
-    states = CycleStates()
+    states = CycleStates(frequency_hz=1.0 / record.robot_period_s)
     dynamics = dict(calibration.metadata.get("dynamics", {}), servo_lag_ms=1e3 * servo_lag_s,
                     lag_ms=1e3 * transport_lag_s)
     calibration = replace(calibration, metadata=dict(calibration.metadata, dynamics=dynamics))

@@ -45,6 +45,7 @@ import argparse
 import errno
 import gc
 import json
+import math
 import os
 import select
 import signal
@@ -59,10 +60,9 @@ import numpy as np
 from ftacq.kinematics import ur_model
 from tests.fakes import rtde_protocol as rp
 from tests.fakes.ur_dashboard_server import GREETING, dashboard_server_reply
-from tests.fakes.ur_simulator import ENCODER_NOISE_RAD, SERVO_LAG_S, Fault, URSimulator
+from tests.fakes.ur_simulator import E_SERIES_CYCLE_S, ENCODER_NOISE_RAD, SERVO_LAG_S, Fault, URSimulator
 
 RTDE_PORT, DASHBOARD_SERVER_PORT, SCRIPT_PORT = 30004, 29999, 30003
-TICK_HZ = 500.0
 READ_POLL_S = 0.5
 """A connection's thread checks whether the connection was closed this often, s."""
 RECEIVE_CHUNK_BYTES = 65536
@@ -71,7 +71,6 @@ SWITCH_INTERVAL_S = 0.0002
 connection threads each get the interpreter within this when they wake, as a real-time controller would serve them."""
 IDLE_TICK_S = 0.01
 """Tick period while no client streams and nothing moves (keeps an idle controller CPU-light)."""
-MAX_STREAM_HZ = 500.0
 SEND_TIMEOUT_S = 1.0
 BIND_ERROR_EXIT = 3
 TOOL_MOTION_OUTPUTS = frozenset({"actual_TCP_speed", "target_TCP_speed", "actual_tool_accelerometer"})
@@ -160,7 +159,8 @@ class RTDEConnection:
         self.protocol_version = 1
         self.outputs: _OutputPlan | None = None
         self.inputs: dict[int, rp.Recipe] = {}
-        self.period_s = 1.0 / MAX_STREAM_HZ
+        self.period_s = 0.0
+        """Between two data packages, s: set with the output recipe (the controller's cycle or the rate asked)."""
         self.next_send_s = 0.0
         self.last_sent_seq = 0
         self.streaming = False
@@ -284,16 +284,20 @@ class RTDEConnection:
         elif package_type == rp.GET_URCONTROL_VERSION:
             self.send(rp.GET_URCONTROL_VERSION, rp.pack_version(*sim.version))
         elif package_type == rp.CONTROL_PACKAGE_SETUP_OUTPUTS:
-            frequency = MAX_STREAM_HZ
+            fastest_hz = 1.0 / sim.cycle_s
+            requested = fastest_hz
             if self.protocol_version >= 2 and len(body) >= 8:
-                frequency = struct.unpack(">d", body[:8])[0]
+                requested = struct.unpack(">d", body[:8])[0]
                 body = body[8:]
             recipe = rp.Recipe.build(1, rp.split_names(body), rp.OUTPUT_TYPES)
             if recipe.known:
                 self.outputs = _OutputPlan(recipe)
                 self.server.update_tool_motion_outputs()
-                frequency = frequency if 0 < frequency <= MAX_STREAM_HZ else MAX_STREAM_HZ
+                # faster than the controller's cycle (500 Hz asked of a CB3): streamed at the cycle, no refusal
+                frequency = requested if 0 < requested <= fastest_hz else fastest_hz
                 self.period_s = 1.0 / frequency
+                with sim.lock:
+                    sim._event("output_setup", requested_hz=requested, streamed_hz=frequency)
             self.send(rp.CONTROL_PACKAGE_SETUP_OUTPUTS, recipe.setup_reply())
         elif package_type == rp.CONTROL_PACKAGE_SETUP_INPUTS:
             names = rp.split_names(body)
@@ -451,14 +455,18 @@ class ControllerServer:
         with self.lock:
             periods = [c.period_s for c in self.rtde_connections if c.streaming]
         with self.sim.lock:
-            self.sim.stream_period_s = max(periods) if periods else 1.0 / MAX_STREAM_HZ
+            self.sim.stream_period_s = max(periods) if periods else self.sim.cycle_s
 
     def _tick_loop(self) -> None:
-        period = 1.0 / TICK_HZ
-        next_tick = time.monotonic()
+        """One controller cycle per tick (``sim.cycle_s``). A CB3's state is that of its cycle's start, so its
+        ``timestamp`` steps whole 8 ms cycles (more when a tick is late); the e-Series keeps the tick's host time."""
+        period, start_s = self.sim.cycle_s, self.sim.start_s
+        whole_cycles = period > E_SERIES_CYCLE_S
+        next_tick, cycle = time.monotonic(), -1
         while not self.stop_event.is_set():
             now = time.monotonic()
-            snap = self.sim.step(now)
+            cycle = max(math.floor((now - start_s) / period), cycle + 1)  # (a wake a rounding error early)
+            snap = self.sim.step(start_s + cycle * period if whole_cycles else now)
             connections = []
             if self.shared_pose is not None:
                 self.shared_pose.set(snap["flange_pose"], snap["joint_speed_norm"], snap["joint_state"])
@@ -494,7 +502,10 @@ class ControllerServer:
                 with self.sim.lock:
                     self.sim.published_seq = published
             idle = not connections if not self.frozen else True
-            next_tick += IDLE_TICK_S if idle and self.sim.motion is None else period
+            if idle and self.sim.motion is None:
+                next_tick += IDLE_TICK_S
+            else:
+                next_tick = start_s + (cycle + 1) * period if whole_cycles else next_tick + period
             delay = next_tick - time.monotonic()
             if delay > 0:
                 time.sleep(delay)  # at most IDLE_TICK_S; an Event's wait costs more per tick than the tick's work

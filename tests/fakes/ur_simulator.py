@@ -59,6 +59,9 @@ REALTIME_NAMES = {9: "speedj", 10: "speedl", 11: "servoj", 24: "servol", 66: "di
 
 SCRIPT_COMPILE_DELAY_S = 0.05
 """Delay between receiving a script and running it (also orders the client's 'clear' before the start, §7)."""
+E_SERIES_CYCLE_S, CB3_CYCLE_S = 0.002, 0.008
+"""A real controller's cycle, s: 500 Hz on e-Series (software 5 and later), 125 Hz on a CB3 (software 3). It is
+the RTDE stream's fastest rate (UR's RTDE guide) and the step of its ``timestamp``."""
 MIN_SETTLE_S = 0.012
 """'Done' is signalled at least this long (and 2.5 stream periods) after the final state is published (§7.11)."""
 STEADY_SPEED_RAD_S = 1e-6
@@ -154,10 +157,12 @@ class URSimulator:
             raise ValueError(f"clock_rate_error {clock_rate_error!r}: a controller's clock is off by ppm, not percent")
         self.clock_rate_error = float(clock_rate_error)
         """The controller's clock rate against the host's, minus one: RTDE ``timestamp`` advances (1 + this) s per
-        host second (a real controller counts its own 500 Hz cycles)."""
+        host second (a real controller counts its own cycles)."""
         self.model = model
         self.time_scale = float(time_scale)
         self.version = version
+        self.cycle_s = CB3_CYCLE_S if version[0] < 5 else E_SERIES_CYCLE_S
+        """The controller's cycle, s (:data:`CB3_CYCLE_S` for software 3, else :data:`E_SERIES_CYCLE_S`)."""
         self.mount = mount
         self.serial_number = serial_number
         if not encoder_noise_rad >= 0.0:
@@ -217,7 +222,7 @@ class URSimulator:
         self.commands: list[dict] = []
         self.faults: list[Fault] = []
         self.events: list[dict] = []
-        self.stream_period_s = 0.002  # longest period among streaming clients; set by the server
+        self.stream_period_s = self.cycle_s  # longest period among streaming clients; set by the server
         self.on_network_fault = None  # callable(kind) installed by the server
         self._pose_cache: dict[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]] = {}
         """(flange pose, TCP pose) by (q, TCP offset): the target's and the lagging arm's, both asked each tick."""

@@ -52,6 +52,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seconds", type=float, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--sim-still", action="store_true", help="with --sim: leave the simulated arm still")
+    parser.add_argument("--model",
+                        help="with --sim: the simulated UR model (default UR5e; a CB3 one streams at 125 Hz)")
     parser.add_argument("--sim-drift", type=float, default=0.0, metavar="N_PER_H",
                         help="with --sim: the simulated sensor's force biases drift by this much per hour (N/h; "
                              "torque 1/50 of it in N·m/h)")
@@ -90,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from ftacq.app.readout import LiveReadout, format_summary
     from ftacq.app.ros2_outputs import check_ros2_args, is_bag, prefer_low_latency, ros2_listeners
     from ftacq.app.session import SimOptions, open_cell
+    from ftacq.errors import InputError
     from ftacq.validation import check_number, check_output_file
 
     if args.seconds is not None:
@@ -100,8 +103,17 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "save", None) is not None:
         check_output_file(args.save, "--save")
     check_ros2_args(args)
+    if args.model is not None:
+        if not args.sim:
+            raise InputError(f"--model {args.model}: only with --sim (CELL.toml's robot.model names a real cell's arm)")
+        from ftacq.kinematics import ur_model
+
+        try:
+            args.model = ur_model(args.model).name
+        except ValueError as error:
+            raise InputError(f"--model: {error}") from None
     sim = SimOptions(jog=not args.sim_still, drift_n_per_h=args.sim_drift, warmup_n_per_h=args.sim_warmup,
-                     swap_tool_after_s=args.sim_swap_tool) if args.sim else False
+                     swap_tool_after_s=args.sim_swap_tool, model=args.model) if args.sim else False
     with contextlib.ExitStack() as stack:
         viewer: list[DashboardListener] = []
         ros2_reports: list[list[str]] = []
