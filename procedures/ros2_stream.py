@@ -89,7 +89,8 @@ class WindowMean:
         time_s = np.maximum.accumulate(np.asarray(time_s, dtype=float))
         if not len(time_s):
             return _NO_TIMES, self._values[:0]
-        np.maximum(time_s, self._floor_s, out=time_s)
+        if time_s[0] < self._floor_s:  # (else every time is above the floor already: nondecreasing)
+            np.maximum(time_s, self._floor_s, out=time_s)
         values = np.asarray(values, dtype=float)
         if self.period_s <= 0:
             self._floor_s = time_s[-1]
@@ -354,9 +355,7 @@ class Ros2Publisher:
             writer = self.writers.get(name)
             if writer is None:
                 continue
-            write = writer.write_serialized
-            for message, time_ns in zip(data, stamp_ns.tolist()):
-                write(message, time_ns)
+            writer.write_all(data, stamp_ns.tolist())
             self.sent[name] += len(data)
 
     def _publish_calibration(self) -> None:

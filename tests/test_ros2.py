@@ -61,7 +61,8 @@ def test_wrench_batches_decode_with_rosbags(frame_id, store):
 
 def test_batches_of_any_size_and_pairs_encode_as_the_reference_serializer():
     """The encoder's prefilled records (grown for a larger batch) and its pairs (two topics' messages of the same
-    stamps in one batch) give each message's bytes as ROS 2's serializer writes them."""
+    stamps in one batch, written into a buffer reused from batch to batch, smaller after larger) give each message's
+    bytes as ROS 2's serializer writes them."""
     encoder = WrenchStampedEncoder("ft_sensor")
     rng = np.random.default_rng(7)
     for n in (3, 40, 2, 100, 1):

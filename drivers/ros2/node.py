@@ -128,6 +128,19 @@ class Writer:
         if ret < 0:
             raise OSError(f"DDS write on {self.name} failed ({ret})")
 
+    def write_all(self, data: list[bytes], stamp_ns: list[int]) -> None:
+        """:meth:`write_serialized` of each message (``stamp_ns`` ints), in one call (a read's few messages: the
+        binding's write straight from this loop)."""
+        if ddspy_write_ts is None:  # pragma: no cover
+            for message, time_ns in zip(data, stamp_ns):
+                self.write_serialized(message, time_ns)
+            return
+        ref = self.writer._ref
+        for message, time_ns in zip(data, stamp_ns):
+            ret = ddspy_write_ts(ref, message, time_ns)
+            if ret < 0:
+                raise OSError(f"DDS write on {self.name} failed ({ret})")
+
     @property
     def matched(self) -> int:
         """Subscriptions matched now."""

@@ -85,10 +85,10 @@ def joint_acceleration(time_s: np.ndarray, actual_qd: np.ndarray, target_qd: np.
     """Return (q̈ (M, 6) of the physical arm, tracking (M,) bool: True where the target's was used) for robot
     samples (M, 6): ``target_qdd`` of ``servo_lag_s`` earlier while the arm tracks the target, else the filtered
     derivative of ``actual_qd``. The first states, whose t − τ lies before the rows given, take the oldest row's."""
-    if servo_lag_s > 0.0:
+    if servo_lag_s > 0.0:  # both targets in one interpolation (column by column: the same values as two)
         t = np.asarray(time_s, dtype=float)
-        target_qd = interpolate_rows(t - servo_lag_s, t, target_qd)
-        target_qdd = interpolate_rows(t - servo_lag_s, t, target_qdd)
+        targets = interpolate_rows(t - servo_lag_s, t, np.concatenate((target_qd, target_qdd), axis=1))
+        target_qd, target_qdd = targets[:, :6], targets[:, 6:]
     deviation = np.subtract(target_qd, actual_qd, dtype=float)
     np.abs(deviation, out=deviation)
     tracking = np.logical_and.reduce(deviation <= tolerance_rad_s, axis=1)  # np.all without its Python layer

@@ -11,6 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+_min = np.minimum.reduce
+"""The least entry of an array (np.min without its Python layer, ~3x faster on a batch's few values)."""
+
+
 def box_average(time_s: np.ndarray, values: np.ndarray, at_s: np.ndarray, width_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Return (mean of ``values`` over [t − width/2, t + width/2) at each t of ``at_s``, count per window).
 
@@ -40,15 +44,15 @@ def interpolate_rows(at_s: np.ndarray, time_s: np.ndarray, values: np.ndarray) -
     at_s = np.asarray(at_s, dtype=float)
     if time_s.shape[0] == 1:
         return np.repeat(values, at_s.shape[0], axis=0)
-    index = time_s.searchsorted(at_s, side="right")  # (the method: np.searchsorted's Python layer cost as much)
-    index -= 1
-    np.maximum(index, 0, out=index)
-    np.minimum(index, time_s.shape[0] - 2, out=index)
-    following = index + 1
+    following = time_s.searchsorted(at_s, side="right")  # (the method: np.searchsorted's Python layer cost as much)
+    np.maximum(following, 1, out=following)
+    np.minimum(following, time_s.shape[0] - 1, out=following)
+    index = following - 1
     start = time_s.take(index)
     span = time_s.take(following)
     span -= start
-    span = np.where(span > 0.0, span, 1.0)  # (NaN included)
+    if not (span.size and _min(span) > 0.0):  # a repeated time or NaN (NaN > 0 is False): that interval held
+        span = np.where(span > 0.0, span, 1.0)
     fraction = np.subtract(at_s, start, out=start)
     fraction /= span
     np.maximum(fraction, 0.0, out=fraction)
