@@ -318,12 +318,6 @@ def cell_outside(folder: Path):
         yield ["--config", str(toml), "--calibration", str(calibration)]
 
 
-def set_read_period(period_s: float) -> None:
-    from ftacq.app import ros2_outputs
-
-    ros2_outputs.ROS2_READ_PERIOD_S = period_s
-
-
 def _percentiles(values: np.ndarray) -> str:
     return "/".join(f"{v:.2f}" for v in np.percentile(values, [50, 99, 100]))
 
@@ -334,7 +328,7 @@ def main() -> None:
     parser.add_argument("--in-process", action="store_true", help="ftacq monitor --sim: the simulated Net F/T in "
                         "the monitor's process (default: the devices in their own processes, as a real cell)")
     parser.add_argument("--latency-only", action="store_true", help="only the run without ROS 2 and --ros2 at 1 kHz")
-    parser.add_argument("--read-periods-ms", default="", help="the monitor's read periods with --ros2 to try, "
+    parser.add_argument("--read-periods-ms", default="", help="--ros2-read-period values to try, ms, "
                         "comma-separated (default: ftacq's)")
     args = parser.parse_args()
     seconds = 8.0 if args.quick else 20.0
@@ -346,18 +340,17 @@ def main() -> None:
         print(f"monitor alone: process {base['process_percent']:.1f} % of one core while streaming (main thread "
               f"{base['loop_percent']:.1f} %)")
         runs = [] if args.latency_only else [
-            ("--record X.mcap (1 kHz)", [], False, None),
-            ("--record X.mcap --ros2-rate 0 (every sample)", ["--ros2-rate", "0"], False, None)]
+            ("--record X.mcap (1 kHz)", [], False),
+            ("--record X.mcap --ros2-rate 0 (every sample)", ["--ros2-rate", "0"], False)]
         periods = [float(p) for p in args.read_periods_ms.split(",")] if args.read_periods_ms else [None]
         for period_ms in periods:
-            at = "" if period_ms is None else f", reads every {period_ms:g} ms"
-            runs += [(f"--ros2 --ros2-reliable (1 kHz) + --record X.mcap{at}", ["--ros2-reliable"], True, period_ms)]
+            at = "" if period_ms is None else f" --ros2-read-period {period_ms / 1e3:g}"
+            paced = [] if period_ms is None else ["--ros2-read-period", f"{period_ms / 1e3:g}"]
+            runs += [(f"--ros2 --ros2-reliable{at} (1 kHz) + --record X.mcap", ["--ros2-reliable", *paced], True)]
             if not args.latency_only:
-                runs += [(f"--ros2 --ros2-reliable --ros2-rate 0 (every sample) + --record X.mcap{at}",
-                          ["--ros2-reliable", "--ros2-rate", "0"], True, period_ms)]
-        for label, options, dds, period_ms in runs:
-            if period_ms is not None:
-                set_read_period(period_ms / 1e3)
+                runs += [(f"--ros2 --ros2-reliable{at} --ros2-rate 0 (every sample) + --record X.mcap",
+                          ["--ros2-reliable", "--ros2-rate", "0", *paced], True)]
+        for label, options, dds in runs:
             f = run(Path(folder), seconds, options, bag=True, cell_args=cell_args, dds=dds)
             print(f"{label}: ROS 2 {f['cpu_percent']:.1f} % of one core (messages + DDS writes in the loop {f['publisher_percent']:.1f},"
                   f" Cyclone DDS {f['dds_percent']:.1f}, MCAP {f['mcap_percent']:.1f}); main thread "

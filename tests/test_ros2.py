@@ -467,10 +467,25 @@ def test_bad_ros2_options_are_one_line_and_exit_2(tmp_path, capsys):
 
     for options, text in ((["--ros2-namespace", "/9cell"], "--ros2-namespace"),
                           (["--ros2-domain-id", "300"], "--ros2-domain-id"),
-                          (["--ros2-frame-id", "/ft"], "--ros2-frame-id")):
+                          (["--ros2-frame-id", "/ft"], "--ros2-frame-id"),
+                          (["--ros2-read-period", "0.5"], "--ros2-read-period"),
+                          (["--ros2-read-period", "-0.01"], "--ros2-read-period")):
         assert ftacq_main(["monitor", "--sim", "--ros2", *options, "--seconds", "1"]) == 2
         err = capsys.readouterr().err.strip()
         assert text in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_the_read_period_paces_the_monitor_and_keeps_the_hold():
+    """``--ros2-read-period S`` sets the monitor's read pacing (default: on data, 0); the dynamic compensation's
+    hold for the newest few ms is taken either way."""
+    from types import SimpleNamespace
+
+    from ftacq.app.ros2_outputs import ROS2_HOLD_S, ROS2_READ_PERIOD_S, prefer_low_latency
+
+    for asked, expected in ((None, ROS2_READ_PERIOD_S), (0.01, 0.01), (0.0, 0.0)):
+        cell = SimpleNamespace(monitor=SimpleNamespace(batch_period_s=0.123), compensator=SimpleNamespace(hold_s=0.0))
+        prefer_low_latency(cell, asked)
+        assert cell.monitor.batch_period_s == expected and cell.compensator.hold_s == ROS2_HOLD_S
 
 
 def test_names_and_discovery_range(monkeypatch):

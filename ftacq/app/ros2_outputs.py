@@ -20,9 +20,11 @@ from ftacq.settings import setting_of
 DOMAIN_ID_MAX = 232
 """The largest DDS domain id with Cyclone DDS's default port mapping (ROS 2: 0-101 and 215-232 are safe on Linux)."""
 ROS2_READ_PERIOD_S = 0.0
-"""With --ros2 the monitor reads the sensor this often (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S); 0: as
-soon as the driver has samples (its receive thread wakes the read), so a sample waits for no pacing before it is
-published (benchmarks/ros2.py: latency against CPU)."""
+"""With --ros2 the monitor reads the sensor this often by default (10 ms otherwise: procedures.monitor.BATCH_PERIOD_S);
+0: as soon as the driver has samples (its receive thread wakes the read), so a sample waits for no pacing before it is
+published. ``--ros2-read-period`` trades latency for CPU (benchmarks/ros2.py --read-periods-ms)."""
+READ_PERIOD_MAX_S = 0.1
+"""The longest ``--ros2-read-period``, s (a tenth of a second already delays every message by up to that much)."""
 ROS2_HOLD_S = 0.005
 """With --ros2 the dynamic compensation holds the newest robot state's prediction, without waiting, for samples up to
 this much newer than that state, s (an error of dW/dt × how far ahead: docs/ros2.md; at 500 Hz the newest state is
@@ -33,10 +35,11 @@ LISTENER_QUEUE_BATCHES = 1_000_000
 """The ROS 2 listeners' queues hold this many reads before dropping (never, in practice: nothing is lost)."""
 
 
-def prefer_low_latency(cell: Any) -> None:
-    """Make ``cell`` (:class:`ftacq.app.session.Cell`) publish each sample as soon as it can: reads on data
-    (:data:`ROS2_READ_PERIOD_S`), no wait for the robot states of its newest few ms (:data:`ROS2_HOLD_S`)."""
-    cell.monitor.batch_period_s = ROS2_READ_PERIOD_S
+def prefer_low_latency(cell: Any, read_period_s: float | None = None) -> None:
+    """Make ``cell`` (:class:`ftacq.app.session.Cell`) publish each sample as soon as it can: reads every
+    ``read_period_s`` (None: :data:`ROS2_READ_PERIOD_S`, on data), no wait for the robot states of its newest few ms
+    (:data:`ROS2_HOLD_S`)."""
+    cell.monitor.batch_period_s = ROS2_READ_PERIOD_S if read_period_s is None else float(read_period_s)
     if hasattr(cell.compensator, "hold_s"):
         cell.compensator.hold_s = ROS2_HOLD_S
 
@@ -54,6 +57,10 @@ def add_ros2_args(parser: argparse.ArgumentParser) -> None:
                        help="DDS domain (default: $ROS_DOMAIN_ID, else 0)")
     group.add_argument("--ros2-rate", type=float, metavar="HZ",
                        help="wrench messages per second, each the mean of its window (default 1000; 0: every sample)")
+    group.add_argument("--ros2-read-period", type=float, metavar="S",
+                       help="seconds between the monitor's sensor reads (default 0: as data arrive, the lowest "
+                            "latency; 0.01, the monitor's pace without --ros2: about half the CPU, each message up to "
+                            "10 ms later: benchmarks/README.md)")
     group.add_argument("--ros2-reliable", action="store_true",
                        help="reliable wrench topics (default: ROS 2's sensor-data QoS, best effort, keep last 5)")
     group.add_argument("--ros2-distro", choices=ROS2_DISTROS,
@@ -88,6 +95,8 @@ def check_ros2_args(args: argparse.Namespace) -> None:
         check_number(args.ros2_domain_id, "--ros2-domain-id", low=0, high=DOMAIN_ID_MAX)
     if args.ros2_rate is not None:
         check_number(args.ros2_rate, "--ros2-rate", low=0.0, high=1e5)
+    if args.ros2_read_period is not None:
+        check_number(args.ros2_read_period, "--ros2-read-period", low=0.0, high=READ_PERIOD_MAX_S)
     if args.ros2:
         _domain_id(args)  # $ROS_DOMAIN_ID checked now, before any device opens
     if args.ros2 or is_bag(args.record):

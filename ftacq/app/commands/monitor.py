@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
                                              prepare=open_viewer))
         dashboard = viewer[0]
         if args.ros2:  # each sample published as soon as it can be (reads on data, no wait for robot states)
-            prefer_low_latency(cell)
+            prefer_low_latency(cell, args.ros2_read_period)
         for note in cell.notes:
             print(f"ftacq monitor: {note}", file=sys.stderr)
         if cell.drift_text is not None:
