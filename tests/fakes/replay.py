@@ -31,6 +31,8 @@ TICK_S = 0.002
 """The controller's tick (e-Series, 500 Hz)."""
 BOX_POLLS = (0.0007, 0.0013, 0.0019)
 """When, within each tick, the box's thread asks for its due datagrams (s after the tick)."""
+WARM_UP_TICKS = 50
+"""The first ticks (imports, first calls) are counted apart, as phase "warm-up"."""
 OUTPUTS = ("timestamp", "target_q", "target_qd", "target_qdd", "actual_q", "actual_qd", "actual_TCP_pose",
            "actual_TCP_speed", "actual_TCP_force", "target_TCP_pose", "target_TCP_speed", "joint_temperatures",
            "robot_mode", "joint_mode", "safety_mode", "actual_tool_accelerometer", "speed_scaling",
@@ -72,8 +74,11 @@ class Cell:
     plan: _OutputPlan
     packages: list[bytes] = field(default_factory=list)
     datagrams: list[bytes] = field(default_factory=list)
-    controller_cpu_s: float = 0.0
-    netft_cpu_s: float = 0.0
+    cpu_s: dict[tuple[str, str], float] = field(default_factory=dict)
+    """(device, phase) → thread CPU seconds: device "controller" (tick, shared pose, RTDE package) or "netft" (the
+    box's polls), phase "moving" (the arm's joint state not at rest) or "still"."""
+    ticks: dict[str, int] = field(default_factory=dict)
+    """phase → ticks spent in it."""
 
     def tick(self, k: int, t0_s: float, jitter_s: float) -> None:
         """Controller tick ``k`` (at ``t0_s`` + k ticks + ``jitter_s``), then the box's polls within it."""
@@ -86,8 +91,15 @@ class Cell:
         for poll_s in BOX_POLLS:
             self.clock.now_s = t0_s + k * TICK_S + poll_s
             self.datagrams += self.box.due_datagrams(self.clock.now_s)[0]
-        self.controller_cpu_s += middle - start
-        self.netft_cpu_s += time.thread_time() - middle
+        end = time.thread_time()
+        phase = "warm-up" if k < WARM_UP_TICKS else "still" if snap["joint_state"].at_rest else "moving"
+        self.ticks[phase] = self.ticks.get(phase, 0) + 1
+        for device, cpu_s in (("controller", middle - start), ("netft", end - middle)):
+            self.cpu_s[device, phase] = self.cpu_s.get((device, phase), 0.0) + cpu_s
+
+    def cpu_per_simulated_s(self) -> dict[tuple[str, str], float]:
+        """(device, phase) → CPU seconds per simulated second in that phase."""
+        return {(device, phase): cpu_s / (self.ticks[phase] * TICK_S) for (device, phase), cpu_s in self.cpu_s.items()}
 
 
 def build_cell(clock: ScriptedClock, seed: int = 7) -> Cell:
@@ -135,11 +147,22 @@ SCRIPT: dict[int, Callable[[URSimulator], None]] = {
     820: _move("movel", (0.05, -0.04, 0.03, 0.0, 0.0, 0.0), 0.1, 0.5),
     1300: _set(speed_slider=0.5),                           # a slower slider: motion time runs at half rate
     1320: _move("movej", (-0.3, 0.2, -0.2, -0.2, -0.3, -0.3), 1.0, 3.0),
+    2400: _set(speed_slider=1.0),
 }
-"""Tick → command: a joint move stopped midway, a linear move with a TCP offset, a joint move at half speed."""
+"""Tick → command: a joint move stopped midway, a linear move with a TCP offset, a joint move at half speed, then
+the arm at rest (still from about tick 3300: 2 s of motion time after the last change of q̈)."""
+
+JOINT_MOVES: dict[int, Callable[[URSimulator], None]] = {
+    100: _move("movej", (0.4, -0.3, 0.3, 0.3, 0.3, 0.4), 0.8, 2.0),
+    520: _stop(3.0),
+    800: _move("movej", (-0.4, 0.3, -0.3, -0.3, -0.3, -0.4), 1.0, 3.0),
+    1400: _move("movej", (0.2, -0.2, 0.2, 0.2, 0.2, 0.2), 1.0, 3.0),
+}
+"""Tick → command: moveJ only, no TCP offset, as the procedures move (the benchmark's script); at rest from about
+tick 2500."""
 
 
-def replay(ticks: int = 2500, seed: int = 7, script: dict[int, Callable[[URSimulator], None]] | None = None,
+def replay(ticks: int = 4500, seed: int = 7, script: dict[int, Callable[[URSimulator], None]] | None = None,
            on_tick: Callable[[Cell, int], None] | None = None) -> Cell:
     """Run the scripted cell for ``ticks`` controller ticks and return it (its packages and datagrams)."""
     clock = ScriptedClock()

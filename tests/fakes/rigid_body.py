@@ -35,7 +35,9 @@ class FlangeMotion:
 
     Attributes:
         base_R_flange (S, 3, 3); position_m (S, 3) of the flange origin; angular_velocity_rad_s (S, 3);
-        angular_acceleration_rad_s2 (S, 3); velocity_m_s (S, 3) and acceleration_m_s2 (S, 3) of the flange origin.
+        angular_acceleration_rad_s2 (S, 3); velocity_m_s (S, 3) and acceleration_m_s2 (S, 3) of the flange origin;
+        base_T_flange (S, 4, 4): the frames themselves (:func:`ftacq.kinematics.forward_kinematics`'s products, in
+        its order, so the same bits).
     """
 
     base_R_flange: np.ndarray
@@ -44,6 +46,7 @@ class FlangeMotion:
     angular_acceleration_rad_s2: np.ndarray
     velocity_m_s: np.ndarray
     acceleration_m_s2: np.ndarray
+    base_T_flange: np.ndarray | None = None
 
     def point_velocity(self, offset_base_m: np.ndarray) -> np.ndarray:
         """Velocity (S, 3) of the points ``position_m + offset_base_m`` fixed to the flange (offset in the base frame)."""
@@ -56,13 +59,19 @@ class FlangeMotion:
                 + _cross(w, _cross(w, offset_base_m)))
 
 
+_NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b over the last axis (np.cross costs ~10× more on the small arrays used here)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0], out[..., 1], out[..., 2] = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-    return out
+    """a × b over the last axis, component by component as the definition writes it (np.cross costs ~10× more on
+    the small arrays used here)."""
+    return a[..., _NEXT] * b[..., _AFTER] - a[..., _AFTER] * b[..., _NEXT]
+
+
+def _skew(v) -> np.ndarray:
+    """The (3, 3) matrix K of a constant vector v with x @ K = x × v for row vectors x (one matmul per cross)."""
+    x, y, z = (float(c) for c in np.asarray(v, dtype=float).reshape(3))
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 @lru_cache(maxsize=16)
@@ -71,17 +80,20 @@ def _dh_steps(model: URModel) -> np.ndarray:
 
 
 def _dh_frames(model: URModel, q: np.ndarray) -> np.ndarray:
-    """base_T_frame_i (S, 6, 4, 4): Rz(q_i) then the fixed DH step, composed (few numpy calls: this runs per tick)."""
+    """base_T_frame_i (S, 7, 4, 4), i = 0 (the base itself) .. 6: Rz(q_i) then the fixed DH step, composed (few numpy
+    calls: this runs per controller tick and per sensor chunk)."""
     n = q.shape[0]
-    turns = np.zeros((n, 6, 4, 4))
-    c, s = np.cos(q), np.sin(q)
-    turns[..., 0, 0], turns[..., 0, 1], turns[..., 1, 0], turns[..., 1, 1] = c, -s, s, c
-    turns[..., 2, 2] = turns[..., 3, 3] = 1.0
-    steps = turns @ _dh_steps(model)
-    frames = np.empty_like(steps)
-    frames[:, 0] = steps[:, 0]
+    fixed = _dh_steps(model)  # (6, 4, 4)
+    c, s = np.cos(q)[..., None], np.sin(q)[..., None]
+    steps = np.empty((n, 6, 4, 4))
+    steps[:, :, 0] = c * fixed[:, 0] - s * fixed[:, 1]  # Rz(q) @ fixed: rows 0 and 1 turn, rows 2 and 3 stay
+    steps[:, :, 1] = s * fixed[:, 0] + c * fixed[:, 1]
+    steps[:, :, 2:] = fixed[:, 2:]
+    frames = np.empty((n, 7, 4, 4))
+    frames[:, 0] = np.eye(4)
+    frames[:, 1] = steps[:, 0]
     for i in range(1, 6):
-        frames[:, i] = frames[:, i - 1] @ steps[:, i]
+        np.matmul(frames[:, i], steps[:, i], out=frames[:, i + 1])
     return frames
 
 
@@ -90,22 +102,19 @@ def flange_motion(model: URModel, q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_r
 
     The recursion of the module docstring, unrolled over the six joints at once (cumulative sums)."""
     q = np.asarray(q_rad, dtype=float).reshape(-1, 6)
-    qd = np.broadcast_to(np.asarray(qd_rad_s, dtype=float).reshape(-1, 6), q.shape)[..., None]
-    qdd = np.broadcast_to(np.asarray(qdd_rad_s2, dtype=float).reshape(-1, 6), q.shape)[..., None]
-    frames = _dh_frames(model, q)  # (S, 6, 4, 4): base_T_frame_1 .. base_T_frame_6
-    n = q.shape[0]
-    axes = np.empty((n, 6, 3))  # z_0 .. z_5: joint i+1 turns about z_i through o_i
-    axes[:, 0] = (0.0, 0.0, 1.0)
-    axes[:, 1:] = frames[:, :5, :3, 2]
-    origins = np.zeros((n, 7, 3))  # o_0 .. o_6
-    origins[:, 1:] = frames[:, :, :3, 3]
+    qd = np.asarray(qd_rad_s, dtype=float).reshape(-1, 6, 1)
+    qdd = np.asarray(qdd_rad_s2, dtype=float).reshape(-1, 6, 1)
+    frames = _dh_frames(model, q)  # (S, 7, 4, 4): the base, base_T_frame_1 .. base_T_frame_6
+    axes = frames[:, :6, :3, 2]  # z_0 .. z_5: joint i+1 turns about z_i through o_i
+    origins = frames[:, :, :3, 3]  # o_0 .. o_6
     joint_rates = axes * qd
     w = np.cumsum(joint_rates, axis=1)  # ω of links 1..6
     dw = np.cumsum(axes * qdd + _cross(w - joint_rates, joint_rates), axis=1)
     r = origins[:, 1:] - origins[:, :-1]
-    v = _cross(w, r).sum(axis=1)
-    a = (_cross(dw, r) + _cross(w, _cross(w, r))).sum(axis=1)
-    return FlangeMotion(frames[:, 5, :3, :3], origins[:, 6], w[:, 5], dw[:, 5], v, a)
+    wr = _cross(w, r)
+    v = wr.sum(axis=1)
+    a = (_cross(dw, r) + _cross(w, wr)).sum(axis=1)
+    return FlangeMotion(frames[:, 6, :3, :3], origins[:, 6], w[:, 5], dw[:, 5], v, a, frames[:, 6])
 
 
 def tool_wrench_on_sensor(motion: FlangeMotion, gravity_base_m_s2: np.ndarray, sensor_R_flange: np.ndarray,
@@ -115,16 +124,23 @@ def tool_wrench_on_sensor(motion: FlangeMotion, gravity_base_m_s2: np.ndarray, s
 
     ``center_of_mass_m`` and ``inertia_kg_m2`` (about the centre of mass) are in the sensor frame;
     ``flange_p_sensor_m`` is the sensor origin in the flange frame; ``gravity_base_m_s2`` the gravity vector (m/s²).
+    Evaluated in the sensor frame, where the tool's centre of mass, its offset from the flange origin and its inertia
+    are constant: g, a_E, ω and α are turned into it together (one product), the rest is a few (S, 3) operations.
     """
-    base_R_sensor = motion.base_R_flange @ np.asarray(sensor_R_flange, dtype=float).T  # (S, 3, 3)
-    sensor_offset = motion.base_R_flange @ np.asarray(flange_p_sensor_m, dtype=float)  # (S, 3)
-    com_offset = base_R_sensor @ np.asarray(center_of_mass_m, dtype=float)  # from S to c, base frame
-    a_com = motion.point_acceleration(sensor_offset + com_offset)
-    force = mass_kg * (np.asarray(gravity_base_m_s2, dtype=float) - a_com)
-    w, dw = motion.angular_velocity_rad_s, motion.angular_acceleration_rad_s2
-    inertia_base = base_R_sensor @ np.asarray(inertia_kg_m2, dtype=float) @ np.swapaxes(base_R_sensor, 1, 2)
-    spin = np.einsum("sij,sj->si", inertia_base, dw) + _cross(w, np.einsum("sij,sj->si", inertia_base, w))
-    torque = _cross(com_offset, force) - spin
-    to_sensor = np.swapaxes(base_R_sensor, 1, 2)
-    return np.concatenate([np.einsum("sij,sj->si", to_sensor, force), np.einsum("sij,sj->si", to_sensor, torque)],
-                          axis=1)
+    sensor_R_flange = np.asarray(sensor_R_flange, dtype=float)
+    com = np.asarray(center_of_mass_m, dtype=float).reshape(3)
+    inertia = np.asarray(inertia_kg_m2, dtype=float)
+    n = motion.base_R_flange.shape[0]
+    in_base = np.empty((n, 4, 3))  # rows: g, a_E, ω, α (base frame)
+    in_base[:, 0] = gravity_base_m_s2
+    in_base[:, 1], in_base[:, 2], in_base[:, 3] = (motion.acceleration_m_s2, motion.angular_velocity_rad_s,
+                                                   motion.angular_acceleration_rad_s2)
+    in_sensor = in_base @ motion.base_R_flange @ sensor_R_flange.T  # row vectors: xᵀ base_R_flange flange_R_sensor
+    g, a_flange, w, dw = in_sensor[:, 0], in_sensor[:, 1], in_sensor[:, 2], in_sensor[:, 3]
+    flange_to_com = sensor_R_flange @ np.asarray(flange_p_sensor_m, dtype=float).reshape(3) + com  # sensor frame
+    to_com = _skew(flange_to_com)
+    a_com = a_flange + dw @ to_com + _cross(w, w @ to_com)
+    force = mass_kg * (g - a_com)
+    spin = in_sensor[:, 2:] @ inertia.T  # I ω, I α
+    torque = force @ -_skew(com) - (spin[:, 1] + _cross(w, spin[:, 0]))  # c × F − (I α + ω × I ω)
+    return np.concatenate([force, torque], axis=1)

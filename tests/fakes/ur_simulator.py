@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics, pose_of_transform
 from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
-from tests.fakes.rigid_body import flange_motion
+from tests.fakes.rigid_body import FlangeMotion, flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
@@ -698,16 +698,19 @@ class URSimulator:
             self._halt_motion()
             self.runtime_state = RUNTIME_PAUSED
 
-    def _poses(self, q: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _poses(self, q: np.ndarray | None = None, base_T_flange: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """(flange pose, TCP pose) of ``q`` (default the target's), cached while q and the TCP offset do not
-        change."""
+        change. ``base_T_flange``: q's, if the caller has it (:func:`flange_motion`'s frames, which are
+        :func:`forward_kinematics`'s: the same products in the same order)."""
         q = self.q if q is None else q
         key = (q.tobytes(), self.tcp_offset.tobytes())
         poses = self._pose_cache.get(key)
         if poses is None:
             if len(self._pose_cache) >= 4:
                 self._pose_cache.clear()
-            base_T_flange = forward_kinematics(self.model, q)
+            if base_T_flange is None:
+                base_T_flange = forward_kinematics(self.model, q)
             poses = self._pose_cache[key] = (pose_of_transform(base_T_flange),
                                              self.tcp_pose_for(q, self.tcp_offset, base_T_flange))
         return poses
@@ -721,8 +724,7 @@ class URSimulator:
         state = self.joint_state(now) if state is None else state
         if state.at_rest:
             return self.q, self.qd, self.qdd
-        q, qd, qdd = state.at(np.array([now]))
-        return q[0], qd[0], qdd[0]
+        return state.at_time(now)
 
     def tool_motion(self, joints: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -739,7 +741,10 @@ class URSimulator:
                 base_R_flange = rotation_from_rotvec(self._poses(q)[0][3:6])
                 self._rest_accelerometer = (key, base_R_flange.T @ -gravity)
             return np.zeros(6), self._rest_accelerometer[1].copy()
-        motion = flange_motion(self.model, q, qd, qdd)
+        return self._tool_motion_of(flange_motion(self.model, q, qd, qdd), gravity)
+
+    def _tool_motion_of(self, motion: FlangeMotion, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`tool_motion` of the first sample of a moving arm's :class:`FlangeMotion`."""
         base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
         tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
         return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
@@ -757,14 +762,23 @@ class URSimulator:
         state = self.joint_state(now)
         joints = self.actual_joints(now, state)
         lagging = joints[0] is not self.q
-        target_tcp = self._poses()[1] if lagging else None
-        flange, tcp = self._poses(joints[0])
+        if self.tool_motion_outputs and (any_nonzero(joints[1]) or any_nonzero(joints[2])):
+            # moving: one kinematics call for the arm's motion and the frames of both poses (the arm's, the target's)
+            configurations = (joints, (self.q, self.qd, self.qdd)) if lagging else (joints,)
+            motion = flange_motion(self.model, *(np.stack(values) for values in zip(*configurations)))
+            frames = motion.base_T_flange
+            target_tcp = self._poses(self.q, frames[1])[1] if lagging else None
+            flange, tcp = self._poses(joints[0], frames[0])
+            self.tcp_speed, accelerometer = self._tool_motion_of(motion, np.array(mount_gravity_m_s2(self.mount)))
+        else:
+            target_tcp = self._poses()[1] if lagging else None
+            flange, tcp = self._poses(joints[0])
+            if self.tool_motion_outputs:
+                self.tcp_speed, accelerometer = self.tool_motion(joints)
+            else:
+                self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
         if target_tcp is None:
             target_tcp = tcp
-        if self.tool_motion_outputs:
-            self.tcp_speed, accelerometer = self.tool_motion(joints)
-        else:
-            self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
         q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
         actual_q, actual_qd = tuple(joints[0].tolist()), tuple(joints[1].tolist())
         if self.encoder_noise_rad > 0.0:  # the encoders' jitter: reported angles only

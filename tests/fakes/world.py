@@ -277,6 +277,35 @@ class JointState:
         return q, qd, qdd
 
 
+    def at_time(self, time_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`at` of one clock time ``time_s``: (q, q̇, q̈), each (6,), by the same arithmetic operation for
+        operation with the time's quantities as floats (the controller asks for one time per 2 ms tick)."""
+        tau = min(max((time_s - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S), MAX_EXTRAPOLATION_S)
+        qd0, qdd0 = np.asarray(self.qd, dtype=float), np.asarray(self.qdd, dtype=float)
+        behind = min(tau, 0.0)
+        within = max(behind, -float(self.switched_ago_s))
+        q = np.asarray(self.q, dtype=float) + (qd0 * within + 0.5 * qdd0 * (within * within))
+        qd = qd0 + qdd0 * within
+        beyond = behind - within
+        qdd_before = np.asarray(self.qdd_before, dtype=float)
+        q = q + (qd * beyond + 0.5 * qdd_before * (beyond * beyond))
+        qd = qd + qdd_before * beyond
+        qdd = qdd_before if beyond < 0.0 else qdd0
+        done = 0.0
+        after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6)
+        for boundary, acceleration in zip([*np.asarray(self.switch_in_s, dtype=float).reshape(-1).tolist(), math.inf],
+                                          [*after, None]):
+            step = max(min(tau, boundary) - done, 0.0)
+            q = q + (qd * step + 0.5 * qdd * (step * step))
+            qd = qd + qdd * step
+            done += step
+            if acceleration is None or not math.isfinite(boundary):
+                break
+            if tau >= boundary:
+                qdd = acceleration
+        return q, qd, np.array(qdd)
+
+
 class SharedPose:
     """A flange pose and the joint state shared between processes through shared memory, guarded by a seqlock.
 
