@@ -2,8 +2,8 @@
 on the wire (RTDE data packages, RDT datagrams) for one seed and one command script, on a fake host clock.
 
 The simulated devices read ``time.monotonic()``; :func:`replay` replaces it by a :class:`ScriptedClock` for the
-run, steps the controller at 500 Hz (with a seeded tick jitter) and asks the box for its due datagrams three times
-a tick, as the devices' threads do, through the same calls (:meth:`URSimulator.step`, :class:`SharedPose`, the
+run, steps the controller at 500 Hz (with a seeded tick jitter) and asks the box for its due datagrams when its
+next burst is due, as the devices' threads do, through the same calls (:meth:`URSimulator.step`, :class:`SharedPose`, the
 RTDE output plan, :meth:`NetFTBox.due_datagrams`). Used by tests/test_fakes_replay.py (the fakes' outputs do not
 change when their hot paths are restructured) and benchmarks/fakes_cpu.py ``--replay`` (CPU per simulated second,
 which a loaded machine disturbs least).
@@ -29,8 +29,8 @@ from tests.fakes.world import CellTruth, SensorPhysics, SharedPose
 
 TICK_S = 0.002
 """The controller's tick (e-Series, 500 Hz)."""
-BOX_POLLS = (0.0007, 0.0013, 0.0019)
-"""When, within each tick, the box's thread asks for its due datagrams (s after the tick)."""
+BOX_WAKE_S = 0.0001
+"""The box's thread wakes this long after its next burst is due at the earliest (select's latency)."""
 WARM_UP_TICKS = 50
 """The first ticks (imports, first calls) are counted apart, as phase "warm-up"."""
 OUTPUTS = ("timestamp", "target_q", "target_qd", "target_qdd", "actual_q", "actual_qd", "actual_TCP_pose",
@@ -88,9 +88,13 @@ class Cell:
         self.shared.set(snap["flange_pose"], snap["joint_speed_norm"], snap["joint_state"])
         self.packages.append(self.plan.package(snap))
         middle = time.thread_time()
-        for poll_s in BOX_POLLS:
-            self.clock.now_s = t0_s + k * TICK_S + poll_s
-            self.datagrams += self.box.due_datagrams(self.clock.now_s)[0]
+        tick_end_s = t0_s + (k + 1) * TICK_S
+        while True:  # the box's thread: asleep until its next burst is due, as tests/fakes/netft.py's RDT loop
+            due_s = self.clock.now_s + max(self.box.next_send_in_s(self.clock.now_s), BOX_WAKE_S)
+            if due_s >= tick_end_s:
+                break
+            self.clock.now_s = due_s
+            self.datagrams += self.box.due_datagrams(due_s)[0]
         end = time.thread_time()
         phase = "warm-up" if k < WARM_UP_TICKS else "still" if snap["joint_state"].at_rest else "moving"
         self.ticks[phase] = self.ticks.get(phase, 0) + 1

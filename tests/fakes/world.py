@@ -249,8 +249,9 @@ class JointState:
         """Return (q, q̇, q̈), each (S, 6), at clock times ``times_s`` (S,): exact for the piecewise constant q̈
         of the controller's profiles (ahead of the stamp through every change of q̈; behind it through the current
         phase and the one before; at most :data:`MAX_EXTRAPOLATION_S` either way)."""
-        # few numpy calls (this runs per tick of the controller and per sample chunk of the sensor); the same
-        # arithmetic, operation for operation, as stepping (S, 6) copies of q, q̇, q̈ in place
+        # few numpy calls (this runs per sample chunk of the sensor); the same arithmetic, operation for operation,
+        # as stepping (S, 6) copies of q, q̇, q̈ in place, less the steps that are zero for every sample (they add
+        # nothing but the sign of a zero)
         tau = np.maximum((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S)
         tau = np.minimum(tau, MAX_EXTRAPOLATION_S)[:, None]
         qd0, qdd0 = np.asarray(self.qd, dtype=float), np.asarray(self.qdd, dtype=float)
@@ -259,10 +260,16 @@ class JointState:
         q = np.asarray(self.q, dtype=float) + (qd0 * within + 0.5 * qdd0 * within ** 2)
         qd = qd0 + qdd0 * within
         beyond = behind - within
-        qdd_before = np.asarray(self.qdd_before, dtype=float)
-        q += qd * beyond + 0.5 * qdd_before * beyond ** 2
-        qd += qdd_before * beyond
-        qdd = np.where(beyond < 0.0, qdd_before, qdd0)
+        if beyond.min() < 0.0:  # samples before the last change of q̈
+            qdd_before = np.asarray(self.qdd_before, dtype=float)
+            q += qd * beyond + 0.5 * qdd_before * beyond ** 2
+            qd += qdd_before * beyond
+            qdd = np.where(beyond < 0.0, qdd_before, qdd0)
+        else:
+            qdd = np.repeat(qdd0[None], len(q), axis=0)
+        latest = float(tau.max())
+        if latest <= 0.0:  # no sample after the stamp
+            return q, qd, qdd
         done = np.zeros_like(tau)
         after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6)
         for boundary, acceleration in zip([*np.asarray(self.switch_in_s, dtype=float).reshape(-1).tolist(), math.inf],
@@ -271,11 +278,10 @@ class JointState:
             q += qd * step + 0.5 * qdd * step ** 2
             qd += qdd * step
             done += step
-            if acceleration is None or not math.isfinite(boundary):
+            if acceleration is None or not math.isfinite(boundary) or boundary > latest:
                 break
             qdd = np.where(tau >= boundary, acceleration, qdd)
         return q, qd, qdd
-
 
     def at_time(self, time_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`at` of one clock time ``time_s``: (q, q̇, q̈), each (6,), by the same arithmetic operation for
@@ -412,6 +418,8 @@ class SensorPhysics:
         self._gravity_m_s2 = self.truth.gravity_base_m_s2
         self._sensor_offset = np.array(self.truth.sensor_offset_m)
         self._inertia = self.truth.inertia
+        self._constant_bias = not (any_nonzero(self._drift) or any_nonzero(self._thermal_step))
+        """No drift and no thermal step: :meth:`bias_at` is the bias at every time (skipped per chunk)."""
         self._rest_load: tuple | None = None  # ((pose, contact) bytes, tool, the load through the gain) at rest
         self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
         self._next_sample_s: float | None = None
@@ -474,8 +482,14 @@ class SensorPhysics:
     def noiseless_wrench_moving(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                                 elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:
         """Return the wrench (S, 6) without noise for joint states (S, 6) at ``elapsed_s`` after start (drift)."""
-        elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
-        return (self.tool_wrench(q, qd, qdd) + self.contact_wrench) @ self._gain_t + self.bias_at(elapsed)
+        load = self.tool_wrench(q, qd, qdd)
+        if any_nonzero(self.contact_wrench):  # adding zeros or multiplying by I changes nothing (but a zero's sign)
+            load = load + self.contact_wrench
+        if self.truth.sensor_gain_error is not None:
+            load = load @ self._gain_t
+        if self._constant_bias:
+            return load + self._bias
+        return load + self.bias_at(np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1)))
 
     def ringdown_at(self, times_s: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                     time_scale: float = 1.0) -> np.ndarray:
@@ -531,8 +545,8 @@ class SensorPhysics:
             self._last_moving = None
             bias = self.bias_at(elapsed)
             mean = self._load_at_rest(pose) + bias  # noiseless_wrench(pose, elapsed)
-            if start_time_s is not None:  # the drift at each sample's own time
-                mean = mean - bias + self.bias_at((times - self.start_time_s)[:, None])
+            if start_time_s is not None:  # the drift at each sample's own time (the same for all without drift)
+                mean = mean - bias + (bias if self._constant_bias else self.bias_at((times - self.start_time_s)[:, None]))
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
