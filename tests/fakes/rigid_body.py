@@ -105,6 +105,8 @@ def flange_motion(model: URModel, q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_r
     qd = np.asarray(qd_rad_s, dtype=float).reshape(-1, 6, 1)
     qdd = np.asarray(qdd_rad_s2, dtype=float).reshape(-1, 6, 1)
     frames = _dh_frames(model, q)  # (S, 7, 4, 4): the base, base_T_frame_1 .. base_T_frame_6
+    if len(q) <= FEW_SAMPLES:
+        return _flange_motion_few(frames, qd, qdd)
     axes = frames[:, :6, :3, 2]  # z_0 .. z_5: joint i+1 turns about z_i through o_i
     origins = frames[:, :, :3, 3]  # o_0 .. o_6
     joint_rates = axes * qd
@@ -115,6 +117,44 @@ def flange_motion(model: URModel, q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_r
     v = wr.sum(axis=1)
     a = (_cross(dw, r) + _cross(w, wr)).sum(axis=1)
     return FlangeMotion(frames[:, 6, :3, :3], origins[:, 6], w[:, 5], dw[:, 5], v, a, frames[:, 6])
+
+
+FEW_SAMPLES = 2
+"""Up to this many samples (the controller's tick: the arm, its target) the recursion runs on floats: numpy's calls
+cost more than the arithmetic there."""
+
+
+def _cross3(a: list[float], b: list[float]) -> list[float]:
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _flange_motion_few(frames: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> FlangeMotion:
+    """:func:`flange_motion`'s recursion on floats, sample by sample, operation for operation as its arrays do it
+    (cumulative sums in joint order)."""
+    n = frames.shape[0]
+    qd = np.broadcast_to(qd, (n, 6, 1))[:, :, 0].tolist()
+    qdd = np.broadcast_to(qdd, (n, 6, 1))[:, :, 0].tolist()
+    out = np.empty((4, n, 3))  # ω, α, v, a of the flange
+    for k in range(n):
+        axes, origins = frames[k, :6, :3, 2].tolist(), frames[k, :, :3, 3].tolist()
+        w = dw = v = a = None
+        for i in range(6):
+            z, rate, acceleration = axes[i], qd[k][i], qdd[k][i]
+            joint_rate = [z[0] * rate, z[1] * rate, z[2] * rate]
+            w_before = w
+            w = joint_rate if w is None else [w[0] + joint_rate[0], w[1] + joint_rate[1], w[2] + joint_rate[2]]
+            carried = _cross3([w[0] - joint_rate[0], w[1] - joint_rate[1], w[2] - joint_rate[2]], joint_rate)
+            term = [z[0] * acceleration + carried[0], z[1] * acceleration + carried[1], z[2] * acceleration + carried[2]]
+            dw = term if w_before is None else [dw[0] + term[0], dw[1] + term[1], dw[2] + term[2]]
+            o, o_next = origins[i], origins[i + 1]
+            r = [o_next[0] - o[0], o_next[1] - o[1], o_next[2] - o[2]]
+            wr = _cross3(w, r)
+            dwr, wwr = _cross3(dw, r), _cross3(w, wr)
+            link = [dwr[0] + wwr[0], dwr[1] + wwr[1], dwr[2] + wwr[2]]
+            v = wr if v is None else [v[0] + wr[0], v[1] + wr[1], v[2] + wr[2]]
+            a = link if a is None else [a[0] + link[0], a[1] + link[1], a[2] + link[2]]
+        out[0, k], out[1, k], out[2, k], out[3, k] = w, dw, v, a
+    return FlangeMotion(frames[:, 6, :3, :3], frames[:, 6, :3, 3], out[0], out[1], out[2], out[3], frames[:, 6])
 
 
 def tool_wrench_on_sensor(motion: FlangeMotion, gravity_base_m_s2: np.ndarray, sensor_R_flange: np.ndarray,

@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics, pose_of_transform
 from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
-from tests.fakes.rigid_body import FlangeMotion, flange_motion
+from tests.fakes.rigid_body import FlangeMotion, _cross3, flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
@@ -711,8 +711,9 @@ class URSimulator:
                 self._pose_cache.clear()
             if base_T_flange is None:
                 base_T_flange = forward_kinematics(self.model, q)
-            poses = self._pose_cache[key] = (pose_of_transform(base_T_flange),
-                                             self.tcp_pose_for(q, self.tcp_offset, base_T_flange))
+            flange = pose_of_transform(base_T_flange)
+            tcp = self.tcp_pose_for(q, self.tcp_offset, base_T_flange) if any_nonzero(self.tcp_offset) else flange
+            poses = self._pose_cache[key] = (flange, tcp)
         return poses
 
     def actual_joints(self, now: float, state: JointState | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -746,7 +747,7 @@ class URSimulator:
     def _tool_motion_of(self, motion: FlangeMotion, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`tool_motion` of the first sample of a moving arm's :class:`FlangeMotion`."""
         base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
-        tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
+        tcp_linear = motion.velocity_m_s[0] + _cross3(w.tolist(), (base_R_flange @ self.tcp_offset[:3]).tolist())
         return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
 
     def joint_state(self, now: float) -> JointState:
@@ -764,8 +765,8 @@ class URSimulator:
         lagging = joints[0] is not self.q
         if self.tool_motion_outputs and (any_nonzero(joints[1]) or any_nonzero(joints[2])):
             # moving: one kinematics call for the arm's motion and the frames of both poses (the arm's, the target's)
-            configurations = (joints, (self.q, self.qd, self.qdd)) if lagging else (joints,)
-            motion = flange_motion(self.model, *(np.stack(values) for values in zip(*configurations)))
+            motion = flange_motion(self.model, *((np.array([actual, target]) if lagging else actual)
+                                                 for actual, target in zip(joints, (self.q, self.qd, self.qdd))))
             frames = motion.base_T_flange
             target_tcp = self._poses(self.q, frames[1])[1] if lagging else None
             flange, tcp = self._poses(joints[0], frames[0])
