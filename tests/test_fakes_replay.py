@@ -70,6 +70,12 @@ def tool_wrench_on_sensor(motion, gravity_base_m_s2, sensor_R_flange, flange_p_s
                           axis=1)
 
 
+def tool_wrench(self: world.SensorPhysics, q, qd, qdd) -> np.ndarray:
+    mass, _gravity_base, com, _tool = self._tool
+    return tool_wrench_on_sensor(flange_motion(self.robot, q, qd, qdd), self._gravity_m_s2, self._sensor_rotation,
+                                 self._sensor_offset, mass, com, self._inertia)
+
+
 def joint_state_at(self: JointState, times_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(q, q̇, q̈) at each time: every phase stepped for every sample."""
     tau = np.clip((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S,
@@ -133,9 +139,8 @@ def test_the_script_moves_stops_and_rings(fast):
 
 
 def test_fast_paths_put_the_same_bytes_on_the_wire(fast, monkeypatch):
-    monkeypatch.setattr(world, "flange_motion", flange_motion)
     monkeypatch.setattr(ur_simulator, "flange_motion", flange_motion)
-    monkeypatch.setattr(world, "tool_wrench_on_sensor", tool_wrench_on_sensor)
+    monkeypatch.setattr(world.SensorPhysics, "tool_wrench", tool_wrench)
     monkeypatch.setattr(JointState, "at", joint_state_at)
     monkeypatch.setattr(JointState, "at_time", lambda self, t: tuple(v[0] for v in joint_state_at(self, np.array([t]))))
     for name in ("position", "speed_at", "acceleration_at"):

@@ -110,12 +110,16 @@ def flange_motion(model: URModel, q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_r
     axes = frames[:, :6, :3, 2]  # z_0 .. z_5: joint i+1 turns about z_i through o_i
     origins = frames[:, :, :3, 3]  # o_0 .. o_6
     joint_rates = axes * qd
-    w = np.cumsum(joint_rates, axis=1)  # ω of links 1..6
-    dw = np.cumsum(axes * qdd + _cross(w - joint_rates, joint_rates), axis=1)
-    r = origins[:, 1:] - origins[:, :-1]
-    wr = _cross(w, r)
+    pairs = np.empty((2, 2) + joint_rates.shape)  # two cross products per call: [[a, b], [c, d]] → a × b, c × d
+    w = np.cumsum(joint_rates, axis=1, out=pairs[1, 0])  # ω of links 1..6
+    np.subtract(w, joint_rates, out=pairs[0, 0])
+    pairs[0, 1] = joint_rates
+    r = np.subtract(origins[:, 1:], origins[:, :-1], out=pairs[1, 1])
+    carried, wr = _cross(pairs[:, 0], pairs[:, 1])  # (ω − q̇ z) × q̇ z, ω × r
+    dw = np.cumsum(axes * qdd + carried, axis=1, out=pairs[0, 0])
+    pairs[0, 1], pairs[1, 1] = r, wr
     v = wr.sum(axis=1)
-    a = (_cross(dw, r) + _cross(w, wr)).sum(axis=1)
+    a = _cross(pairs[:, 0], pairs[:, 1]).sum(axis=0).sum(axis=1)  # α × r + ω × (ω × r), summed over the links
     return FlangeMotion(frames[:, 6, :3, :3], origins[:, 6], w[:, 5], dw[:, 5], v, a, frames[:, 6])
 
 
@@ -157,6 +161,50 @@ def _flange_motion_few(frames: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> F
     return FlangeMotion(frames[:, 6, :3, :3], frames[:, 6, :3, 3], out[0], out[1], out[2], out[3], frames[:, 6])
 
 
+@dataclass(frozen=True)
+class ToolOnSensor:
+    """A rigid tool on the sensor, in the sensor frame, where its centre of mass, its offset from the flange origin
+    and its inertia are constant (computed once per tool, not per sample chunk): :meth:`wrench`.
+
+    Attributes:
+        flange_R_sensor (3, 3); mass_kg; to_com (3, 3): x @ to_com = x × d, d the flange origin → centre of mass;
+        com_cross (3, 3): F @ com_cross = c × F, c the centre of mass (from the sensor origin); inertia_t (3, 3):
+        the inertia about the centre of mass, transposed (row vectors: ω @ Iᵀ = (I ω)ᵀ).
+    """
+
+    flange_R_sensor: np.ndarray
+    mass_kg: float
+    to_com: np.ndarray
+    com_cross: np.ndarray
+    inertia_t: np.ndarray
+
+    @classmethod
+    def of(cls, sensor_R_flange, flange_p_sensor_m, mass_kg: float, center_of_mass_m, inertia_kg_m2) -> "ToolOnSensor":
+        """The tool of ``center_of_mass_m`` and ``inertia_kg_m2`` (sensor frame) on a sensor at ``flange_p_sensor_m``
+        (flange frame) turned by ``sensor_R_flange``."""
+        sensor_R_flange = np.asarray(sensor_R_flange, dtype=float)
+        com = np.asarray(center_of_mass_m, dtype=float).reshape(3)
+        flange_to_com = sensor_R_flange @ np.asarray(flange_p_sensor_m, dtype=float).reshape(3) + com  # sensor frame
+        return cls(sensor_R_flange.T, float(mass_kg), _skew(flange_to_com), -_skew(com),
+                   np.asarray(inertia_kg_m2, dtype=float).T)
+
+    def wrench(self, motion: FlangeMotion, gravity_base_m_s2) -> np.ndarray:
+        """The wrench (S, 6) [F (N), T about the sensor origin (N·m)] the tool exerts on the sensor, sensor frame:
+        g, a_E, ω and α turned into the sensor frame together (one product), the rest a few (S, 3) operations."""
+        n = motion.base_R_flange.shape[0]
+        in_base = np.empty((n, 4, 3))  # rows: g, a_E, ω, α (base frame)
+        in_base[:, 0] = gravity_base_m_s2
+        in_base[:, 1], in_base[:, 2], in_base[:, 3] = (motion.acceleration_m_s2, motion.angular_velocity_rad_s,
+                                                       motion.angular_acceleration_rad_s2)
+        in_sensor = in_base @ motion.base_R_flange @ self.flange_R_sensor  # row vectors: xᵀ base_R_flange flange_R_sensor
+        g, a_flange, w, dw = in_sensor[:, 0], in_sensor[:, 1], in_sensor[:, 2], in_sensor[:, 3]
+        a_com = a_flange + dw @ self.to_com + _cross(w, w @ self.to_com)
+        force = self.mass_kg * (g - a_com)
+        spin = in_sensor[:, 2:] @ self.inertia_t  # I ω, I α
+        torque = force @ self.com_cross - (spin[:, 1] + _cross(w, spin[:, 0]))  # c × F − (I α + ω × I ω)
+        return np.concatenate([force, torque], axis=1)
+
+
 def tool_wrench_on_sensor(motion: FlangeMotion, gravity_base_m_s2: np.ndarray, sensor_R_flange: np.ndarray,
                           flange_p_sensor_m: np.ndarray, mass_kg: float, center_of_mass_m: np.ndarray,
                           inertia_kg_m2: np.ndarray) -> np.ndarray:
@@ -164,23 +212,6 @@ def tool_wrench_on_sensor(motion: FlangeMotion, gravity_base_m_s2: np.ndarray, s
 
     ``center_of_mass_m`` and ``inertia_kg_m2`` (about the centre of mass) are in the sensor frame;
     ``flange_p_sensor_m`` is the sensor origin in the flange frame; ``gravity_base_m_s2`` the gravity vector (m/s²).
-    Evaluated in the sensor frame, where the tool's centre of mass, its offset from the flange origin and its inertia
-    are constant: g, a_E, ω and α are turned into it together (one product), the rest is a few (S, 3) operations.
     """
-    sensor_R_flange = np.asarray(sensor_R_flange, dtype=float)
-    com = np.asarray(center_of_mass_m, dtype=float).reshape(3)
-    inertia = np.asarray(inertia_kg_m2, dtype=float)
-    n = motion.base_R_flange.shape[0]
-    in_base = np.empty((n, 4, 3))  # rows: g, a_E, ω, α (base frame)
-    in_base[:, 0] = gravity_base_m_s2
-    in_base[:, 1], in_base[:, 2], in_base[:, 3] = (motion.acceleration_m_s2, motion.angular_velocity_rad_s,
-                                                   motion.angular_acceleration_rad_s2)
-    in_sensor = in_base @ motion.base_R_flange @ sensor_R_flange.T  # row vectors: xᵀ base_R_flange flange_R_sensor
-    g, a_flange, w, dw = in_sensor[:, 0], in_sensor[:, 1], in_sensor[:, 2], in_sensor[:, 3]
-    flange_to_com = sensor_R_flange @ np.asarray(flange_p_sensor_m, dtype=float).reshape(3) + com  # sensor frame
-    to_com = _skew(flange_to_com)
-    a_com = a_flange + dw @ to_com + _cross(w, w @ to_com)
-    force = mass_kg * (g - a_com)
-    spin = in_sensor[:, 2:] @ inertia.T  # I ω, I α
-    torque = force @ -_skew(com) - (spin[:, 1] + _cross(w, spin[:, 0]))  # c × F − (I α + ω × I ω)
-    return np.concatenate([force, torque], axis=1)
+    return ToolOnSensor.of(sensor_R_flange, flange_p_sensor_m, mass_kg, center_of_mass_m, inertia_kg_m2).wrench(
+        motion, gravity_base_m_s2)

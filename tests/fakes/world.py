@@ -39,7 +39,7 @@ from ftacq import STANDARD_GRAVITY_M_S2
 from ftacq.calibration import Calibration
 from ftacq.kinematics import URModel
 from ftacq.so3 import rotation_from_rotvec, rotation_zyx_deg
-from tests.fakes.rigid_body import flange_motion, tool_wrench_on_sensor
+from tests.fakes.rigid_body import ToolOnSensor, flange_motion
 
 TIMELINE_SLACK_S, TIMELINE_GAP_S = 0.01, 1.0
 """A stream's next chunk continues the sample timeline when drawn at most this early or this late (s)."""
@@ -443,7 +443,9 @@ class SensorPhysics:
         """Put another tool on the sensor (mass kg, centre of mass m in the sensor frame) without telling anyone:
         every later sample follows it. ``set_tool(truth.mass_kg, truth.center_of_mass_m)`` puts the true one back."""
         gravity_base = gravity_base_from_tilt(float(mass_kg), *self.truth.base_tilt_deg)
-        self._tool = (float(mass_kg), gravity_base, np.array(center_of_mass_m, dtype=float).reshape(3))  # atomic
+        com = np.array(center_of_mass_m, dtype=float).reshape(3)
+        self._tool = (float(mass_kg), gravity_base, com,  # atomic
+                      ToolOnSensor.of(self._sensor_rotation, self._sensor_offset, float(mass_kg), com, self._inertia))
 
     def bias_at(self, elapsed_s):
         """Return the true biases [N, N·m] ``elapsed_s`` seconds after start (a float: (6,); an (S, 1) array:
@@ -463,7 +465,7 @@ class SensorPhysics:
         cached = self._rest_load
         key = (pose.tobytes(), np.asarray(contact).tobytes())
         if cached is None or cached[0] != key or cached[1] is not tool:
-            _mass, gravity_base, com = tool
+            _mass, gravity_base, com, _wrench = tool
             base_R_flange = rotation_from_rotvec(pose[3:6])
             gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
             torque = np.cross(com, gravity_sensor)
@@ -475,9 +477,8 @@ class SensorPhysics:
         """Return the wrench (S, 6) of the moving tool alone (gravity and inertia; no bias, drift, contact, noise)."""
         if self.robot is None:
             raise ValueError("the tool's inertial wrench needs the robot model (SensorPhysics.robot)")
-        mass, _gravity_base, com = self._tool  # the tool on the sensor now (set_tool)
-        return tool_wrench_on_sensor(flange_motion(self.robot, q, qd, qdd), self._gravity_m_s2,
-                                     self._sensor_rotation, self._sensor_offset, mass, com, self._inertia)
+        tool = self._tool[3]  # the tool on the sensor now (set_tool)
+        return tool.wrench(flange_motion(self.robot, q, qd, qdd), self._gravity_m_s2)
 
     def noiseless_wrench_moving(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                                 elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:
