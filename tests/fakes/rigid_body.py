@@ -60,6 +60,7 @@ class FlangeMotion:
 
 
 _NEXT, _AFTER = np.array([1, 2, 0]), np.array([2, 0, 1])
+_EYE4 = np.eye(4)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -90,7 +91,7 @@ def _dh_frames(model: URModel, q: np.ndarray) -> np.ndarray:
     steps[:, :, 1] = s * fixed[:, 0] + c * fixed[:, 1]
     steps[:, :, 2:] = fixed[:, 2:]
     frames = np.empty((n, 7, 4, 4))
-    frames[:, 0] = np.eye(4)
+    frames[:, 0] = _EYE4
     frames[:, 1] = steps[:, 0]
     for i in range(1, 6):
         np.matmul(frames[:, i], steps[:, i], out=frames[:, i + 1])
@@ -136,8 +137,8 @@ def _flange_motion_few(frames: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> F
     """:func:`flange_motion`'s recursion on floats, sample by sample, operation for operation as its arrays do it
     (cumulative sums in joint order)."""
     n = frames.shape[0]
-    qd = np.broadcast_to(qd, (n, 6, 1))[:, :, 0].tolist()
-    qdd = np.broadcast_to(qdd, (n, 6, 1))[:, :, 0].tolist()
+    qd = (qd if qd.shape[0] == n else np.broadcast_to(qd, (n, 6, 1)))[:, :, 0].tolist()
+    qdd = (qdd if qdd.shape[0] == n else np.broadcast_to(qdd, (n, 6, 1)))[:, :, 0].tolist()
     out = np.empty((4, n, 3))  # ω, α, v, a of the flange
     for k in range(n):
         axes, origins = frames[k, :6, :3, 2].tolist(), frames[k, :, :3, 3].tolist()

@@ -232,11 +232,12 @@ class _Stopping(Motion):
 
 
 @functools.lru_cache(maxsize=16)
-def _joint_limits(model: URModel) -> tuple[np.ndarray, np.ndarray]:
-    return np.array(model.joint_min_rad) - 1e-12, np.array(model.joint_max_rad) + 1e-12
+def _joint_limits(model: URModel) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    return (tuple((np.array(model.joint_min_rad) - 1e-12).tolist()),
+            tuple((np.array(model.joint_max_rad) + 1e-12).tolist()))
 
 
 def within_joint_limits(model: URModel, q: np.ndarray) -> bool:
     """True when every joint angle is inside the model's position limits (checked per tick while moving)."""
     low, high = _joint_limits(model)
-    return bool((q >= low).all() and (q <= high).all())
+    return all(lo <= angle <= hi for lo, angle, hi in zip(low, np.asarray(q, dtype=float).tolist(), high))

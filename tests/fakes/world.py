@@ -285,31 +285,34 @@ class JointState:
 
     def at_time(self, time_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`at` of one clock time ``time_s``: (q, q̇, q̈), each (6,), by the same arithmetic operation for
-        operation with the time's quantities as floats (the controller asks for one time per 2 ms tick)."""
+        operation, on floats (the controller asks for one time per 2 ms tick: numpy's calls cost more there)."""
         tau = min(max((time_s - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S), MAX_EXTRAPOLATION_S)
-        qd0, qdd0 = np.asarray(self.qd, dtype=float), np.asarray(self.qdd, dtype=float)
+        qd0, qdd0 = np.asarray(self.qd, dtype=float).tolist(), np.asarray(self.qdd, dtype=float).tolist()
         behind = min(tau, 0.0)
         within = max(behind, -float(self.switched_ago_s))
-        q = np.asarray(self.q, dtype=float) + (qd0 * within + 0.5 * qdd0 * (within * within))
-        qd = qd0 + qdd0 * within
+        square = within * within
+        q = [p + (v * within + 0.5 * a * square) for p, v, a in zip(np.asarray(self.q, dtype=float).tolist(), qd0, qdd0)]
+        qd = [v + a * within for v, a in zip(qd0, qdd0)]
         beyond = behind - within
-        qdd_before = np.asarray(self.qdd_before, dtype=float)
-        q = q + (qd * beyond + 0.5 * qdd_before * (beyond * beyond))
-        qd = qd + qdd_before * beyond
+        qdd_before = np.asarray(self.qdd_before, dtype=float).tolist()
+        square = beyond * beyond
+        q = [p + (v * beyond + 0.5 * a * square) for p, v, a in zip(q, qd, qdd_before)]
+        qd = [v + a * beyond for v, a in zip(qd, qdd_before)]
         qdd = qdd_before if beyond < 0.0 else qdd0
         done = 0.0
-        after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6)
+        after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6).tolist()
         for boundary, acceleration in zip([*np.asarray(self.switch_in_s, dtype=float).reshape(-1).tolist(), math.inf],
                                           [*after, None]):
             step = max(min(tau, boundary) - done, 0.0)
-            q = q + (qd * step + 0.5 * qdd * (step * step))
-            qd = qd + qdd * step
+            square = step * step
+            q = [p + (v * step + 0.5 * a * square) for p, v, a in zip(q, qd, qdd)]
+            qd = [v + a * step for v, a in zip(qd, qdd)]
             done += step
             if acceleration is None or not math.isfinite(boundary):
                 break
             if tau >= boundary:
                 qdd = acceleration
-        return q, qd, np.array(qdd)
+        return np.array(q), np.array(qd), np.array(qdd)
 
 
 class SharedPose:
@@ -418,6 +421,7 @@ class SensorPhysics:
         self._gravity_m_s2 = self.truth.gravity_base_m_s2
         self._sensor_offset = np.array(self.truth.sensor_offset_m)
         self._inertia = self.truth.inertia
+        self._ringdown_tau_s = max(float(self.truth.ringdown_time_constant_s), 1e-9)  # as ringdown() takes it
         self._constant_bias = not (any_nonzero(self._drift) or any_nonzero(self._thermal_step))
         """No drift and no thermal step: :meth:`bias_at` is the bias at every time (skipped per chunk)."""
         self._rest_load: tuple | None = None  # ((pose, contact) bytes, tool, the load through the gain) at rest
@@ -517,7 +521,8 @@ class SensorPhysics:
                     self._last_moving = None
             if self._stop is not None:
                 at, force, torque = self._stop
-                out[begin:end] = ringdown(self.truth, (times_s[begin:end] - at) * time_scale, force, torque)
+                if (times_s[begin] - at) * time_scale < RINGDOWN_SPAN * self._ringdown_tau_s:  # else rung out: 0
+                    out[begin:end] = ringdown(self.truth, (times_s[begin:end] - at) * time_scale, force, torque)
         if moving.any():
             last = int(np.flatnonzero(moving)[-1])
             if last == len(times_s) - 1:
