@@ -654,7 +654,7 @@ class NetFTBox:
         np.minimum(np.maximum(counts, INT32_MIN), INT32_MAX, out=table[:, 3:])
         self.records_produced += n
         # big-endian 32-bit words: a count's two's complement is its low 32 bits
-        return (table & UINT32_MASK).astype(">u4").view(RECORD_DTYPE).reshape(n)
+        return np.frombuffer((table & UINT32_MASK).astype(">u4"), dtype=RECORD_DTYPE)
 
     def _monitor_breached(self, counts: np.ndarray) -> bool:
         """Whether any enabled monitor condition (moncon.cgi mce/mcx/mcc/mcv, counts) is breached (lock held)."""

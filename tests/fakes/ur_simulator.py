@@ -173,6 +173,8 @@ class URSimulator:
         self.qdd = np.zeros(6)
         self.qdd_switch_in_s = np.full(3, np.inf)  # motion time until each later change of q̈, and q̈ after each
         self.qdd_next = np.zeros((3, 6))
+        self._rest_arrays: tuple[np.ndarray, ...] | None = None
+        """(q̇, q̈, q̈ after each switch, switch times) as :meth:`_at_rest` set them, while they stay unchanged."""
         self.qdd_switched_at_s = -np.inf  # clock time of the last change of q̈, and q̈ before it
         self.qdd_before = np.zeros(6)
         self.tcp_offset = np.zeros(6)
@@ -446,9 +448,18 @@ class URSimulator:
         self._path_queue.clear()
 
     def _at_rest(self) -> None:
+        rest = self._rest_arrays
+        if (rest is not None and self.qd is rest[0] and self.qdd is rest[1] and self.qdd_next is rest[2]
+                and self.qdd_switch_in_s is rest[3]):
+            return  # at rest since the last tick (these arrays are replaced, never changed in place)
         if any_nonzero(self.qdd):  # the motion ended (or stopped) since the last tick: q̈ changes to zero now
             self.qdd_switched_at_s, self.qdd_before = self._last_step_s, self.qdd
         self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros((3, 6)), np.full(3, np.inf)
+        self._rest_arrays = (self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s)
+
+    def _resting(self) -> bool:
+        """Whether q̇ is :meth:`_at_rest`'s zeros (unchanged since)."""
+        return self._rest_arrays is not None and self.qd is self._rest_arrays[0]
 
     def motion_time_scale(self) -> float:
         """Motion seconds per clock second now (the time scale times the speed slider; 0 = instant moves)."""
@@ -819,7 +830,7 @@ class URSimulator:
         return {"seq": self.tick_seq, "fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
                 "in_int": list(self.in_int), "in_dbl": list(self.in_dbl),
                 "out_bits": list(self.out_bits), "in_bits": list(self.in_bits),
-                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": flange,
+                "joint_speed_norm": 0.0 if self._resting() else float(np.linalg.norm(self.qd)), "flange_pose": flange,
                 "joint_state": state}
 
     # ------------------------------------------------------------------ control channel views
