@@ -129,7 +129,8 @@ FEW_SAMPLES = 2
 cost more than the arithmetic there."""
 
 
-def _cross3(a: list[float], b: list[float]) -> list[float]:
+def cross3(a: list[float], b: list[float]) -> list[float]:
+    """a × b of two 3-vectors given as lists of floats (the controller's one or two samples per tick)."""
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
@@ -148,13 +149,13 @@ def _flange_motion_few(frames: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> F
             joint_rate = [z[0] * rate, z[1] * rate, z[2] * rate]
             w_before = w
             w = joint_rate if w is None else [w[0] + joint_rate[0], w[1] + joint_rate[1], w[2] + joint_rate[2]]
-            carried = _cross3([w[0] - joint_rate[0], w[1] - joint_rate[1], w[2] - joint_rate[2]], joint_rate)
+            carried = cross3([w[0] - joint_rate[0], w[1] - joint_rate[1], w[2] - joint_rate[2]], joint_rate)
             term = [z[0] * acceleration + carried[0], z[1] * acceleration + carried[1], z[2] * acceleration + carried[2]]
             dw = term if w_before is None else [dw[0] + term[0], dw[1] + term[1], dw[2] + term[2]]
             o, o_next = origins[i], origins[i + 1]
             r = [o_next[0] - o[0], o_next[1] - o[1], o_next[2] - o[2]]
-            wr = _cross3(w, r)
-            dwr, wwr = _cross3(dw, r), _cross3(w, wr)
+            wr = cross3(w, r)
+            dwr, wwr = cross3(dw, r), cross3(w, wr)
             link = [dwr[0] + wwr[0], dwr[1] + wwr[1], dwr[2] + wwr[2]]
             v = wr if v is None else [v[0] + wr[0], v[1] + wr[1], v[2] + wr[2]]
             a = link if a is None else [a[0] + link[0], a[1] + link[1], a[2] + link[2]]

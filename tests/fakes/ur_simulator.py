@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics, pose_of_transform
 from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
-from tests.fakes.rigid_body import FlangeMotion, _cross3, flange_motion
+from tests.fakes.rigid_body import FlangeMotion, cross3, flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
@@ -758,7 +758,7 @@ class URSimulator:
     def _tool_motion_of(self, motion: FlangeMotion, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`tool_motion` of the first sample of a moving arm's :class:`FlangeMotion`."""
         base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
-        tcp_linear = motion.velocity_m_s[0] + _cross3(w.tolist(), (base_R_flange @ self.tcp_offset[:3]).tolist())
+        tcp_linear = motion.velocity_m_s[0] + cross3(w.tolist(), (base_R_flange @ self.tcp_offset[:3]).tolist())
         return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
 
     def joint_state(self, now: float) -> JointState:
