@@ -80,9 +80,10 @@ def _dh_steps(model: URModel) -> np.ndarray:
     return np.stack([dh_step(model, i) for i in range(6)])
 
 
-def _dh_frames(model: URModel, q: np.ndarray) -> np.ndarray:
-    """base_T_frame_i (S, 7, 4, 4), i = 0 (the base itself) .. 6: Rz(q_i) then the fixed DH step, composed (few numpy
-    calls: this runs per controller tick and per sensor chunk)."""
+def dh_frames(model: URModel, q: np.ndarray) -> np.ndarray:
+    """base_T_frame_i (S, 7, 4, 4) for configurations q (S, 6), i = 0 (the base itself) .. 6: Rz(q_i) then the fixed
+    DH step, composed (few numpy calls: this runs per controller tick and per sensor chunk); frame 6 is
+    :func:`ftacq.kinematics.forward_kinematics`'s base_T_flange, the same products in the same order."""
     n = q.shape[0]
     fixed = _dh_steps(model)  # (6, 4, 4)
     c, s = np.cos(q)[..., None], np.sin(q)[..., None]
@@ -105,7 +106,7 @@ def flange_motion(model: URModel, q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_r
     q = np.asarray(q_rad, dtype=float).reshape(-1, 6)
     qd = np.asarray(qd_rad_s, dtype=float).reshape(-1, 6, 1)
     qdd = np.asarray(qdd_rad_s2, dtype=float).reshape(-1, 6, 1)
-    frames = _dh_frames(model, q)  # (S, 7, 4, 4): the base, base_T_frame_1 .. base_T_frame_6
+    frames = dh_frames(model, q)  # (S, 7, 4, 4): the base, base_T_frame_1 .. base_T_frame_6
     if len(q) <= FEW_SAMPLES:
         return _flange_motion_few(frames, qd, qdd)
     axes = frames[:, :6, :3, 2]  # z_0 .. z_5: joint i+1 turns about z_i through o_i

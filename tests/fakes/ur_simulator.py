@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics, pose_of_transform
 from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
-from tests.fakes.rigid_body import FlangeMotion, cross3, flange_motion
+from tests.fakes.rigid_body import FlangeMotion, cross3, dh_frames, flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
@@ -502,7 +502,7 @@ class URSimulator:
             self.qdd_switch_in_s, self.qdd_next = np.full(3, np.inf), np.zeros((3, 6))
         else:
             self.qdd, self.qdd_switch_in_s, self.qdd_next = acceleration
-            if not np.array_equal(self.qdd, qdd_before):  # q̈ changed since the last tick: when, exactly
+            if not (self.qdd == qdd_before).all():  # q̈ changed since the last tick: when, exactly
                 scale = self.motion_time_scale()
                 since_s = min(switch_in_s, dt_motion) if np.isfinite(switch_in_s) else 0.0  # 0: a new move
                 self.qdd_switched_at_s = now - (dt_motion - since_s) / scale if scale > 0 else now
@@ -774,14 +774,18 @@ class URSimulator:
         state = self.joint_state(now)
         joints = self.actual_joints(now, state)
         lagging = joints[0] is not self.q
-        if self.tool_motion_outputs and (any_nonzero(joints[1]) or any_nonzero(joints[2])):
-            # moving: one kinematics call for the arm's motion and the frames of both poses (the arm's, the target's)
-            motion = flange_motion(self.model, *((np.array([actual, target]) if lagging else actual)
-                                                 for actual, target in zip(joints, (self.q, self.qd, self.qdd))))
-            frames = motion.base_T_flange
+        if any_nonzero(joints[1]) or any_nonzero(joints[2]):
+            # moving: one kinematics call for the frames of both poses (the arm's, the target's) and the arm's motion
+            if self.tool_motion_outputs:
+                motion = flange_motion(self.model, *((np.array([actual, target]) if lagging else actual)
+                                                     for actual, target in zip(joints, (self.q, self.qd, self.qdd))))
+                frames = motion.base_T_flange
+                self.tcp_speed, accelerometer = self._tool_motion_of(motion, np.array(mount_gravity_m_s2(self.mount)))
+            else:
+                frames = dh_frames(self.model, np.array([joints[0], self.q]) if lagging else joints[0][None])[:, 6]
+                self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
             target_tcp = self._poses(self.q, frames[1])[1] if lagging else None
             flange, tcp = self._poses(joints[0], frames[0])
-            self.tcp_speed, accelerometer = self._tool_motion_of(motion, np.array(mount_gravity_m_s2(self.mount)))
         else:
             target_tcp = self._poses()[1] if lagging else None
             flange, tcp = self._poses(joints[0])
