@@ -150,14 +150,14 @@ SCRIPT: dict[int, Callable[[URSimulator], None]] = {
     520: _stop(3.0),                                        # a stop mid-move: deceleration, then ring-down
     700: _set(tool_motion_outputs=True),
     800: _set(tcp_offset=np.array([0.0, 0.01, 0.12, 0.0, 0.0, 0.3])),
-    820: _move("movel", (0.05, -0.04, 0.03, 0.0, 0.0, 0.0), 0.1, 0.5),
-    1300: _set(speed_slider=0.5),                           # a slower slider: motion time runs at half rate
-    1320: _move("movej", (-0.3, 0.2, -0.2, -0.2, -0.3, -0.3), 1.0, 3.0),
-    2400: _set(speed_slider=1.0),
+    820: _move("movel", (0.02, -0.015, 0.01, 0.0, 0.0, 0.0), 0.1, 0.5),
+    1080: _set(speed_slider=0.5),                           # a slower slider: motion time runs at half rate
+    1100: _move("movej", (-0.3, 0.2, -0.2, -0.2, -0.3, -0.3), 1.0, 3.0),
+    2200: _set(speed_slider=1.0),
 }
 """Tick → command: a joint move stopped midway (part of it while no client asks for the tool's motion outputs), a
 linear move with a TCP offset, a joint move at half speed, then
-the arm at rest (still from about tick 3300: 2 s of motion time after the last change of q̈)."""
+the arm at rest (still from about tick 3100: 2 s of motion time after the last change of q̈)."""
 
 JOINT_MOVES: dict[int, Callable[[URSimulator], None]] = {
     100: _move("movej", (0.4, -0.3, 0.3, 0.3, 0.3, 0.4), 0.8, 2.0),
