@@ -1,8 +1,9 @@
 """The simulated devices' fast paths change nothing on the wire: a scripted run (tests/fakes/replay.py: a moveJ
 stopped midway with its ring-down, a moveL with a TCP offset, a moveJ at half speed) gives the same RTDE data packages
 and RDT datagrams, byte for byte, as the same run through the straightforward implementations kept here: the
-rigid-body wrench in the base frame sample by sample's formulas, the joint state stepped through every phase for
-every time, the controller's time law and poses on arrays, and the box's records assembled field by field."""
+rigid-body wrench in the base frame, the joint state stepped through every phase for every time, the controller's
+time law on arrays, each pose from its own forward kinematics and the tool's motion from its own call, new rest
+arrays every tick, and the box's records assembled field by field."""
 
 from __future__ import annotations
 
@@ -11,16 +12,17 @@ import math
 import numpy as np
 import pytest
 
-import tests.fakes.rigid_body as rigid_body
 import tests.fakes.ur_simulator as ur_simulator
 import tests.fakes.world as world
-from ftacq.kinematics import URModel, dh_transforms_batch, forward_kinematics
+from ftacq.kinematics import URModel, dh_transforms_batch, forward_kinematics, pose_of_transform
 from ftacq.kinematics.trapezoid import Trapezoid as TimeLaw
+from ftacq.so3 import rotation_from_rotvec
 from tests.fakes.netft_box import NetFTBox
 from tests.fakes.netft_protocol import INT32_MAX, INT32_MIN, RECORD_DTYPE, UINT32_MASK
 from tests.fakes.replay import SCRIPT, replay
 from tests.fakes.rigid_body import FlangeMotion
 from tests.fakes.ur_motion import Trapezoid
+from tests.fakes.ur_simulator import URSimulator, mount_gravity_m_s2
 from tests.fakes.world import MAX_EXTRAPOLATION_S, JointState
 
 TICKS = 1300
@@ -101,6 +103,49 @@ def joint_state_at(self: JointState, times_s) -> tuple[np.ndarray, np.ndarray, n
     return q, qd, qdd
 
 
+def poses(self: URSimulator, q=None) -> tuple[np.ndarray, np.ndarray]:
+    """(flange pose, TCP pose) of q from its own forward kinematics, cached as the controller caches them."""
+    q = self.q if q is None else q
+    key = (q.tobytes(), self.tcp_offset.tobytes())
+    if key not in self._pose_cache:
+        if len(self._pose_cache) >= 4:
+            self._pose_cache.clear()
+        base_T_flange = forward_kinematics(self.model, q)
+        self._pose_cache[key] = (pose_of_transform(base_T_flange), self.tcp_pose_for(q, self.tcp_offset, base_T_flange))
+    return self._pose_cache[key]
+
+
+def tool_motion(self: URSimulator, joints) -> tuple[np.ndarray, np.ndarray]:
+    """TCP speed and accelerometer of the arm at ``joints``, each from its own kinematics call."""
+    gravity = np.array(mount_gravity_m_s2(self.mount))
+    q, qd, qdd = joints
+    if not (np.any(qd) or np.any(qdd)):
+        return np.zeros(6), rotation_from_rotvec(poses(self, q)[0][3:6]).T @ -gravity
+    motion = flange_motion(self.model, q, qd, qdd)
+    base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
+    tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
+    return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
+
+
+def tick_kinematics(self: URSimulator, joints):
+    """The tick's poses (target's, arm's) and tool motion, each computed on its own."""
+    target_tcp = poses(self)[1] if joints[0] is not self.q else None
+    flange, tcp = poses(self, joints[0])
+    self.tcp_speed, accelerometer = tool_motion(self, joints) if self.tool_motion_outputs else (np.zeros(6), np.zeros(3))
+    return flange, tcp, tcp if target_tcp is None else target_tcp, accelerometer
+
+
+def at_rest(self: URSimulator) -> None:
+    """Zero q̇ and q̈ every tick at rest (new arrays), noting when q̈ changed to zero."""
+    if np.any(self.qdd):
+        self.qdd_switched_at_s, self.qdd_before = self._last_step_s, self.qdd
+    self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros((3, 6)), np.full(3, np.inf)
+
+
+def within_joint_limits(model: URModel, q) -> bool:
+    return bool((q >= np.array(model.joint_min_rad) - 1e-12).all() and (q <= np.array(model.joint_max_rad) + 1e-12).all())
+
+
 def produce(self: NetFTBox, n: int) -> np.ndarray:
     """The box's records, field by field."""
     records = np.zeros(n, dtype=RECORD_DTYPE)
@@ -139,7 +184,10 @@ def test_the_script_moves_stops_and_rings(fast):
 
 
 def test_fast_paths_put_the_same_bytes_on_the_wire(fast, monkeypatch):
-    monkeypatch.setattr(ur_simulator, "flange_motion", flange_motion)
+    monkeypatch.setattr(URSimulator, "_tick_kinematics", tick_kinematics)
+    monkeypatch.setattr(URSimulator, "_at_rest", at_rest)
+    monkeypatch.setattr(URSimulator, "_resting", lambda self: False)
+    monkeypatch.setattr(ur_simulator, "within_joint_limits", within_joint_limits)
     monkeypatch.setattr(world.SensorPhysics, "tool_wrench", tool_wrench)
     monkeypatch.setattr(JointState, "at", joint_state_at)
     monkeypatch.setattr(JointState, "at_time", lambda self, t: tuple(v[0] for v in joint_state_at(self, np.array([t]))))
@@ -151,4 +199,3 @@ def test_fast_paths_put_the_same_bytes_on_the_wire(fast, monkeypatch):
     assert fast.packages == reference.packages
     assert len(fast.datagrams) == len(reference.datagrams)
     assert fast.datagrams == reference.datagrams
-    assert rigid_body.flange_motion is not flange_motion  # the fast run used the fakes' own

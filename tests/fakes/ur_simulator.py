@@ -770,9 +770,10 @@ class URSimulator:
                           self.qdd_switch_in_s.copy(), self.qdd_next.copy(),
                           max(now - self.qdd_switched_at_s, 0.0) * scale, self.qdd_before.copy())
 
-    def snapshot(self, now: float, dt: float) -> dict:
-        state = self.joint_state(now)
-        joints = self.actual_joints(now, state)
+    def _tick_kinematics(self, joints: tuple[np.ndarray, np.ndarray, np.ndarray]
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(flange pose, TCP pose, target TCP pose, tool accelerometer) of a tick whose physical arm is at ``joints``;
+        sets :attr:`tcp_speed`."""
         lagging = joints[0] is not self.q
         if any_nonzero(joints[1]) or any_nonzero(joints[2]):
             # moving: one kinematics call for the frames of both poses (the arm's, the target's) and the arm's motion
@@ -795,6 +796,12 @@ class URSimulator:
                 self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
         if target_tcp is None:
             target_tcp = tcp
+        return flange, tcp, target_tcp, accelerometer
+
+    def snapshot(self, now: float, dt: float) -> dict:
+        state = self.joint_state(now)
+        joints = self.actual_joints(now, state)
+        flange, tcp, target_tcp, accelerometer = self._tick_kinematics(joints)
         q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
         actual_q, actual_qd = tuple(joints[0].tolist()), tuple(joints[1].tolist())
         if self.encoder_noise_rad > 0.0:  # the encoders' jitter: reported angles only
