@@ -22,6 +22,10 @@ each of its own sample times: the controller publishes, each 2 ms tick, q, q̇, 
 acceleration) motion profile and when q̈ changes next; the sensor extrapolates exactly within that.
 With a time scale s ≠ 1 the simulated cell is a time-lapse of a real-time cell: motion time runs s times as fast
 as the clocks, and the physics (and the controller's reported q̇, q̈) are those of the real-time motion.
+
+Over 500 lines because the truth, the published joint state and the sensor's physics are read together per sample
+chunk; the rigid-body maths is apart (rigid_body.py). :meth:`JointState.at` and :meth:`JointState.at_time` (per
+chunk, per tick) are written for speed; tests/test_fakes_replay.py checks them against the plain stepping.
 """
 
 from __future__ import annotations
