@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/fakes_cpu.py               # 8 s per phase
     .venv/bin/python benchmarks/fakes_cpu.py --seconds 4   # shorter
+    .venv/bin/python benchmarks/fakes_cpu.py --replay      # the devices' own work, CPU-s per simulated s
 
 One :class:`tests.fakes.cell.SimulatedCell` with the Net F/T in its own process (``sensor_process=True``, the
 default clocks: bursts, jitter, crystal errors) and the controller in its own (real time, servo lag, encoder
@@ -13,6 +14,11 @@ process's user + system time over the phase (``/proc/PID/stat``) as % of one cor
 
 Phases: **idle** (clients connected, arm still, box not streaming), **streaming** (the box at 7 kHz, arm still),
 **moving** (the box at 7 kHz while the arm jogs back and forth between two configurations, 0.8 rad/s, 2 rad/s²).
+
+``--replay``: no processes, sockets or clients: :func:`tests.fakes.replay.replay` steps the controller and polls the
+box on a scripted clock (moveJs and a stop, :data:`tests.fakes.replay.JOINT_MOVES`) and reports each device's thread
+CPU per simulated second, still and moving (the best of ``--rounds``): what the simulation itself costs, which a
+loaded machine disturbs least.
 """
 
 from __future__ import annotations
@@ -59,10 +65,29 @@ def measure(pids: dict[str, int], seconds: float, work=None) -> dict[str, float]
     return out
 
 
+def replay_figures(rounds: int) -> int:
+    """Print each device's CPU-s per simulated second, still and moving, the best of ``rounds`` replays."""
+    from tests.fakes.replay import JOINT_MOVES, replay
+
+    best: dict[tuple[str, str], float] = {}
+    for _ in range(rounds):
+        for key, value in replay(script=JOINT_MOVES).cpu_per_simulated_s().items():
+            best[key] = min(best.get(key, value), value)
+    print(f"{'device':<11} {'still':>7} {'moving':>7}  (CPU-s per simulated s, best of {rounds})")
+    for device in ("controller", "netft"):
+        print(f"{device:<11} {best[device, 'still']:>7.3f} {best[device, 'moving']:>7.3f}")
+    print(f"load average {os.getloadavg()[0]:.2f}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=8.0, help="length of each phase, s")
+    parser.add_argument("--replay", action="store_true", help="the scripted replay instead of the processes")
+    parser.add_argument("--rounds", type=int, default=3, help="replays (--replay); the best of them is shown")
     args = parser.parse_args(argv)
+    if args.replay:
+        return replay_figures(args.rounds)
 
     import rtde_control
     import rtde_receive

@@ -617,37 +617,44 @@ class NetFTBox:
         return np.minimum(np.maximum(np.rint(wrench_si * self._si_to_counts), INT32_MIN), INT32_MAX).astype(np.int64)
 
     def _produce(self, n: int) -> np.ndarray:
-        """Return n records (structured array) and advance the sequences (lock held)."""
-        records = np.zeros(n, dtype=RECORD_DTYPE)
-        index = self._stream_k0 + (self._stream_done + np.arange(n, dtype=np.int64)) * self._ft_step
+        """Return n records (structured array) and advance the sequences (lock held). The records are built as
+        one (n, 9) integer table (few numpy calls: this runs per burst)."""
+        step = self._ft_step
+        first_index = self._stream_k0 + self._stream_done * step  # internal sample numbers: first + k × step
         if self._restart_requested:  # a power cycle mid-stream: the next record is the box's sample 1 × step
             self._restart_requested = False
             self._rdt_sequence, self._ft_sequence = 0, 0
-            self._last_index = int(index[0]) - self._ft_step
-        rdt = (self._rdt_sequence + 1 + np.arange(n, dtype=np.int64)) & UINT32_MASK
-        steps = np.full(n, self._ft_step, dtype=np.int64)  # internal samples since the previous record
-        steps[0] = index[0] - self._last_index
-        self._last_index = int(index[-1])
+            self._last_index = first_index - step
+        table = np.empty((n, 9), dtype=np.int64)  # rdt_sequence, ft_sequence, status, counts (6)
+        table[:, 0] = np.arange(self._rdt_sequence + 1, self._rdt_sequence + 1 + n, dtype=np.int64)
+        first_step = first_index - self._last_index  # internal samples since the previous record
+        self._last_index = first_index + (n - 1) * step
         if self._stall_remaining:
+            steps = np.full(n, step, dtype=np.int64)
+            steps[0] = first_step
             stalled = min(self._stall_remaining, n)
             steps[:stalled] = 0
             self._stall_remaining -= stalled
-        ft = (self._ft_sequence + np.cumsum(steps)) & UINT32_MASK
-        self._rdt_sequence, self._ft_sequence = int(rdt[-1]), int(ft[-1])
+            table[:, 1] = self._ft_sequence + np.cumsum(steps)
+        else:  # the cumulative sum of (first_step, step, step, ...)
+            table[:, 1] = np.arange(self._ft_sequence + first_step, self._ft_sequence + first_step + n * step, step,
+                                    dtype=np.int64)
+        table[:, :2] &= UINT32_MASK
+        self._rdt_sequence, self._ft_sequence = int(table[-1, 0]), int(table[-1, 1])
         due_s = self._due_s(self._stream_done) if self._target is not None else None
         counts = self._raw_counts(self._draw(n, due_s)) - self._bias_counts
         self._last_counts = counts[-1] + self._bias_counts
         if self._settings["setmce"] and not self._latched and self._monitor_breached(counts):
             self._latched = True  # the status of these records already went out without the latch: next ones
-        status = np.full(n, self._status_now(), dtype=np.int64)
+        table[:, 2] = self._status_now()
         if self._status_remaining is not None and self._status_remaining > 0:
             flagged = min(self._status_remaining, n)
             self._status_remaining -= flagged
-            status[flagged:] = self._status_now()  # the knob bits end after `flagged` records
-        records["rdt_sequence"], records["ft_sequence"], records["status"] = rdt, ft, status
-        records["counts"] = np.minimum(np.maximum(counts, INT32_MIN), INT32_MAX)
+            table[flagged:, 2] = self._status_now()  # the knob bits end after `flagged` records
+        np.minimum(np.maximum(counts, INT32_MIN), INT32_MAX, out=table[:, 3:])
         self.records_produced += n
-        return records
+        # big-endian 32-bit words: a count's two's complement is its low 32 bits
+        return np.frombuffer((table & UINT32_MASK).astype(">u4"), dtype=RECORD_DTYPE)
 
     def _monitor_breached(self, counts: np.ndarray) -> bool:
         """Whether any enabled monitor condition (moncon.cgi mce/mcx/mcc/mcv, counts) is breached (lock held)."""

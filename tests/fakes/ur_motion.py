@@ -28,7 +28,46 @@ IK_STEP_LIMIT_RAD = 0.5
 
 class Trapezoid(TimeLaw):
     """The controller's time law (:class:`ftacq.kinematics.trapezoid.Trapezoid`, the planner's too) and when its
-    acceleration changes next (the simulated controller steps from switch to switch)."""
+    acceleration changes next (the simulated controller steps from switch to switch).
+
+    A time given as a Python float is evaluated with floats (the controller asks for one time per 2 ms tick): the
+    base class's arithmetic, operation for operation, without its arrays (tests/test_fakes_replay.py)."""
+
+    def position(self, t):
+        if type(t) is not float:
+            return super().position(t)
+        a, v0, peak, t_acc, t_cruise = (self.acceleration, self.initial_speed, self.peak_speed, self.accelerate_s,
+                                        self.cruise_s)
+        t = min(max(t, 0.0), self.duration_s)
+        s_acc = v0 * t_acc + 0.5 * a * t_acc ** 2
+        if t <= t_acc:
+            return float(v0 * t + 0.5 * a * t * t)
+        if t <= t_acc + t_cruise:
+            return float(s_acc + peak * (t - t_acc))
+        td = t - t_acc - t_cruise
+        return float(s_acc + peak * t_cruise + peak * td - 0.5 * a * td * td)
+
+    def speed_at(self, t):
+        if type(t) is not float:
+            return super().speed_at(t)
+        if t < 0.0 or t >= self.duration_s:
+            return 0.0
+        a, v0, peak, t_acc, t_cruise = (self.acceleration, self.initial_speed, self.peak_speed, self.accelerate_s,
+                                        self.cruise_s)
+        if t <= t_acc:
+            return float(v0 + a * t)
+        if t <= t_acc + t_cruise:
+            return float(peak)
+        return float(max(peak - a * (t - t_acc - t_cruise), 0.0))
+
+    def acceleration_at(self, t):
+        if type(t) is not float:
+            return super().acceleration_at(t)
+        if t < 0.0 or t >= self.duration_s or self.peak_speed <= 0.0:
+            return 0.0
+        if t < self.accelerate_s:
+            return float(self.acceleration)
+        return 0.0 if t < self.accelerate_s + self.cruise_s else float(-self.acceleration)
 
     def switches(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Return (times from t to each later change of acceleration (3,), the acceleration after each (3,)),
@@ -193,11 +232,12 @@ class _Stopping(Motion):
 
 
 @functools.lru_cache(maxsize=16)
-def _joint_limits(model: URModel) -> tuple[np.ndarray, np.ndarray]:
-    return np.array(model.joint_min_rad) - 1e-12, np.array(model.joint_max_rad) + 1e-12
+def _joint_limits(model: URModel) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    return (tuple((np.array(model.joint_min_rad) - 1e-12).tolist()),
+            tuple((np.array(model.joint_max_rad) + 1e-12).tolist()))
 
 
 def within_joint_limits(model: URModel, q: np.ndarray) -> bool:
     """True when every joint angle is inside the model's position limits (checked per tick while moving)."""
     low, high = _joint_limits(model)
-    return bool((q >= low).all() and (q <= high).all())
+    return all(lo <= angle <= hi for lo, angle, hi in zip(low, np.asarray(q, dtype=float).tolist(), high))

@@ -26,7 +26,7 @@ import numpy as np
 from ftacq.kinematics import URModel, flange_pose, forward_kinematics, pose_of_transform
 from ftacq.mounts import mount_of
 from ftacq.so3 import rotation_from_rotvec, rotvec_from_rotation
-from tests.fakes.rigid_body import flange_motion
+from tests.fakes.rigid_body import FlangeMotion, cross3, dh_frames, flange_motion
 from tests.fakes.rtde_protocol import REGISTER_COUNT
 from tests.fakes.ur_external_ft import ExternalFTInput
 from tests.fakes.ur_motion import JointMove, LinearMove, Motion, joint_positions_for_pose, within_joint_limits
@@ -178,6 +178,8 @@ class URSimulator:
         self.qdd = np.zeros(6)
         self.qdd_switch_in_s = np.full(3, np.inf)  # motion time until each later change of q̈, and q̈ after each
         self.qdd_next = np.zeros((3, 6))
+        self._rest_arrays: tuple[np.ndarray, ...] | None = None
+        """(q̇, q̈, q̈ after each switch, switch times) as :meth:`_at_rest` set them, while they stay unchanged."""
         self.qdd_switched_at_s = -np.inf  # clock time of the last change of q̈, and q̈ before it
         self.qdd_before = np.zeros(6)
         self.tcp_offset = np.zeros(6)
@@ -451,9 +453,18 @@ class URSimulator:
         self._path_queue.clear()
 
     def _at_rest(self) -> None:
+        rest = self._rest_arrays
+        if (rest is not None and self.qd is rest[0] and self.qdd is rest[1] and self.qdd_next is rest[2]
+                and self.qdd_switch_in_s is rest[3]):
+            return  # at rest since the last tick (these arrays are replaced, never changed in place)
         if any_nonzero(self.qdd):  # the motion ended (or stopped) since the last tick: q̈ changes to zero now
             self.qdd_switched_at_s, self.qdd_before = self._last_step_s, self.qdd
         self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s = np.zeros(6), np.zeros(6), np.zeros((3, 6)), np.full(3, np.inf)
+        self._rest_arrays = (self.qd, self.qdd, self.qdd_next, self.qdd_switch_in_s)
+
+    def _resting(self) -> bool:
+        """Whether q̇ is :meth:`_at_rest`'s zeros (unchanged since)."""
+        return self._rest_arrays is not None and self.qd is self._rest_arrays[0]
 
     def motion_time_scale(self) -> float:
         """Motion seconds per clock second now (the time scale times the speed slider; 0 = instant moves)."""
@@ -496,7 +507,7 @@ class URSimulator:
             self.qdd_switch_in_s, self.qdd_next = np.full(3, np.inf), np.zeros((3, 6))
         else:
             self.qdd, self.qdd_switch_in_s, self.qdd_next = acceleration
-            if not np.array_equal(self.qdd, qdd_before):  # q̈ changed since the last tick: when, exactly
+            if not (self.qdd == qdd_before).all():  # q̈ changed since the last tick: when, exactly
                 scale = self.motion_time_scale()
                 since_s = min(switch_in_s, dt_motion) if np.isfinite(switch_in_s) else 0.0  # 0: a new move
                 self.qdd_switched_at_s = now - (dt_motion - since_s) / scale if scale > 0 else now
@@ -703,18 +714,22 @@ class URSimulator:
             self._halt_motion()
             self.runtime_state = RUNTIME_PAUSED
 
-    def _poses(self, q: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _poses(self, q: np.ndarray | None = None, base_T_flange: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """(flange pose, TCP pose) of ``q`` (default the target's), cached while q and the TCP offset do not
-        change."""
+        change. ``base_T_flange``: q's, if the caller has it (:func:`flange_motion`'s frames, which are
+        :func:`forward_kinematics`'s: the same products in the same order)."""
         q = self.q if q is None else q
         key = (q.tobytes(), self.tcp_offset.tobytes())
         poses = self._pose_cache.get(key)
         if poses is None:
             if len(self._pose_cache) >= 4:
                 self._pose_cache.clear()
-            base_T_flange = forward_kinematics(self.model, q)
-            poses = self._pose_cache[key] = (pose_of_transform(base_T_flange),
-                                             self.tcp_pose_for(q, self.tcp_offset, base_T_flange))
+            if base_T_flange is None:
+                base_T_flange = forward_kinematics(self.model, q)
+            flange = pose_of_transform(base_T_flange)
+            tcp = self.tcp_pose_for(q, self.tcp_offset, base_T_flange) if any_nonzero(self.tcp_offset) else flange
+            poses = self._pose_cache[key] = (flange, tcp)
         return poses
 
     def actual_joints(self, now: float, state: JointState | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -726,8 +741,7 @@ class URSimulator:
         state = self.joint_state(now) if state is None else state
         if state.at_rest:
             return self.q, self.qd, self.qdd
-        q, qd, qdd = state.at(np.array([now]))
-        return q[0], qd[0], qdd[0]
+        return state.at_time(now)
 
     def tool_motion(self, joints: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -744,9 +758,12 @@ class URSimulator:
                 base_R_flange = rotation_from_rotvec(self._poses(q)[0][3:6])
                 self._rest_accelerometer = (key, base_R_flange.T @ -gravity)
             return np.zeros(6), self._rest_accelerometer[1].copy()
-        motion = flange_motion(self.model, q, qd, qdd)
+        return self._tool_motion_of(flange_motion(self.model, q, qd, qdd), gravity)
+
+    def _tool_motion_of(self, motion: FlangeMotion, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`tool_motion` of the first sample of a moving arm's :class:`FlangeMotion`."""
         base_R_flange, w = motion.base_R_flange[0], motion.angular_velocity_rad_s[0]
-        tcp_linear = motion.velocity_m_s[0] + np.cross(w, base_R_flange @ self.tcp_offset[:3])
+        tcp_linear = motion.velocity_m_s[0] + cross3(w.tolist(), (base_R_flange @ self.tcp_offset[:3]).tolist())
         return np.concatenate([tcp_linear, w]), base_R_flange.T @ (motion.acceleration_m_s2[0] - gravity)
 
     def joint_state(self, now: float) -> JointState:
@@ -758,18 +775,38 @@ class URSimulator:
                           self.qdd_switch_in_s.copy(), self.qdd_next.copy(),
                           max(now - self.qdd_switched_at_s, 0.0) * scale, self.qdd_before.copy())
 
+    def _tick_kinematics(self, joints: tuple[np.ndarray, np.ndarray, np.ndarray]
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(flange pose, TCP pose, target TCP pose, tool accelerometer) of a tick whose physical arm is at ``joints``;
+        sets :attr:`tcp_speed`."""
+        lagging = joints[0] is not self.q
+        if any_nonzero(joints[1]) or any_nonzero(joints[2]):
+            # moving: one kinematics call for the frames of both poses (the arm's, the target's) and the arm's motion
+            if self.tool_motion_outputs:
+                motion = flange_motion(self.model, *((np.array([actual, target]) if lagging else actual)
+                                                     for actual, target in zip(joints, (self.q, self.qd, self.qdd))))
+                frames = motion.base_T_flange
+                self.tcp_speed, accelerometer = self._tool_motion_of(motion, np.array(mount_gravity_m_s2(self.mount)))
+            else:
+                frames = dh_frames(self.model, np.array([joints[0], self.q]) if lagging else joints[0][None])[:, 6]
+                self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
+            target_tcp = self._poses(self.q, frames[1])[1] if lagging else None
+            flange, tcp = self._poses(joints[0], frames[0])
+        else:
+            target_tcp = self._poses()[1] if lagging else None
+            flange, tcp = self._poses(joints[0])
+            if self.tool_motion_outputs:
+                self.tcp_speed, accelerometer = self.tool_motion(joints)
+            else:
+                self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
+        if target_tcp is None:
+            target_tcp = tcp
+        return flange, tcp, target_tcp, accelerometer
+
     def snapshot(self, now: float, dt: float) -> dict:
         state = self.joint_state(now)
         joints = self.actual_joints(now, state)
-        lagging = joints[0] is not self.q
-        target_tcp = self._poses()[1] if lagging else None
-        flange, tcp = self._poses(joints[0])
-        if target_tcp is None:
-            target_tcp = tcp
-        if self.tool_motion_outputs:
-            self.tcp_speed, accelerometer = self.tool_motion(joints)
-        else:
-            self.tcp_speed, accelerometer = np.zeros(6), np.zeros(3)
+        flange, tcp, target_tcp, accelerometer = self._tick_kinematics(joints)
         q, qd, qdd = tuple(self.q.tolist()), tuple(self.qd.tolist()), tuple(self.qdd.tolist())
         actual_q, actual_qd = tuple(joints[0].tolist()), tuple(joints[1].tolist())
         if self.encoder_noise_rad > 0.0:  # the encoders' jitter: reported angles only
@@ -809,7 +846,7 @@ class URSimulator:
         return {"seq": self.tick_seq, "fields": fields, "out_int": list(self.out_int), "out_dbl": list(self.out_dbl),
                 "in_int": list(self.in_int), "in_dbl": list(self.in_dbl),
                 "out_bits": list(self.out_bits), "in_bits": list(self.in_bits),
-                "joint_speed_norm": float(np.linalg.norm(self.qd)), "flange_pose": flange,
+                "joint_speed_norm": 0.0 if self._resting() else float(np.linalg.norm(self.qd)), "flange_pose": flange,
                 "joint_state": state}
 
     # ------------------------------------------------------------------ control channel views

@@ -22,6 +22,10 @@ each of its own sample times: the controller publishes, each 2 ms tick, q, q̇, 
 acceleration) motion profile and when q̈ changes next; the sensor extrapolates exactly within that.
 With a time scale s ≠ 1 the simulated cell is a time-lapse of a real-time cell: motion time runs s times as fast
 as the clocks, and the physics (and the controller's reported q̇, q̈) are those of the real-time motion.
+
+Over 500 lines because the truth, the published joint state and the sensor's physics are read together per sample
+chunk; the rigid-body maths is apart (rigid_body.py). :meth:`JointState.at` and :meth:`JointState.at_time` (per
+chunk, per tick) are written for speed; tests/test_fakes_replay.py checks them against the plain stepping.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from ftacq import STANDARD_GRAVITY_M_S2
 from ftacq.calibration import Calibration
 from ftacq.kinematics import URModel
 from ftacq.so3 import rotation_from_rotvec, rotation_zyx_deg
-from tests.fakes.rigid_body import flange_motion, tool_wrench_on_sensor
+from tests.fakes.rigid_body import ToolOnSensor, flange_motion
 
 TIMELINE_SLACK_S, TIMELINE_GAP_S = 0.01, 1.0
 """A stream's next chunk continues the sample timeline when drawn at most this early or this late (s)."""
@@ -249,8 +253,9 @@ class JointState:
         """Return (q, q̇, q̈), each (S, 6), at clock times ``times_s`` (S,): exact for the piecewise constant q̈
         of the controller's profiles (ahead of the stamp through every change of q̈; behind it through the current
         phase and the one before; at most :data:`MAX_EXTRAPOLATION_S` either way)."""
-        # few numpy calls (this runs per tick of the controller and per sample chunk of the sensor); the same
-        # arithmetic, operation for operation, as stepping (S, 6) copies of q, q̇, q̈ in place
+        # few numpy calls (this runs per sample chunk of the sensor); the same arithmetic, operation for operation,
+        # as stepping (S, 6) copies of q, q̇, q̈ in place, less the steps that are zero for every sample (they add
+        # nothing but the sign of a zero)
         tau = np.maximum((np.asarray(times_s, dtype=float) - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S)
         tau = np.minimum(tau, MAX_EXTRAPOLATION_S)[:, None]
         qd0, qdd0 = np.asarray(self.qd, dtype=float), np.asarray(self.qdd, dtype=float)
@@ -259,10 +264,16 @@ class JointState:
         q = np.asarray(self.q, dtype=float) + (qd0 * within + 0.5 * qdd0 * within ** 2)
         qd = qd0 + qdd0 * within
         beyond = behind - within
-        qdd_before = np.asarray(self.qdd_before, dtype=float)
-        q += qd * beyond + 0.5 * qdd_before * beyond ** 2
-        qd += qdd_before * beyond
-        qdd = np.where(beyond < 0.0, qdd_before, qdd0)
+        if beyond.min() < 0.0:  # samples before the last change of q̈
+            qdd_before = np.asarray(self.qdd_before, dtype=float)
+            q += qd * beyond + 0.5 * qdd_before * beyond ** 2
+            qd += qdd_before * beyond
+            qdd = np.where(beyond < 0.0, qdd_before, qdd0)
+        else:
+            qdd = np.repeat(qdd0[None], len(q), axis=0)
+        latest = float(tau.max())
+        if latest <= 0.0:  # no sample after the stamp
+            return q, qd, qdd
         done = np.zeros_like(tau)
         after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6)
         for boundary, acceleration in zip([*np.asarray(self.switch_in_s, dtype=float).reshape(-1).tolist(), math.inf],
@@ -271,10 +282,41 @@ class JointState:
             q += qd * step + 0.5 * qdd * step ** 2
             qd += qdd * step
             done += step
-            if acceleration is None or not math.isfinite(boundary):
+            if acceleration is None or not math.isfinite(boundary) or boundary > latest:
                 break
             qdd = np.where(tau >= boundary, acceleration, qdd)
         return q, qd, qdd
+
+    def at_time(self, time_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`at` of one clock time ``time_s``: (q, q̇, q̈), each (6,), by the same arithmetic operation for
+        operation, on floats (the controller asks for one time per 2 ms tick: numpy's calls cost more there)."""
+        tau = min(max((time_s - self.stamp_s) * self.time_scale, -MAX_EXTRAPOLATION_S), MAX_EXTRAPOLATION_S)
+        qd0, qdd0 = np.asarray(self.qd, dtype=float).tolist(), np.asarray(self.qdd, dtype=float).tolist()
+        behind = min(tau, 0.0)
+        within = max(behind, -float(self.switched_ago_s))
+        square = within * within
+        q = [p + (v * within + 0.5 * a * square) for p, v, a in zip(np.asarray(self.q, dtype=float).tolist(), qd0, qdd0)]
+        qd = [v + a * within for v, a in zip(qd0, qdd0)]
+        beyond = behind - within
+        qdd_before = np.asarray(self.qdd_before, dtype=float).tolist()
+        square = beyond * beyond
+        q = [p + (v * beyond + 0.5 * a * square) for p, v, a in zip(q, qd, qdd_before)]
+        qd = [v + a * beyond for v, a in zip(qd, qdd_before)]
+        qdd = qdd_before if beyond < 0.0 else qdd0
+        done = 0.0
+        after = np.asarray(self.qdd_next, dtype=float).reshape(-1, 6).tolist()
+        for boundary, acceleration in zip([*np.asarray(self.switch_in_s, dtype=float).reshape(-1).tolist(), math.inf],
+                                          [*after, None]):
+            step = max(min(tau, boundary) - done, 0.0)
+            square = step * step
+            q = [p + (v * step + 0.5 * a * square) for p, v, a in zip(q, qd, qdd)]
+            qd = [v + a * step for v, a in zip(qd, qdd)]
+            done += step
+            if acceleration is None or not math.isfinite(boundary):
+                break
+            if tau >= boundary:
+                qdd = acceleration
+        return np.array(q), np.array(qd), np.array(qdd)
 
 
 class SharedPose:
@@ -383,6 +425,9 @@ class SensorPhysics:
         self._gravity_m_s2 = self.truth.gravity_base_m_s2
         self._sensor_offset = np.array(self.truth.sensor_offset_m)
         self._inertia = self.truth.inertia
+        self._ringdown_tau_s = max(float(self.truth.ringdown_time_constant_s), 1e-9)  # as ringdown() takes it
+        self._constant_bias = not (any_nonzero(self._drift) or any_nonzero(self._thermal_step))
+        """No drift and no thermal step: :meth:`bias_at` is the bias at every time (skipped per chunk)."""
         self._rest_load: tuple | None = None  # ((pose, contact) bytes, tool, the load through the gain) at rest
         self.set_tool(self.truth.mass_kg, self.truth.center_of_mass_m)
         self._next_sample_s: float | None = None
@@ -406,7 +451,9 @@ class SensorPhysics:
         """Put another tool on the sensor (mass kg, centre of mass m in the sensor frame) without telling anyone:
         every later sample follows it. ``set_tool(truth.mass_kg, truth.center_of_mass_m)`` puts the true one back."""
         gravity_base = gravity_base_from_tilt(float(mass_kg), *self.truth.base_tilt_deg)
-        self._tool = (float(mass_kg), gravity_base, np.array(center_of_mass_m, dtype=float).reshape(3))  # atomic
+        com = np.array(center_of_mass_m, dtype=float).reshape(3)
+        self._tool = (float(mass_kg), gravity_base, com,  # atomic
+                      ToolOnSensor.of(self._sensor_rotation, self._sensor_offset, float(mass_kg), com, self._inertia))
 
     def bias_at(self, elapsed_s):
         """Return the true biases [N, N·m] ``elapsed_s`` seconds after start (a float: (6,); an (S, 1) array:
@@ -426,7 +473,7 @@ class SensorPhysics:
         cached = self._rest_load
         key = (pose.tobytes(), np.asarray(contact).tobytes())
         if cached is None or cached[0] != key or cached[1] is not tool:
-            _mass, gravity_base, com = tool
+            _mass, gravity_base, com, _wrench = tool
             base_R_flange = rotation_from_rotvec(pose[3:6])
             gravity_sensor = self._sensor_rotation @ (base_R_flange.T @ gravity_base)
             torque = np.cross(com, gravity_sensor)
@@ -438,15 +485,20 @@ class SensorPhysics:
         """Return the wrench (S, 6) of the moving tool alone (gravity and inertia; no bias, drift, contact, noise)."""
         if self.robot is None:
             raise ValueError("the tool's inertial wrench needs the robot model (SensorPhysics.robot)")
-        mass, _gravity_base, com = self._tool  # the tool on the sensor now (set_tool)
-        return tool_wrench_on_sensor(flange_motion(self.robot, q, qd, qdd), self._gravity_m_s2,
-                                     self._sensor_rotation, self._sensor_offset, mass, com, self._inertia)
+        tool = self._tool[3]  # the tool on the sensor now (set_tool)
+        return tool.wrench(flange_motion(self.robot, q, qd, qdd), self._gravity_m_s2)
 
     def noiseless_wrench_moving(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                                 elapsed_s: np.ndarray | float = 0.0) -> np.ndarray:
         """Return the wrench (S, 6) without noise for joint states (S, 6) at ``elapsed_s`` after start (drift)."""
-        elapsed = np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1))
-        return (self.tool_wrench(q, qd, qdd) + self.contact_wrench) @ self._gain_t + self.bias_at(elapsed)
+        load = self.tool_wrench(q, qd, qdd)
+        if any_nonzero(self.contact_wrench):  # adding zeros or multiplying by I changes nothing (but a zero's sign)
+            load = load + self.contact_wrench
+        if self.truth.sensor_gain_error is not None:
+            load = load @ self._gain_t
+        if self._constant_bias:
+            return load + self._bias
+        return load + self.bias_at(np.reshape(np.asarray(elapsed_s, dtype=float), (-1, 1)))
 
     def ringdown_at(self, times_s: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                     time_scale: float = 1.0) -> np.ndarray:
@@ -473,7 +525,8 @@ class SensorPhysics:
                     self._last_moving = None
             if self._stop is not None:
                 at, force, torque = self._stop
-                out[begin:end] = ringdown(self.truth, (times_s[begin:end] - at) * time_scale, force, torque)
+                if (times_s[begin] - at) * time_scale < RINGDOWN_SPAN * self._ringdown_tau_s:  # else rung out: 0
+                    out[begin:end] = ringdown(self.truth, (times_s[begin:end] - at) * time_scale, force, torque)
         if moving.any():
             last = int(np.flatnonzero(moving)[-1])
             if last == len(times_s) - 1:
@@ -502,8 +555,8 @@ class SensorPhysics:
             self._last_moving = None
             bias = self.bias_at(elapsed)
             mean = self._load_at_rest(pose) + bias  # noiseless_wrench(pose, elapsed)
-            if start_time_s is not None:  # the drift at each sample's own time
-                mean = mean - bias + self.bias_at((times - self.start_time_s)[:, None])
+            if start_time_s is not None:  # the drift at each sample's own time (the same for all without drift)
+                mean = mean - bias + (bias if self._constant_bias else self.bias_at((times - self.start_time_s)[:, None]))
         else:
             q, qd, qdd = state.at(times)
             mean = self.noiseless_wrench_moving(q, qd, qdd, times - self.start_time_s)
