@@ -6,12 +6,13 @@ steps, and what a timing error costs (issue 27). No sockets, no clocks: exact ti
 (``--state-period-s 0.008``: a CB3's 125 Hz states instead of the e-Series' 2 ms.)
 
 The simulated arm's q̈ is the moveJ trapezoid's (tests/fakes/ur_motion.py), with steps at any instant, and the
-simulated sensor follows it exactly; the live compensator (procedures/dynamic_compensation.py) evaluates the model
-at each 2 ms state (q, q̇, target q̈) and interpolates linearly onto the samples. Per move of the live benchmark's
+simulated sensor follows it exactly; the model is evaluated at each 2 ms state (q, q̇, target q̈) and interpolated
+linearly onto the samples. Per move of the live benchmark's
 jog (tests/fakes/jog.py targets, 1 rad/s, 2 rad/s², the 4.2 kg tool of benchmarks/dynamics_live.py): RMS per
 component of (interpolated − true) at 7 kHz; the same with the step located from the velocity change
 (q̇ₖ₊₁ − q̇ₖ = q̈ₖ τ + q̈ₖ₊₁ (Δ − τ), least squares over the joints) and the prediction's q̈-linear part switched
-there; and the error of a prediction shifted by 0.5, 1, 2 ms.
+there, as the live compensator does (procedures/dynamic_compensation.py, ftacq.dynamics.acceleration); and the
+error of a prediction shifted by 0.5, 1, 2 ms.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ def rms_per_component(error: np.ndarray) -> tuple[float, float]:
 
 def main(moves: int, seed: int, state_period_s: float = STATE_PERIOD_S) -> int:
     from benchmarks.dynamics_live import heavy_truth
+    from ftacq.dynamics.acceleration import acceleration_steps, step_shape
     from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
     from ftacq.dynamics.timing import interpolate_rows
     from ftacq.kinematics import ur_model
@@ -65,14 +67,10 @@ def main(moves: int, seed: int, state_period_s: float = STATE_PERIOD_S) -> int:
         q, qd, qdd = states(states_s)
         predicted = predict(q, qd, qdd)
         linear = interpolate_rows(samples_s, states_s, predicted)
-        stepped = linear.copy()
-        for k in np.flatnonzero(np.any(qdd[1:] != qdd[:-1], axis=1)):
-            span, change = states_s[k + 1] - states_s[k], qdd[k] - qdd[k + 1]
-            tau = float(np.clip(np.dot(qd[k + 1] - qd[k] - qdd[k + 1] * span, change) / np.dot(change, change), 0, span))
-            jump = predict(q[k], qd[k], qdd[k + 1])[0] - predict(q[k], qd[k], qdd[k])[0]
-            inside = (samples_s > states_s[k]) & (samples_s < states_s[k + 1])
-            since = samples_s[inside] - states_s[k]
-            stepped[inside] += jump * ((since >= tau).astype(float) - since / span)[:, None]
+        stepped = linear.copy()  # the live compensator's step location (ftacq.dynamics.acceleration), no servo lag
+        for k, step_s, change in zip(*acceleration_steps(states_s, qd, qdd)):
+            jump = predict(q[k + 1], qd[k + 1], qdd[k + 1] + change)[0] - predict(q[k + 1], qd[k + 1], qdd[k + 1])[0]
+            stepped += step_shape(samples_s, states_s, step_s, states_s[k], states_s[k + 1] - states_s[k], 0.0)[:, None] * jump
         shifted = [rms_per_component(interpolate_rows(samples_s + d, states_s, predicted) - true)
                    for d in (0.0005, 0.001, 0.002)]
         f, t = rms_per_component(linear - true)
