@@ -8,7 +8,8 @@ as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model (:class:`
 Pinocchio's RNEA) is evaluated once per new robot state (500 Hz; 125 Hz on a CB3) from
 :class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring of :data:`PREDICTION_WINDOW_S`, not
 recomputed for the next batch) and
-interpolated onto the samples. The state is the physical arm's: ``actual_q``, ``actual_qd`` and, while the arm tracks
+interpolated onto the samples, a moveJ's steps of q̈ switched where they are located inside the state interval
+(:meth:`DynamicCompensator._locate_steps`; linearly they were smeared over 8-12 ms on a CB3). The state is the physical arm's: ``actual_q``, ``actual_qd`` and, while the arm tracks
 the controller's trajectory, ``target_qdd`` of the servo lag earlier (the lag the identification measured,
 ``dynamics.servo_lag_ms``), else a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new
 states only.
