@@ -17,7 +17,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from drivers.ur_ft_input import ControllerCycle
-from ftacq.dynamics.acceleration import joint_acceleration
+from ftacq.dynamics.acceleration import acceleration_steps, joint_acceleration
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import ur_model
 from procedures.bridge import CycleStates
@@ -338,3 +338,21 @@ def test_a_moves_acceleration_steps_are_located_inside_the_state_interval(period
     rms = {located: np.sqrt(np.mean(error ** 2, axis=0)) for located, error in errors.items()}
     assert np.all(errors[True].max(axis=0) <= (0.2 if ahead_s else 0.05) * errors[False].max(axis=0))
     assert np.all(rms[True] <= (0.4 if ahead_s else 0.02) * rms[False])
+
+
+def test_a_step_of_the_targets_acceleration_is_located_where_it_is_and_a_ramp_is_none():
+    """acceleration_steps: a q̈ that switches from a to b at a random instant between two 8 ms states is found at that
+    instant (from the speeds: exact for a piecewise-constant q̈); a q̈ that changes at every state (a moveL, a blend)
+    has no step, nor has a steady one."""
+    rng = np.random.default_rng(3)
+    t = 0.0017 + 0.008 * np.arange(12)
+    for _ in range(5):
+        a, b, step_s = rng.normal(size=6), rng.normal(size=6), float(rng.uniform(t[5], t[6]))
+        qdd = np.where((t < step_s)[:, None], a, b)
+        qd = np.where((t < step_s)[:, None], a * t[:, None], a * step_s + b * (t[:, None] - step_s))
+        rows, at_s, change = acceleration_steps(t, qd, qdd)
+        assert rows.tolist() == [5]
+        assert at_s[0] == pytest.approx(step_s, abs=1e-12) and np.allclose(change[0], b - a)
+    ramp = np.outer(t, np.ones(6))
+    assert acceleration_steps(t, 0.5 * ramp ** 2, ramp)[0].size == 0
+    assert acceleration_steps(t, ramp, np.ones((12, 6)))[0].size == 0
