@@ -16,8 +16,8 @@ there, as the live compensator does (procedures/dynamic_compensation.py, ftacq.d
 error of a prediction shifted by 0.5, 1, 2 ms.
 
 ``--cpu-runs N``: the live compensator's own cost instead, thread CPU per 10 ms read of 70 samples over the moves
-(the arm 4 ms behind its target), with the step location and without (the linear interpolation alone), alternated
-N times; median µs per read.
+(the arm 4 ms behind its target), with the step location and without (the linear interpolation alone), side by
+side read by read, N runs; median µs per read.
 """
 
 from __future__ import annotations
@@ -113,24 +113,26 @@ def cpu_per_read(moves: int, seed: int, state_period_s: float, runs: int, servo_
                                           target_qd=target_qd, target_qdd=qdd[0]))
         offset_s = cycles[-1].timestamp_s + state_period_s
     spent: dict[bool, list[float]] = {True: [], False: []}
-    for _ in range(runs):
-        for located in (True, False):
-            states = CycleStates(1 << 16, frequency_hz=1.0 / state_period_s)
-            compensator = DynamicCompensator(calibration, robot, states, lag_s=0.0, servo_lag_s=servo_lag_s)
-            if not located:
-                compensator._locate_steps = lambda *args: None  # type: ignore[method-assign]
-            total, reads, k = 0.0, 0, 0
-            for first_s in np.arange(2 * state_period_s, offset_s, 0.01):
-                while k < len(cycles) and cycles[k].received_s <= first_s + 0.01:
-                    states.append(cycles[k])
-                    k += 1
-                batch = SimpleNamespace(time_s=first_s + np.arange(70) / SAMPLE_RATE_HZ, wrench=np.zeros((70, 6)),
-                                        device_time_s=np.full(70, np.nan))
+    for _ in range(runs):  # both side by side, read by read (in turns): the same load for both
+        streams = {located: CycleStates(1 << 16, frequency_hz=1.0 / state_period_s) for located in (True, False)}
+        compensators = {located: DynamicCompensator(calibration, robot, streams[located], lag_s=0.0,
+                                                    servo_lag_s=servo_lag_s) for located in (True, False)}
+        compensators[False]._locate_steps = lambda *args: None  # type: ignore[method-assign]
+        total, reads, k = {True: 0.0, False: 0.0}, 0, 0
+        for first_s in np.arange(2 * state_period_s, offset_s, 0.01):
+            while k < len(cycles) and cycles[k].received_s <= first_s + 0.01:
+                for stream in streams.values():
+                    stream.append(cycles[k])
+                k += 1
+            batch = SimpleNamespace(time_s=first_s + np.arange(70) / SAMPLE_RATE_HZ, wrench=np.zeros((70, 6)),
+                                    device_time_s=np.full(70, np.nan))
+            for located in ((True, False) if reads % 2 else (False, True)):
                 before = time.thread_time()
-                compensator.compensate(batch)
-                total += time.thread_time() - before
-                reads += 1
-            spent[located].append(total / reads * 1e6)
+                compensators[located].compensate(batch)
+                total[located] += time.thread_time() - before
+            reads += 1
+        for located in (True, False):
+            spent[located].append(total[located] / reads * 1e6)
     for located, label in ((True, "step located"), (False, "linear only ")):
         print(f"{label}: {np.median(spent[located]):.1f} µs per read (thread CPU; runs "
               + " ".join(f"{x:.0f}" for x in spent[located]) + ")")

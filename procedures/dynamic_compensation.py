@@ -232,9 +232,11 @@ class DynamicCompensator:
         the predictions smears a step over the state period and the servo lag (8-16 ms on a CB3).
         While the arm tracks its target only (its q̈ is then the target's of ``servo_lag_s`` earlier)."""
         stop = rows[-1] + 1
-        around = window.qdd[max(rows[0] - 1, 0):stop]  # the new states' q̈ and the one before
-        if not (around != around[0]).any():  # (the usual case: no change; not np.all: its Python layer costs more)
-            return
+        target_qdd = window.qdd
+        if (target_qdd[max(rows[0] - 1, 0)].tolist() == target_qdd[rows[-1]].tolist()
+                and (len(rows) <= TAIL_ROWS or not (target_qdd[rows[0]:stop] != target_qdd[rows[0]]).any())):
+            return  # the usual case: no change since the last state (cheaper as lists: two rows; a change and back
+            # within one read, a few states, is left to the linear interpolation)
         start = max(rows[0] - 2, low)
         if rows[-1] - start < 2:
             return
