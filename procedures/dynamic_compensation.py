@@ -8,7 +8,8 @@ as :func:`ftacq.dynamics.compensate_moving` does: the rigid-body model (:class:`
 Pinocchio's RNEA) is evaluated once per new robot state (500 Hz; 125 Hz on a CB3) from
 :class:`drivers.ur_stream.URStateStream` (predictions are kept in a ring of :data:`PREDICTION_WINDOW_S`, not
 recomputed for the next batch) and
-interpolated onto the samples. The state is the physical arm's: ``actual_q``, ``actual_qd`` and, while the arm tracks
+interpolated onto the samples, a moveJ's steps of q̈ switched where they are located inside the state interval
+(:meth:`DynamicCompensator._locate_steps`; linearly they were smeared over 8-12 ms on a CB3). The state is the physical arm's: ``actual_q``, ``actual_qd`` and, while the arm tracks
 the controller's trajectory, ``target_qdd`` of the servo lag earlier (the lag the identification measured,
 ``dynamics.servo_lag_ms``), else a filtered derivative (:mod:`ftacq.dynamics.acceleration`), taken for the new
 states only.
@@ -44,7 +45,8 @@ import time
 import numpy as np
 
 from ftacq.calibration import Calibration
-from ftacq.dynamics.acceleration import DERIVATIVE_HALF_WIDTH, history_rows, joint_acceleration
+from ftacq.dynamics.acceleration import (DERIVATIVE_HALF_WIDTH, acceleration_steps, history_rows, joint_acceleration,
+                                        step_shape)
 from ftacq.dynamics.model import SensorDynamics, WrenchPredictor
 from ftacq.timebase import SampleClock
 from ftacq.dynamics.timing import interpolate_rows
@@ -164,6 +166,13 @@ class DynamicCompensator:
         """The stream's count when a wait last timed out: not waited for again until a state comes."""
         self._updated_at_count: int | None = None
         """The stream's count when the predictions were last brought up to date (its ``count``, when it has one)."""
+        self._steps: list[tuple[float, float, float, np.ndarray]] = []
+        """The located steps of the arm's q̈ over the kept states, oldest first: (step s, row s, span s, B(q)(b − a)
+        (6,): the wrench's jump), host times on the target's clock (:meth:`_locate_steps`)."""
+        self._steps_until_s = -np.inf
+        """The located steps' shapes are zero after this (host s)."""
+        self.located_steps = 0
+        """Steps of q̈ located inside a state interval (:func:`ftacq.dynamics.acceleration.acceleration_steps`)."""
 
     def _kept(self) -> tuple[np.ndarray, np.ndarray]:
         """(host times (K,), predicted wrenches (K, 6)) of the newest K ≤ window_rows states, oldest first."""
@@ -213,7 +222,55 @@ class DynamicCompensator:
             ring_predicted[slot + kept] = ring_predicted[slot]
             ring_times[slot] = ring_times[slot + kept] = time_s[row]
             self._predictions += 1
+        self._locate_steps(window, rows, low, qdd, tracking)
         self._last_controller_time = float(window.controller_time_s[-1])
+
+    def _locate_steps(self, window, rows: list[int], low: int, qdd: np.ndarray, tracking: np.ndarray) -> None:
+        """Record the steps of the target's q̈ (a moveJ's phase boundaries) between a new state and the one before,
+        located inside the interval (:func:`~ftacq.dynamics.acceleration.acceleration_steps`), with the wrench's
+        jump there, B(q)(b − a) at the new state (one more model evaluation per step): the linear interpolation of
+        the predictions smears a step over the state period and the servo lag (8-16 ms on a CB3).
+        While the arm tracks its target only (its q̈ is then the target's of ``servo_lag_s`` earlier)."""
+        stop = rows[-1] + 1
+        target_qdd = window.qdd
+        if (target_qdd[max(rows[0] - 1, 0)].tolist() == target_qdd[rows[-1]].tolist()
+                and (len(rows) <= TAIL_ROWS or not (target_qdd[rows[0]:stop] != target_qdd[rows[0]]).any())):
+            return  # the usual case: no change since the last state (cheaper as lists: two rows; a change and back
+            # within one read, a few states, is left to the linear interpolation)
+        start = max(rows[0] - 2, low)
+        if rows[-1] - start < 2:
+            return
+        time_s = window.time_s
+        before, step_s, jump = acceleration_steps(time_s[start:stop], window.target_qd[start:stop],
+                                                  window.qdd[start:stop])
+        steps = self._steps
+        for row, at_s, change in zip((before + start).tolist(), step_s.tolist(), jump):
+            later = row + 1
+            if later < rows[0] or not (tracking[row - low] and tracking[later - low]):
+                continue
+            acceleration = qdd[later - low]
+            base = self.predictor.predict_one(window.q[later], window.qd[later], acceleration, np.empty(6))
+            shifted = self.predictor.predict_one(window.q[later], window.qd[later], acceleration + change,
+                                                 np.empty(6))
+            span_s = float(time_s[later] - time_s[row])
+            steps.append((at_s, float(time_s[row]), span_s, shifted - base))
+            self.located_steps += 1
+            # (the shape is 0 from the first state at or after the step's later row + the servo lag)
+            self._steps_until_s = max(self._steps_until_s, float(time_s[row]) + 3.0 * span_s + self.servo_lag_s)
+        oldest = float(self._kept()[0][0]) - 1.0
+        while steps and steps[0][1] + 3.0 * steps[0][2] + self.servo_lag_s < oldest:
+            steps.pop(0)
+
+    def _add_steps(self, times: np.ndarray, state_times: np.ndarray, predicted_rows: np.ndarray) -> None:
+        """Add to the interpolated predictions (N, 6) at the samples' ``times`` the located steps' jumps that the
+        linear interpolation over ``state_times`` missed (:func:`~ftacq.dynamics.acceleration.step_shape`); a
+        Python step per located step near the batch (a few per move), numpy over the samples."""
+        lag, newest, oldest = self.servo_lag_s, float(times[-1]), float(times[0])
+        for step_s, row_s, span_s, jump in self._steps:
+            if row_s > newest or row_s + 3.0 * span_s + lag < oldest:
+                continue
+            shape = step_shape(times, state_times, step_s, row_s, span_s, lag)
+            predicted_rows += shape[:, None] * jump
 
     def compensate(self, batch, robot=None) -> np.ndarray | None:
         """Return the contact wrench (N, 6) of ``batch``: dynamically, else statically with the pose at the samples'
@@ -234,6 +291,8 @@ class DynamicCompensator:
                 self.held_samples += int(times.size - times.searchsorted(state_times[-1], side="right"))
                 self.held_max_s = max(self.held_max_s, float(times[-1] - state_times[-1]))
             contact = interpolate_rows(times, state_times, predicted)
+            if times[0] < self._steps_until_s:  # (a located step near or after the samples)
+                self._add_steps(times, state_times, contact)
             return np.subtract(batch.wrench, contact, out=contact)
         flange_R_base = self.orientations.flange_R_base_at(times)
         if flange_R_base is None:

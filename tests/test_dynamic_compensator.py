@@ -17,7 +17,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from drivers.ur_ft_input import ControllerCycle
-from ftacq.dynamics.acceleration import joint_acceleration
+from ftacq.dynamics.acceleration import acceleration_steps, joint_acceleration
 from ftacq.dynamics.timing import interpolate_rows
 from ftacq.kinematics import ur_model
 from procedures.bridge import CycleStates
@@ -282,3 +282,77 @@ def test_a_live_publisher_holds_the_newest_few_ms_and_waits_only_beyond():
     assert live.compensate(far, None) is not None
     assert live.waits == 1 and live.wait_timeouts == 0 and states.pending  # waited for a few states, not all
     assert live.held_max_s <= 0.005  # never held further than hold_s ahead
+
+
+
+def _joints(move, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(q, q̇, q̈) (N, 6) of a moveJ (tests/fakes/ur_motion.py) at its times ``t`` (N,), s: its trapezoid."""
+    profile, direction = move.profile, move.direction
+    return (move.q_start + np.outer(profile.position(t), direction), np.outer(profile.speed_at(t), direction),
+            np.outer(profile.acceleration_at(t), direction))
+
+
+@pytest.mark.parametrize("period_s, servo_lag_s, ahead_s", [(0.008, 0.004, 0.0), (0.008, 0.004, 0.003),
+                                                            (0.008, 0.0, 0.0), (0.002, 0.004, 0.0)])
+def test_a_moves_acceleration_steps_are_located_inside_the_state_interval(period_s, servo_lag_s, ahead_s):
+    """A moveJ's trapezoid switches q̈ at any instant; a CB3 reports its states every 8 ms. The prediction at the
+    states interpolated linearly smears each step over the period (and the servo lag): up to 0.8 N off at the 7 kHz
+    samples of an exact sensor. With the steps located from the change of the target's speed
+    (ftacq.dynamics.acceleration) the compensated wrench is 50× closer to zero; for samples up to 3 ms ahead of the
+    newest state (held: the step is then known from the target, the servo lag ahead of the arm) 5× at the worst
+    sample (the rest is the hold's own error, dW/dt × 3 ms)."""
+    from procedures.plan import home_configuration_rad
+    from tests.fakes.ur_motion import JointMove
+    truth = CellTruth()
+    calibration = replace(truth.calibration(), sensor_offset=np.array(truth.sensor_offset_m), inertia=truth.inertia)
+    start = home_configuration_rad("floor")
+    move = JointMove(MODEL, start, start + np.array([0.5, -0.3, 0.4, 0.4, -0.5, 0.6]), 1.0, 2.0)
+    start_s = 80.05021  # the move's start on the host clock (the states arrive 80 s after their timestamp)
+    state_s = np.arange(0.0013, move.duration_s + 0.15, period_s)  # controller time
+    target = _joints(move, state_s + 80.0 - start_s)
+    arm = _joints(move, state_s + 80.0 - start_s - servo_lag_s)
+    cycles = [ControllerCycle(timestamp_s=float(t), q=arm[0][k], qd=arm[1][k], tcp_force=np.zeros(6), runtime_state=2,
+                              safety_status_bits=1, received_s=80.0 + float(t), tcp_pose=np.zeros(6),
+                              target_qd=target[1][k], target_qdd=target[2][k]) for k, t in enumerate(state_s)]
+    sample_s = np.arange(np.ceil(80.0 * 7000.0), np.floor((80.0 + state_s[-1] + ahead_s) * 7000.0) + 1) / 7000.0
+    errors = {}
+    for located in (True, False):
+        states = CycleStates(4096, frequency_hz=1.0 / period_s)
+        compensator = DynamicCompensator(calibration, MODEL, states, lag_s=0.0, servo_lag_s=servo_lag_s,
+                                         window_s=4.0)
+        if not located:
+            compensator._locate_steps = lambda *args: None  # the linear interpolation alone, as before
+        truth_wrench = compensator.predictor(*_joints(move, sample_s - start_s - servo_lag_s))  # the arm's
+        residuals = []
+        for k, cycle in enumerate(cycles):
+            states.append(cycle)
+            if k == 0:
+                continue
+            batch = (sample_s > cycles[k - 1].received_s + ahead_s) & (sample_s <= cycle.received_s + ahead_s)
+            contact = compensator.compensate(SimpleNamespace(time_s=sample_s[batch], wrench=truth_wrench[batch],
+                                                             device_time_s=np.full(np.count_nonzero(batch), np.nan)))
+            assert contact is not None
+            residuals.append(contact)
+        errors[located] = np.abs(np.vstack(residuals))
+        assert compensator.located_steps == (4 if located else 0)  # accelerate, cruise, decelerate, stop
+    rms = {located: np.sqrt(np.mean(error ** 2, axis=0)) for located, error in errors.items()}
+    assert np.all(errors[True].max(axis=0) <= (0.2 if ahead_s else 0.05) * errors[False].max(axis=0))
+    assert np.all(rms[True] <= (0.4 if ahead_s else 0.02) * rms[False])
+
+
+def test_a_step_of_the_targets_acceleration_is_located_where_it_is_and_a_ramp_is_none():
+    """acceleration_steps: a q̈ that switches from a to b at a random instant between two 8 ms states is found at that
+    instant (from the speeds: exact for a piecewise-constant q̈); a q̈ that changes at every state (a moveL, a blend)
+    has no step, nor has a steady one."""
+    rng = np.random.default_rng(3)
+    t = 0.0017 + 0.008 * np.arange(12)
+    for _ in range(5):
+        a, b, step_s = rng.normal(size=6), rng.normal(size=6), float(rng.uniform(t[5], t[6]))
+        qdd = np.where((t < step_s)[:, None], a, b)
+        qd = np.where((t < step_s)[:, None], a * t[:, None], a * step_s + b * (t[:, None] - step_s))
+        rows, at_s, change = acceleration_steps(t, qd, qdd)
+        assert rows.tolist() == [5]
+        assert at_s[0] == pytest.approx(step_s, abs=1e-12) and np.allclose(change[0], b - a)
+    ramp = np.outer(t, np.ones(6))
+    assert acceleration_steps(t, 0.5 * ramp ** 2, ramp)[0].size == 0
+    assert acceleration_steps(t, ramp, np.ones((12, 6)))[0].size == 0

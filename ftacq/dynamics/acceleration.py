@@ -105,3 +105,58 @@ def physical_acceleration(time_s: np.ndarray, actual_qd: np.ndarray, target_qd: 
     lag = estimate_servo_lag(time_s, actual_qd, target_qd) or 0.0
     qdd, _ = joint_acceleration(time_s, actual_qd, target_qd, target_qdd, servo_lag_s=lag)
     return qdd, lag
+
+
+STEP_ISOLATION = 0.05
+"""A change of ``target_qdd`` between two states is taken as one step (a moveJ's phase boundary) when the interval
+before changed by at most this fraction of it: a q̈ that varies from state to state (a moveL, a blend) is left to
+the linear interpolation."""
+
+
+def acceleration_steps(time_s: np.ndarray, target_qd: np.ndarray,
+                       target_qdd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Locate the steps of the target's piecewise-constant q̈ inside the state intervals (a moveJ's trapezoid
+    switches at any instant, not at a state). Over the interval (tⱼ, tⱼ₊₁) of length Δ whose q̈ changes from a = q̈ⱼ
+    to b = q̈ⱼ₊₁, the speed changes by q̇ⱼ₊₁ − q̇ⱼ = a s + b (Δ − s), s the time from tⱼ to the step: s by least
+    squares over the joints, clipped to [0, Δ]. Only isolated steps (:data:`STEP_ISOLATION`; the interval before
+    must be in the rows given).
+
+    Returns (j (S,): the row before each step, the step's time (S,) on the rows' clock, s, and b − a (S, 6), rad/s²)."""
+    qdd = np.asarray(target_qdd, dtype=float)
+    change = qdd[1:] - qdd[:-1]
+    if not change.any():  # (the usual case, per new state: a constant q̈, at rest or cruising)
+        return np.empty(0, dtype=np.intp), np.empty(0), np.empty((0, 6))
+    t = np.asarray(time_s, dtype=float)
+    qd = np.asarray(target_qd, dtype=float)
+    size = np.einsum("ij,ij->i", change, change)
+    isolated = size[:-1] <= STEP_ISOLATION ** 2 * size[1:]
+    isolated &= size[1:] > 0.0
+    j = np.flatnonzero(isolated) + 1
+    span = t[j + 1] - t[j]
+    jump = change[j]
+    # (qd[j+1] - qd[j]) - b Δ = (a - b) s
+    rest = qd[j + 1] - qd[j] - qdd[j + 1] * span[:, None]
+    s = np.einsum("ij,ij->i", rest, jump)
+    s /= -size[j]
+    np.clip(s, 0.0, span, out=s)
+    return j, t[j] + s, jump
+
+
+def step_shape(at_s: np.ndarray, state_s: np.ndarray, step_s: float, row_s: float, span_s: float,
+               servo_lag_s: float) -> np.ndarray:
+    """How much of one step of the arm's q̈ (of b − a; at ``step_s`` + ``servo_lag_s``, the step located by
+    :func:`acceleration_steps` in the target's interval [``row_s``, ``row_s`` + ``span_s``]) the linear interpolation
+    between the states misses at ``at_s`` (N,): H(t − step) − g(t), g the linear interpolation over the states'
+    times ``state_s`` (sorted; held beyond the ends, as :func:`~ftacq.dynamics.timing.interpolate_rows`) of the
+    weight (t − τ − row)/span ∈ [0, 1] that :func:`joint_acceleration` gave the step's later row at each state.
+    Zero outside the states around the step. The predicted wrench's error is this times B(q)(b − a), B the model's
+    q̈-linear part (its wrench is affine in q̈)."""
+    first = max(int(state_s.searchsorted(row_s + servo_lag_s, side="right")) - 1, 0)
+    last = int(state_s.searchsorted(row_s + span_s + servo_lag_s, side="left")) + 1
+    knots = state_s[first:last]
+    weight = np.subtract(knots, row_s + servo_lag_s)
+    weight /= span_s
+    np.clip(weight, 0.0, 1.0, out=weight)
+    shape = np.greater_equal(at_s, step_s + servo_lag_s).astype(float)
+    shape -= np.interp(at_s, knots, weight)
+    return shape

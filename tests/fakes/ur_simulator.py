@@ -213,6 +213,8 @@ class URSimulator:
         self.motion: Motion | None = None
         self.motion_t = 0.0
         self._motion_started_s = 0.0
+        self._motion_fresh = False
+        """A move started since the last cycle: its first cycle is at motion time 0."""
         self._motion_number = 0
         self._motion_finished_s = self.start_s
         self._path_queue: list[tuple[str, np.ndarray, float, float, float]] = []
@@ -442,6 +444,7 @@ class URSimulator:
         else:
             self.motion = LinearMove(self.model, self.q, target, speed, acceleration)
         self.motion_t = 0.0
+        self._motion_fresh = True
         self._motion_number = self.move_count
         self._motion_started_s = time.monotonic()
         return True
@@ -475,8 +478,12 @@ class URSimulator:
         if motion is None:
             self._at_rest()
             return
+        fresh, self._motion_fresh = self._motion_fresh, False
         if self.time_scale <= 0:
             t = motion.duration_s
+        elif fresh:  # a move starts at the cycle after its command, from rest: its q̈ switches now, not a cycle ago
+            t = 0.0  # (a sensor rendering the arm a servo lag behind has already shown rest up to now − lag: a start
+            # dated a CB3 cycle back, 8 ms > the lag, would be one it never showed)
         else:
             t = self.motion_t + dt * self.time_scale * self.speed_slider
         fired = None
@@ -509,7 +516,8 @@ class URSimulator:
             self.qdd, self.qdd_switch_in_s, self.qdd_next = acceleration
             if not (self.qdd == qdd_before).all():  # q̈ changed since the last tick: when, exactly
                 scale = self.motion_time_scale()
-                since_s = min(switch_in_s, dt_motion) if np.isfinite(switch_in_s) else 0.0  # 0: a new move
+                since_s = (dt_motion if fresh else min(switch_in_s, dt_motion) if np.isfinite(switch_in_s)
+                           else 0.0)  # (0: a stop's deceleration, from the last cycle)
                 self.qdd_switched_at_s = now - (dt_motion - since_s) / scale if scale > 0 else now
                 self.qdd_before = qdd_before
         if fired is not None:
