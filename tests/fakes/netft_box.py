@@ -1,7 +1,8 @@
 """The simulated Net F/T's state: settings, units, the RDT stream, fault knobs and what it sent. No sockets here.
 
 :class:`NetFTBox` is what the box *is*; tests/fakes/netft.py puts it behind real sockets (RDT/UDP, TCP, HTTP) and
-tests/fakes/netft_protocol.py holds the wire format. All public methods take ``self._lock``.
+tests/fakes/netft_protocol.py holds the wire format. All public methods take ``self._lock``. Over 600 lines
+because the settings, the stream's schedule, the sample physics and the fault knobs share that one lock's state.
 
 Stream (docs/protocols-ati.md, "RDT sequences"): every start command restarts ``rdt_sequence`` at 1 and the
 schedule; ``ft_sequence`` is the power-up sample counter, never reset by a start.
