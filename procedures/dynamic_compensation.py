@@ -76,6 +76,11 @@ states of its span when the kept predictions do not reach it: the model once per
 TAIL_ROWS = 16
 """Newest robot states read per batch when few are new (the bridge: one per controller cycle; the monitor: about
 five per 10 ms batch)."""
+STEP_REACH_SPANS = 3.0
+"""A located q̈ step's correction is zero beyond its row's time + this many of its state intervals + the servo lag
+(it ends at the first state at or after the later row + the lag: two intervals at most)."""
+STEP_KEEP_S = 1.0
+"""Located steps are forgotten this long after their reach falls behind the oldest kept prediction, s."""
 
 
 def measured_lags_ms(calibration: Calibration) -> tuple[float | None, float | None]:
@@ -256,20 +261,24 @@ class DynamicCompensator:
             steps.append((at_s, float(time_s[row]), span_s, shifted - base))
             self.located_steps += 1
             # (the shape is 0 from the first state at or after the step's later row + the servo lag)
-            self._steps_until_s = max(self._steps_until_s, float(time_s[row]) + 3.0 * span_s + self.servo_lag_s)
-        oldest = float(self._kept()[0][0]) - 1.0
-        while steps and steps[0][1] + 3.0 * steps[0][2] + self.servo_lag_s < oldest:
+            self._steps_until_s = max(self._steps_until_s, self._step_end_s(float(time_s[row]), span_s))
+        oldest = float(self._kept()[0][0]) - STEP_KEEP_S
+        while steps and self._step_end_s(steps[0][1], steps[0][2]) < oldest:
             steps.pop(0)
+
+    def _step_end_s(self, row_s: float, span_s: float) -> float:
+        """Host time after which a step located in the interval [row_s, row_s + span_s] corrects nothing, s."""
+        return row_s + STEP_REACH_SPANS * span_s + self.servo_lag_s
 
     def _add_steps(self, times: np.ndarray, state_times: np.ndarray, predicted_rows: np.ndarray) -> None:
         """Add to the interpolated predictions (N, 6) at the samples' ``times`` the located steps' jumps that the
         linear interpolation over ``state_times`` missed (:func:`~ftacq.dynamics.acceleration.step_shape`); a
         Python step per located step near the batch (a few per move), numpy over the samples."""
-        lag, newest, oldest = self.servo_lag_s, float(times[-1]), float(times[0])
+        newest, oldest = float(times[-1]), float(times[0])
         for step_s, row_s, span_s, jump in self._steps:
-            if row_s > newest or row_s + 3.0 * span_s + lag < oldest:
+            if row_s > newest or self._step_end_s(row_s, span_s) < oldest:
                 continue
-            shape = step_shape(times, state_times, step_s, row_s, span_s, lag)
+            shape = step_shape(times, state_times, step_s, row_s, span_s, self.servo_lag_s)
             predicted_rows += shape[:, None] * jump
 
     def compensate(self, batch, robot=None) -> np.ndarray | None:

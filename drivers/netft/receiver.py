@@ -11,10 +11,10 @@ loaded machine) never makes a swapped record, still waiting in the socket, look 
 It accepts datagrams only from the box's address and RDT port (others: ``foreign``); a datagram whose length is
 not a positive multiple of 36 is ``malformed``. Silence longer than the stream timeout is a ``timeout``, and the
 start command is re-sent (``reconnects``) on the schedule of :func:`next_retry_interval_s`. The reader side
-(:meth:`RdtReceiver.take`) copies whole runs of records out of the ring; records the reader did not take before the ring filled are dropped
-whole datagram by datagram (``overflowed``) and show up as sequence gaps, as do the datagrams the kernel dropped
-because the socket's buffer was full (:func:`socket_drops`, from /proc on Linux): the two losses this side of the
-wire. A sample the box itself skipped (``ft_sequence`` jumps, ``rdt_sequence`` does not) is neither.
+(:meth:`RdtReceiver.take`) copies whole runs of records out of the ring; records the reader did not take before the
+ring filled are dropped whole datagram by datagram (``overflowed``) and show up as sequence gaps, as do the
+datagrams the kernel dropped because the socket's buffer was full (:func:`socket_drops`, from /proc on Linux): the
+two losses this side of the wire. A sample the box itself skipped (``ft_sequence`` jumps, ``rdt_sequence`` does not) is neither.
 """
 
 from __future__ import annotations

@@ -59,8 +59,8 @@ def add_ros2_args(parser: argparse.ArgumentParser) -> None:
                        help="wrench messages per second, each the mean of its window (default 1000; 0: every sample)")
     group.add_argument("--ros2-read-period", type=float, metavar="S",
                        help="seconds between the monitor's sensor reads (default 0: as data arrive, the lowest "
-                            "latency; 0.01, the monitor's pace without --ros2: about half the CPU, each message up to "
-                            "10 ms later: benchmarks/README.md)")
+                            "latency; 0.01: the monitor's own pace, a third or less of the added CPU, "
+                            "messages up to 10 ms later)")
     group.add_argument("--ros2-reliable", action="store_true",
                        help="reliable wrench topics (default: ROS 2's sensor-data QoS, best effort, keep last 5)")
     group.add_argument("--ros2-distro", choices=ROS2_DISTROS,
